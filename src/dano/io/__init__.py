@@ -1,0 +1,26 @@
+"""Importers: the paper's ``.jld2`` colliders, meshes, voxel grids; :func:`load_source`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import FileFormatError
+from .jld2 import PAPER_ALPHA, load_paper_collider, normals_from_mesh
+from .mesh import MESH_SUFFIXES, load_mesh
+
+__all__ = ["PAPER_ALPHA", "MESH_SUFFIXES", "load_mesh", "load_paper_collider", "normals_from_mesh", "source_kind"]
+
+
+def source_kind(path: str | Path) -> str:
+    """'mesh', 'voxel' or 'jld2' from the file suffix; raises FileFormatError otherwise."""
+    suffix = Path(path).suffix.lower()
+    if suffix in MESH_SUFFIXES:
+        return "mesh"
+    if suffix in (".npy", ".npz"):
+        return "voxel"
+    if suffix == ".jld2":
+        return "jld2"
+    raise FileFormatError(
+        f"{path}: unknown source type {suffix!r}; expected a mesh ({', '.join(MESH_SUFFIXES)}), "
+        "a voxel grid (.npy/.npz) or a paper collider (.jld2)"
+    )

@@ -1,0 +1,126 @@
+"""The command line: build, inspect, demo; bad input exits non-zero with a clear message
+and leaves no output file."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dano.cli import main
+
+from .conftest import sphere_voxels
+
+
+def run(capsys, *args):
+    code = main([str(a) for a in args])
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+def test_build_voxel_then_inspect_json_and_plot(tmp_path, capsys):
+    src = sphere_voxels(tmp_path / "ball.npz")
+    out = tmp_path / "ball.dano"
+    code, _, err = run(capsys, "build", src, "-o", out, "--mass", 2.0, "--samples", 500, "--quiet")
+    assert code == 0, err
+    code, stdout, err = run(capsys, "inspect", out, "--json", "--plot", tmp_path / "ball.png")
+    assert code == 0, err
+    s = json.loads(stdout)
+    assert s["mass"] == pytest.approx(2.0)
+    assert s["num_samples"] == 500 and s["normals_valid_fraction"] == 1.0
+    assert np.allclose(s["center_of_mass"], 0.0, atol=2e-3)
+    J = np.array(s["inertia"])
+    assert np.allclose(J, J.T) and np.allclose(J, J[0, 0] * np.eye(3), rtol=0.01, atol=1e-4)
+    assert len(s["band"]) == 2 and (tmp_path / "ball.png").stat().st_size > 10_000
+
+
+def test_build_paper_collider_with_mass(tmp_path, capsys, shared):
+    out = tmp_path / "bunny.dano"
+    code, _, err = run(capsys, "build", shared / "dano" / "bunny.jld2", "-o", out, "--mass", 1.0, "--quiet")
+    assert code == 0, err
+    code, stdout, _ = run(capsys, "inspect", out, "--json")
+    s = json.loads(stdout)
+    assert s["mass"] == pytest.approx(1.0) and s["num_samples"] == 5000
+    assert np.allclose(s["center_of_mass"], [0.03746, -0.01419, -0.04771], atol=5e-6)
+
+
+def _bad_jld2(tmp_path, shared):
+    p = tmp_path / "trunc.jld2"
+    p.write_bytes((shared / "dano" / "bunny.jld2").read_bytes()[:5000])
+    return p
+
+
+def _nan_voxels(tmp_path, shared):
+    p = tmp_path / "nan.npz"
+    d = np.ones((4, 4, 4))
+    d[1, 2, 3] = np.nan
+    np.savez(p, density=d, bounds=np.array([[0, 0, 0], [1, 1, 1.0]]))
+    return p
+
+
+def _negative_voxels(tmp_path, shared):
+    p = tmp_path / "neg.npz"
+    np.savez(p, density=-np.ones((4, 4, 4)), bounds=np.array([[0, 0, 0], [1, 1, 1.0]]))
+    return p
+
+
+def _wrong_shape_voxels(tmp_path, shared):
+    p = tmp_path / "flat.npz"
+    np.savez(p, density=np.ones((4, 4)), bounds=np.array([[0, 0, 0], [1, 1, 1.0]]))
+    return p
+
+
+@pytest.mark.parametrize(
+    "make_source, extra, message",
+    [
+        (lambda t, s: s / "dano" / "bunny_low.obj", [], "bunny_low.obj: mesh is not watertight"),
+        (lambda t, s: sphere_voxels(t / "v.npz"), ["--band", 5, 6], r"no samples in the density band \[5, 6\]"),
+        (_nan_voxels, [], "nan.npz: voxel densities contains 1 NaN"),
+        (_negative_voxels, [], "neg.npz: voxel densities must be non-negative"),
+        (_wrong_shape_voxels, [], r"flat.npz: voxel densities must be a 3-D array"),
+        (_bad_jld2, [], "trunc.jld2: cannot read as a JLD2/HDF5 file"),
+        (lambda t, s: s / "dano" / "bluesoap.jld2", [], "stored density gradients are zero"),
+        (lambda t, s: t / "missing.obj", [], "missing.obj: no such file"),
+        (lambda t, s: s / "real" / "soap_pose_traj.csv", [], "unknown source type '.csv'"),
+    ],
+)
+def test_bad_input_clear_error_and_no_output(tmp_path, capsys, shared, make_source, extra, message):
+    src = make_source(tmp_path, shared)
+    out = tmp_path / "out" / "x.dano"
+    code, _, err = run(capsys, "build", src, "-o", out, "--quiet", *extra)
+    assert code != 0
+    assert "error:" in err
+    import re
+
+    assert re.search(message, " ".join(err.split())), err
+    assert not out.exists()
+    assert not list(tmp_path.glob("out/*"))
+
+
+def test_inspect_other_version_and_bad_file(tmp_path, capsys):
+    p = tmp_path / "x.dano"
+    p.write_text("nope")
+    code, _, err = run(capsys, "inspect", p)
+    assert code == 1 and "x.dano: not a .dano file" in err
+
+
+def test_parse_errors_exit_non_zero(capsys):
+    assert main(["build"]) != 0
+    assert main(["frobnicate"]) != 0
+
+
+def test_demo_and_console_script(tmp_path):
+    beside = Path(sys.executable).with_name("dano")  # the venv's script, even if not on PATH
+    exe = str(beside) if beside.exists() else shutil.which("dano")
+    if exe is None:
+        pytest.fail("the dano console script is not installed")
+    res = subprocess.run([exe, "demo", "--out-dir", str(tmp_path)], capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr
+    assert "3.21985" in res.stdout
+    assert json.loads((tmp_path / "bunny_summary.json").read_text())["num_samples"] == 5000
+    assert (tmp_path / "bunny_samples.png").stat().st_size > 10_000
+    res = subprocess.run([sys.executable, "-m", "dano.cli", "--version"], capture_output=True, text=True)
+    assert res.returncode == 0 and res.stdout.startswith("dano ")

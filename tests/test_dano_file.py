@@ -1,0 +1,111 @@
+"""The .dano file: round trip, versioning, bad files, atomic writes."""
+
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from dano.asset import DanoAsset, build, load, save
+from dano.errors import DanoError, FileFormatError
+from dano.fields import SphereField
+
+
+@pytest.fixture(scope="module")
+def sphere_asset():
+    return build(SphereField(0.2, center=(0.0, 0.1, 0.0)), mass=1.5, num_samples=300, mesh_resolution=24,
+                 name="ball", source="test")
+
+
+def test_round_trip_keeps_everything(tmp_path, sphere_asset):
+    path = save(sphere_asset, tmp_path / "ball.dano")
+    back = load(path)
+    for name in ("center_of_mass", "inertia", "points", "normals", "densities", "weights", "band",
+                 "mesh_vertices", "mesh_faces"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(sphere_asset, name))
+    assert back.mass == sphere_asset.mass and back.alpha == sphere_asset.alpha and back.name == "ball"
+    pts = np.random.default_rng(0).uniform(-0.3, 0.3, (20, 3))
+    np.testing.assert_allclose(back.field.density(pts), sphere_asset.field.density(pts))
+    meta = json.loads(str(np.load(path)["metadata"]))
+    assert meta["format"] == "dano" and meta["version"] == 1
+    assert meta["units"]["length"] == "m" and meta["seed"] == 0 and meta["source"] == "test"
+
+
+def test_paper_bunny_round_trip(tmp_path, paper_bunny):
+    back = load(save(paper_bunny, tmp_path / "b.dano"))
+    np.testing.assert_array_equal(back.points, paper_bunny.points)
+    assert back.field is None and back.metadata["license"].startswith("MIT")
+
+
+def _rewrite(src, dst, change):
+    with np.load(src) as d:
+        arrays = {k: d[k] for k in d.files}
+    change(arrays)
+    with open(dst, "wb") as f:
+        np.savez(f, **arrays)
+    return dst
+
+
+def test_other_version_is_refused(tmp_path, sphere_asset):
+    src = save(sphere_asset, tmp_path / "a.dano")
+
+    def bump(arrays):
+        meta = json.loads(str(arrays["metadata"]))
+        meta["version"] = 2
+        arrays["metadata"] = np.asarray(json.dumps(meta))
+
+    bad = _rewrite(src, tmp_path / "v2.dano", bump)
+    with pytest.raises(FileFormatError, match=r"v2.dano: .dano format version 2; this dano .* reads version 1"):
+        load(bad)
+
+
+def test_wrong_shapes_are_refused(tmp_path, sphere_asset):
+    src = save(sphere_asset, tmp_path / "a.dano")
+    bad = _rewrite(src, tmp_path / "shape.dano", lambda a: a.update(normals=a["normals"][:, :2]))
+    with pytest.raises(FileFormatError, match=r"shape.dano: normals has shape \(300, 2\), expected \(300, 3\)"):
+        load(bad)
+
+
+def test_not_a_dano_file(tmp_path):
+    p = tmp_path / "x.dano"
+    p.write_text("hello")
+    with pytest.raises(FileFormatError, match="x.dano: not a .dano file"):
+        load(p)
+    np.savez(tmp_path / "y.npz", a=np.ones(3))
+    with pytest.raises(FileFormatError, match="y.npz: not a .dano file"):
+        load(tmp_path / "y.npz")
+    with pytest.raises(FileFormatError, match="no such file"):
+        load(tmp_path / "missing.dano")
+
+
+def test_asset_arrays_are_read_only_and_validated(sphere_asset):
+    with pytest.raises(ValueError):
+        sphere_asset.points[0, 0] = 1.0
+    with pytest.raises(DanoError, match=r"weights has shape"):
+        DanoAsset(name="x", mass=1.0, alpha=1.0, center_of_mass=np.zeros(3), inertia=np.eye(3),
+                  points=np.zeros((5, 3)), normals=np.zeros((5, 3)), densities=np.ones(5), weights=np.ones(4),
+                  band=np.array([0.1, 0.9]))
+
+
+def test_with_mass_scales_inertia_and_weights(sphere_asset):
+    heavy = sphere_asset.with_mass(3.0)
+    assert heavy.alpha == pytest.approx(2 * sphere_asset.alpha)
+    np.testing.assert_allclose(heavy.inertia, 2 * sphere_asset.inertia)
+    np.testing.assert_allclose(heavy.weights.sum(), 3.0)
+
+
+def test_failed_save_leaves_no_file(tmp_path, sphere_asset, monkeypatch):
+    target = tmp_path / "out.dano"
+
+    def boom(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(np, "savez_compressed", boom)
+    with pytest.raises(OSError, match="disk full"):
+        save(sphere_asset, target)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_file_is_a_plain_npz(tmp_path, sphere_asset):
+    path = save(sphere_asset, tmp_path / "z.dano")
+    assert zipfile.is_zipfile(path)
