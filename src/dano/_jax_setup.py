@@ -8,6 +8,8 @@
   earlier without it, :func:`check_xla_flags` warns once.
 * ``jax_enable_x64``: mass properties, gradient checks and identification need
   float64 (guide: finite differences are only meaningful in float64).
+* ``MUJOCO_GL=egl`` when no display is set (and the user chose nothing): MuJoCo picks
+  its OpenGL platform when it is imported, and headless machines render through EGL.
 * A persistent compilation cache (``~/.cache/dano/jax``, or ``$DANO_CACHE_DIR``)
   so that the 5-20 s compiles of MJX functions are paid once per machine.
 """
@@ -40,6 +42,8 @@ def _backend_started() -> bool:
 
 _STARTED_BEFORE_US = _backend_started()
 _set_xla_flags()
+if not os.environ.get("DISPLAY") and "mujoco" not in sys.modules:
+    os.environ.setdefault("MUJOCO_GL", "egl")
 
 import jax  # noqa: E402
 

@@ -459,6 +459,23 @@ class DanoAsset:
         return dataclasses.replace(self, mass=mass, alpha=self.alpha * k, inertia=self.inertia * k,
                                    weights=self.weights * k)
 
+    def scaled(self, factor: float) -> "DanoAsset":
+        """The same object uniformly scaled by ``factor`` about its centre of mass, same
+        density: lengths ×s, mass and weights ×s³, inertia ×s⁵; the field is wrapped in a
+        :class:`~dano.fields.TransformedField` (the object frame scales about its origin,
+        so the centre of mass moves to s·μ)."""
+        from .fields import TransformedField
+
+        s = float(factor)
+        if not np.isfinite(s) or s <= 0:
+            raise DanoError(f"scale factor must be a finite positive number, got {factor}")
+        fld = TransformedField.create(self.field, s) if self.field is not None else None
+        return dataclasses.replace(
+            self, mass=self.mass * s**3, inertia=self.inertia * s**5, weights=self.weights * s**3,
+            center_of_mass=self.center_of_mass * s, points=self.points * s, mesh_vertices=self.mesh_vertices * s,
+            field=fld, metadata={**self.metadata, "scaled_by": s * self.metadata.get("scaled_by", 1.0)},
+        )
+
     def summary(self) -> dict:
         """JSON-able summary (what ``dano inspect --json`` prints)."""
         return {

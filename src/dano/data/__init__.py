@@ -2,7 +2,11 @@
 
 * ``bunny``: the paper's NeRF-derived Stanford-bunny collider (``bunny.jld2`` of
   Le Cleac'h et al., Dojo.jl DANO branch, MIT licence, see ``NOTICE.md``),
-  imported with :func:`dano.io.load_paper_collider`; paper scene units.
+  imported with :func:`dano.io.load_paper_collider`; paper scene units; its visual mesh
+  is the paper's level-set mesh (iso 105) decimated to 3000 faces.
+* ``bunny_lowpoly``: a queryable DANO (signed-distance field) built from the watertight
+  low-poly Stanford bunny of pybullet_data (zlib licence), upright, 0.72 units tall,
+  mass 3.2; used where DANOs touch each other.
 """
 
 from __future__ import annotations
@@ -11,7 +15,7 @@ from importlib import resources
 
 from ..errors import DanoError
 
-BUILTIN_ASSETS = ("bunny",)
+BUILTIN_ASSETS = ("bunny", "bunny_lowpoly")
 
 
 def builtin_path(name: str):

@@ -1,0 +1,8 @@
+"""Scenes and differentiable rollouts on MuJoCo MJX with DANO contact."""
+
+from .scene import DanoObject, Scene, SimParams, compose
+from .step import (SimulationDiverged, State, Trajectory, load_trajectory, rollout, rollout_arrays,
+                   save_trajectory)
+
+__all__ = ["DanoObject", "Scene", "SimParams", "SimulationDiverged", "State", "Trajectory", "compose",
+           "load_trajectory", "rollout", "rollout_arrays", "save_trajectory"]

@@ -1,0 +1,204 @@
+"""Built-in scenes users can run by name (``dano simulate NAME``).
+
+Each builder returns a :class:`Setup`: the scene, the initial state, parameters, a
+default duration and the controls. Lengths are in the units of the assets (the
+paper's bunny is about one unit across; we treat units as metres, gravity −9.81).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from ..data import load_builtin
+from ..errors import DanoError
+from .scene import DanoObject, Scene, SimParams, add_ground, compose
+from .step import State
+
+
+@dataclass(frozen=True)
+class Setup:
+    """A runnable scene: ``controls(times (T,) [s]) -> (T, nu)`` gives the actuator
+    controls at the start of each step (None: zeros); duration [s] is the default."""
+
+    scene: Scene
+    state0: State
+    params: SimParams
+    duration: float
+    controls: Callable[[np.ndarray], np.ndarray] | None
+    description: str
+
+
+def _normalize(q) -> np.ndarray:
+    q = np.asarray(q, dtype=np.float64)
+    return q / np.linalg.norm(q)
+
+
+def _free_state(scene: Scene, poses: dict, velocities: dict | None = None) -> State:
+    """Initial state: qpos0 of the model with DANO/body free joints set from poses
+    {name: (pos, quat)} and velocities {name: (v world, ω body)}."""
+    qpos = np.array(scene.mj_model.qpos0)
+    qvel = np.zeros(scene.nv)
+    m = scene.mj_model
+    for name, (pos, quat) in poses.items():
+        j = m.body_jntadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)]
+        a = m.jnt_qposadr[j]
+        qpos[a : a + 7] = np.r_[pos, _normalize(quat)]
+    for name, (v, w) in (velocities or {}).items():
+        j = m.body_jntadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)]
+        a = m.jnt_dofadr[j]
+        qvel[a : a + 6] = np.r_[v, w]
+    return State(jnp.asarray(qpos), jnp.asarray(qvel))
+
+
+def _resting_height(asset, quat=(1, 0, 0, 0)) -> float:
+    """Centre-of-mass height at which the lowest sample touches z = 0."""
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_quat(_normalize(quat), scalar_first=True).as_matrix()
+    return float(-np.min((asset.points @ R.T)[:, 2]))
+
+
+PAPER_DROP_QUAT = _normalize([1.0, 0.3, 0.0, 0.5])
+
+
+def bunny_drop(dt: float | None = None) -> Setup:
+    """The paper's bunny dropped at height 1.1, q ∝ (1, 0.3, 0, 0.5), v = (2, 2, 1),
+    ω = (0.5, 1, 1) (body frame), sliding friction 0.1, h = 0.01 s: it tumbles to rest."""
+    bunny = load_builtin("bunny")
+    scene = compose([DanoObject("bunny", bunny, (0, 0, 1.1), PAPER_DROP_QUAT)], dt=dt or 0.01, name="bunny-drop")
+    state = _free_state(scene, {"bunny": ((0, 0, 1.1), PAPER_DROP_QUAT)}, {"bunny": ((2, 2, 1), (0.5, 1, 1))})
+    return Setup(scene, state, scene.default_params(sliding_friction=0.1), 4.0, None, bunny_drop.__doc__)
+
+
+def bunny_slide(dt: float | None = None) -> Setup:
+    """The paper bunny, upright on the ground, thrown along +x at 2.5 m/s (paper friction
+    0.2): it slides to a stop after about v²/(2μg) = 1.6 m."""
+    bunny = load_builtin("bunny")
+    z = _resting_height(bunny)
+    scene = compose([DanoObject("bunny", bunny, (0, 0, z))], dt=dt or 0.01, name="bunny-slide")
+    state = _free_state(scene, {"bunny": ((0, 0, z), (1, 0, 0, 0))}, {"bunny": ((2.5, 0, 0), (0, 0, 0))})
+    return Setup(scene, state, scene.default_params(), 2.5, None, bunny_slide.__doc__)
+
+
+def _add_ball(spec: mujoco.MjSpec, name: str, pos, radius: float = 0.25, mass: float = 10.0) -> None:
+    body = spec.worldbody.add_body(name=name, pos=list(pos))
+    body.add_freejoint(name=f"{name}_free")
+    body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[radius, 0, 0], mass=mass,
+                  rgba=[0.3, 0.5, 0.9, 1])
+
+
+def sphere_hits_bunny(dt: float | None = None) -> Setup:
+    """A sphere (radius 0.25, mass 10: the paper's pusher) rolls at 3 m/s into the paper
+    bunny resting on the ground. Sphere-ground contact is MuJoCo's own; sphere-bunny and
+    bunny-ground are DANO contacts."""
+    bunny = load_builtin("bunny")
+    z = _resting_height(bunny)
+    spec = mujoco.MjSpec()
+    add_ground(spec)
+    _add_ball(spec, "sphere", (-1.2, 0, 0.25))
+    scene = compose([DanoObject("bunny", bunny, (0, 0, z))], spec, dt=dt or 0.01, name="sphere-hits-bunny")
+    state = _free_state(scene, {"bunny": ((0, 0, z), (1, 0, 0, 0)), "sphere": ((-1.2, 0, 0.25), (1, 0, 0, 0))},
+                        {"sphere": ((3.0, 0, 0), (0, 12.0, 0))})
+    return Setup(scene, state, scene.default_params(), 2.0, None, sphere_hits_bunny.__doc__)
+
+
+def two_bunnies_sphere(dt: float | None = None) -> Setup:
+    """The paper's Fig. 5: a sphere hits a bunny, which then hits a second bunny. The
+    bunnies are queryable DANOs (signed-distance fields of the low-poly Stanford bunny),
+    so their contact queries each other's field in both directions."""
+    bunny = load_builtin("bunny_lowpoly")
+    z = _resting_height(bunny) + 0.005
+    spec = mujoco.MjSpec()
+    add_ground(spec)
+    _add_ball(spec, "sphere", (-1.0, 0, 0.25))
+    objs = [DanoObject("bunny_a", bunny, (0, 0, z)), DanoObject("bunny_b", bunny, (0.75, 0.05, z), rgba=(0.6, 0.75, 0.5, 1))]
+    scene = compose(objs, spec, dt=dt or 0.01, name="two-bunnies-sphere")
+    state = _free_state(scene, {"bunny_a": ((0, 0, z), (1, 0, 0, 0)), "bunny_b": ((0.75, 0.05, z), (1, 0, 0, 0)),
+                                "sphere": ((-1.0, 0, 0.25), (1, 0, 0, 0))},
+                        {"sphere": ((4.0, 0, 0), (0, 16.0, 0))})
+    return Setup(scene, state, scene.default_params(), 2.5, None, two_bunnies_sphere.__doc__)
+
+
+# Joint targets of the Panda (panda_nohand.xml) putting a 3 cm pusher sphere, 6 cm beyond
+# the flange with the flange pointing down, at (0.30, 0, 0.30) and then at x = 0.30 ... 0.75
+# (6 points) on the line y = 0, z = 0.075; solved offline with damped least-squares IK
+# on MuJoCo's site Jacobian.
+PANDA_WAYPOINTS = np.array([
+    [0.0, -0.7255, 0.0, -2.9196, 0.0, 2.1941, 0.785],
+    [0.0, 0.1874, 0.0, -2.9813, 0.0, 3.1687, 0.785],
+    [0.0, 0.2919, 0.0, -2.7184, 0.0, 3.0103, 0.785],
+    [0.0, 0.4228, 0.0, -2.4339, 0.0, 2.8567, 0.785],
+    [0.0, 0.5777, 0.0, -2.1171, 0.0, 2.6948, 0.785],
+    [0.0, 0.7671, 0.0, -1.743, 0.0, 2.5101, 0.785],
+    [0.0, 1.0342, 0.0, -1.229, 0.0, 2.2632, 0.785],
+])
+PANDA_WAYPOINT_TIMES = np.array([0.0, 0.8, 1.2, 1.6, 2.0, 2.4, 2.8])
+
+
+def menagerie_panda() -> Path:
+    """Path of the Menagerie Panda (``panda_nohand.xml``) under ``$MENAGERIE_ROOT``.
+
+    Raises DanoError if it is not there: the Panda's meshes (33 MB, Apache-2.0) do not
+    ship with dano and nothing is downloaded at run time.
+    """
+    root = os.environ.get("MENAGERIE_ROOT")
+    path = Path(root) / "franka_emika_panda" / "panda_nohand.xml" if root else None
+    if path is None or not path.is_file():
+        raise DanoError(
+            "panda-push-bunny needs the MuJoCo Menagerie Franka Panda: set MENAGERIE_ROOT to a folder holding "
+            "franka_emika_panda/panda_nohand.xml (a clone of mujoco_menagerie)"
+            + (f"; not found at {path}" if path else "")
+        )
+    return path
+
+
+def panda_push_bunny(dt: float | None = None) -> Setup:
+    """The Menagerie Panda with a 3 cm spherical pusher at its flange pushes the paper
+    bunny, scaled to 15 cm and 0.25 kg, along the ground by following scripted joint
+    targets. The Panda's own collisions are off; the pusher and the ground touch the
+    bunny through DANO contact."""
+    spec = mujoco.MjSpec.from_file(str(menagerie_panda()))
+    for g in spec.geoms:  # the arm moves on position targets; only the pusher touches the bunny
+        g.contype, g.conaffinity = 0, 0
+    for b in spec.bodies:  # gravity compensation, as the real arm's controller does
+        if b.name != "world":
+            b.gravcomp = 1.0
+    spec.body("link7").add_geom(name="pusher", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.03, 0, 0],
+                                pos=[0, 0, 0.107 + 0.06], contype=2, conaffinity=2, mass=0.1, rgba=[0.9, 0.2, 0.2, 1])
+    add_ground(spec)
+    bunny = load_builtin("bunny").scaled(0.15).with_mass(0.25)
+    z = _resting_height(bunny) + 0.001
+    pos = (0.45, 0.0, z)
+    scene = compose([DanoObject("bunny", bunny, pos)], spec, dt=dt or 0.005, name="panda-push-bunny")
+    free = _free_state(scene, {"bunny": (pos, (1, 0, 0, 0))})
+    state = State(free.qpos.at[:7].set(PANDA_WAYPOINTS[0]), free.qvel)
+
+    def controls(times: np.ndarray) -> np.ndarray:
+        return np.stack([np.interp(times, PANDA_WAYPOINT_TIMES, PANDA_WAYPOINTS[:, k]) for k in range(7)], axis=1)
+
+    return Setup(scene, state, scene.default_params(sliding_friction=0.3), 3.2, controls, panda_push_bunny.__doc__)
+
+
+BUILTIN_SCENES: dict[str, Callable[..., Setup]] = {
+    "bunny-drop": bunny_drop,
+    "bunny-slide": bunny_slide,
+    "sphere-hits-bunny": sphere_hits_bunny,
+    "two-bunnies-sphere": two_bunnies_sphere,
+    "panda-push-bunny": panda_push_bunny,
+}
+
+
+def load_scene(name: str, dt: float | None = None) -> Setup:
+    """A built-in scene by name. Raises DanoError (listing the names) for an unknown one."""
+    if name not in BUILTIN_SCENES:
+        raise DanoError(f"unknown scene {name!r}; built-in scenes: {', '.join(BUILTIN_SCENES)} (or an MJCF path)")
+    if dt is not None and (not np.isfinite(dt) or dt <= 0):
+        raise DanoError(f"time step dt must be positive, got {dt}")
+    return BUILTIN_SCENES[name](dt)

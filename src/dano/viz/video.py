@@ -1,0 +1,83 @@
+"""Videos of trajectories with MuJoCo's renderer (headless via EGL) and imageio-ffmpeg."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DanoError
+
+
+def render_frames(scene, traj, fps: float = 30.0, width: int = 640, height: int = 480, progress=None):
+    """Yield RGB frames (height, width, 3) uint8 of ``traj`` at ``fps``, camera following
+    the DANOs' mean position. ``progress(done, total, description)`` is called per frame.
+
+    Raises DanoError if no OpenGL context can be created (set MUJOCO_GL=egl or osmesa).
+    """
+    import mujoco
+
+    m = scene.mj_model
+    d = mujoco.MjData(m)
+    try:
+        renderer = mujoco.Renderer(m, height, width)
+    except Exception as exc:
+        raise DanoError(f"cannot create an OpenGL context for rendering (MUJOCO_GL={os.environ.get('MUJOCO_GL')}): {exc}") from exc
+    n_frames = max(1, int(np.floor(traj.time[-1] * fps)) + 1)
+    idx = np.minimum(np.round(np.arange(n_frames) / fps / scene.dt).astype(int), len(traj.time) - 1)
+    centres = np.stack([traj.dano_pose(n)[0] for n in traj.dano_names]).mean(0) if traj.dano_names else np.zeros(
+        (len(traj.time), 3))
+    extent = max(float(np.ptp(centres[:, :2], axis=0).max()), 1.0) if len(centres) else 1.0
+    size = max((a.points.max(0) - a.points.min(0)).max() for a in scene.assets) if scene.assets else 1.0
+    cam = mujoco.MjvCamera()
+    cam.distance = max(1.3 * extent, 3.0 * size)
+    cam.azimuth, cam.elevation = 135.0, -25.0
+    opt = mujoco.MjvOption()
+    try:
+        for k, t in enumerate(idx):
+            d.qpos[:] = traj.qpos[t]
+            mujoco.mj_forward(m, d)
+            # smooth camera: follow a moving average of the centre
+            lo, hi = max(0, t - 25), min(len(centres), t + 25)
+            cam.lookat[:] = centres[lo:hi].mean(0)
+            renderer.update_scene(d, cam, opt)
+            yield renderer.render().copy()
+            if progress is not None:
+                progress(k + 1, n_frames, "rendering")
+    finally:
+        renderer.close()
+
+
+def write_video(scene, traj, path: str | Path, fps: float = 30.0, width: int = 640, height: int = 480,
+                progress=None) -> Path:
+    """Render ``traj`` of ``scene`` to an H.264 ``.mp4`` (or ``.gif``) file.
+
+    Written atomically: frames go to a temporary file in the same folder, renamed at the
+    end; on any error nothing is left. Raises DanoError for an unsupported suffix or
+    when rendering is impossible.
+    """
+    import imageio.v2 as imageio
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".mp4", ".gif"):
+        raise DanoError(f"{path}: video must be .mp4 or .gif")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        kwargs = {"fps": fps}
+        if suffix == ".mp4":
+            kwargs.update(codec="libx264", quality=7, macro_block_size=8, ffmpeg_log_level="error")
+        with imageio.get_writer(tmp, **kwargs) as writer:
+            for frame in render_frames(scene, traj, fps, width, height, progress):
+                writer.append_data(frame)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
