@@ -120,7 +120,12 @@ def test_demo_and_console_script(tmp_path):
     res = subprocess.run([exe, "demo", "--out-dir", str(tmp_path)], capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr
     assert "3.21985" in res.stdout
-    assert json.loads((tmp_path / "bunny_summary.json").read_text())["num_samples"] == 5000
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["asset"]["num_samples"] == 5000
+    assert summary["final_overlap"] == pytest.approx(summary["rest_overlap_mg_over_k"], rel=0.1)
+    assert 0.25 < summary["final_center_of_mass"][2] < 0.55
     assert (tmp_path / "bunny_samples.png").stat().st_size > 10_000
+    assert (tmp_path / "bunny-drop.mp4").stat().st_size > 10_000
+    assert np.load(tmp_path / "bunny-drop.npz")["qpos"].shape == (501, 7)
     res = subprocess.run([sys.executable, "-m", "dano.cli", "--version"], capture_output=True, text=True)
     assert res.returncode == 0 and res.stdout.startswith("dano ")

@@ -141,25 +141,165 @@ def inspect(
         err.print(f"wrote {plot}")
 
 
-def demo(out_dir: Path = Path("dano-demo")) -> None:
-    """The main job on the embedded default: load the paper bunny shipped in the package,
-    show its mass properties and draw its samples.
+def _parse_object(text: str):
+    """'FILE.dano[@x,y,z]' or 'builtin:NAME[@x,y,z]' -> DanoObject."""
+    from .asset import load
+    from .data import load_builtin
+    from .sim import DanoObject
+
+    src, _, at = text.partition("@")
+    asset = load_builtin(src.split(":", 1)[1]) if src.startswith("builtin:") else load(src)
+    pos = (0.0, 0.0, 1.0)
+    if at:
+        try:
+            pos = tuple(float(v) for v in at.split(","))
+            assert len(pos) == 3
+        except (ValueError, AssertionError):
+            raise ValueError(f"--object {text!r}: position must be x,y,z") from None
+    name = asset.name or Path(src).stem
+    return DanoObject(name, asset, pos)
+
+
+def _apply_params(scene, params, assignments):
+    for item in assignments:
+        key, eq, value = item.partition("=")
+        if not eq:
+            raise ValueError(f"--param {item!r}: expected name=value or pair:name=value")
+        target, _, name = key.rpartition(":")
+        try:
+            v = float(value)
+        except ValueError:
+            raise ValueError(f"--param {item!r}: {value!r} is not a number") from None
+        params = scene.set_param(params, name, v, target or None)
+    return params
+
+
+def _simulate_summary(setup, traj, wall: float) -> Table:
+    import numpy as np
+
+    scene = setup.scene
+    t = Table(title=f"{scene.name}: {len(traj.time) - 1} steps of {scene.dt:g} s ({traj.time[-1]:.3g} s)")
+    t.add_column("")
+    for name in scene.dano_names:
+        t.add_column(name)
+    p_end = [traj.dano_pose(n)[0][-1] for n in scene.dano_names]
+    v_end = [traj.qvel[-1, a : a + 3] for a in scene.dof_adr]
+    t.add_row("final centre of mass", *[" ".join(f"{x:.3f}" for x in p) for p in p_end])
+    t.add_row("final speed [m/s]", *[f"{np.linalg.norm(v):.2e}" for v in v_end])
+    t.add_row("mass", *[f"{a.mass:.4g}" for a in scene.assets])
+    t.caption = (f"pairs: {', '.join(scene.pair_names)}; final overlap ψ: "
+                 + ", ".join(f"{x:.3g}" for x in traj.psi[-1])
+                 + f"; wall time {wall:.2f} s (compilation included)")
+    return t
+
+
+def simulate(
+    scene: Annotated[str, tyro.conf.Positional],
+    duration: float | None = None,
+    dt: float | None = None,
+    param: tuple[str, ...] = (),
+    object: tuple[str, ...] = (),
+    out: Path | None = None,
+    video: Path | None = None,
+    fps: float = 30.0,
+    quiet: bool = False,
+):
+    """Simulate a built-in scene or an MJCF file with DANOs and write the trajectory and a video.
 
     Args:
-        out_dir: folder for the outputs (summary JSON and plot).
+        scene: built-in name (bunny-drop, bunny-slide, sphere-hits-bunny, two-bunnies-sphere,
+            panda-push-bunny) or an MJCF path.
+        duration: simulated time [s] (default: the scene's).
+        dt: time step [s] (default: the scene's).
+        param: contact parameters name=value for all pairs, or PAIR:name=value for one pair
+            (e.g. sliding_friction=0.3, bunny/ground:impact_spring=5e4, alpha=0.2).
+        object: MJCF scenes: DANOs to add, FILE.dano or builtin:NAME, optionally @x,y,z
+            (default: builtin:bunny@0,0,1).
+        out: trajectory .npz (time, qpos, qvel, psi, names).
+        video: .mp4 (or .gif) video, rendered headless with MuJoCo.
+        fps: video frame rate.
+        quiet: no progress bars.
+    """
+    import time as _time
+
+    import numpy as np
+
+    from .sim import compose, rollout, save_trajectory
+    from .sim.scenes import BUILTIN_SCENES, Setup, _free_state, load_scene
+
+    if scene in BUILTIN_SCENES:
+        if object:
+            raise ValueError("--object applies to MJCF scenes, not to built-in ones")
+        setup = load_scene(scene, dt)
+    else:
+        path = Path(scene)
+        if path.suffix.lower() != ".xml" and not path.exists():
+            raise ValueError(f"unknown scene {scene!r}; built-in scenes: {', '.join(BUILTIN_SCENES)} (or an MJCF path)")
+        objs = [_parse_object(o) for o in (object or ("builtin:bunny@0,0,1",))]
+        sc = compose(objs, path, dt=dt or 0.01, name=path.stem)
+        state = _free_state(sc, {o.name: (o.pos, o.quat) for o in objs})
+        setup = Setup(sc, state, sc.default_params(), 2.0, None, f"MJCF {path}")
+    params = _apply_params(setup.scene, setup.params, param)
+    T = int(round((duration if duration is not None else setup.duration) / setup.scene.dt))
+    if T < 1:
+        raise ValueError(f"--duration must cover at least one step of {setup.scene.dt:g} s")
+    times = np.arange(T) * setup.scene.dt
+    controls = setup.controls(times) if setup.controls else None
+    t0 = _time.perf_counter()
+    with _progress(not quiet) as progress:
+        traj = rollout(setup.scene, setup.state0, controls, params, T, progress=progress)
+    wall = _time.perf_counter() - t0
+    out_ = Console()
+    out_.print(_simulate_summary(setup, traj, wall))
+    if out is not None:
+        save_trajectory(traj, out)
+        err.print(f"wrote {out}")
+    if video is not None:
+        from .viz.video import write_video
+
+        with _progress(not quiet) as progress:
+            write_video(setup.scene, traj, video, fps=fps, progress=progress)
+        err.print(f"wrote {video}")
+    return setup, traj, wall
+
+
+def demo(out_dir: Path = Path("dano-demo"), quiet: bool = False) -> None:
+    """The main job on the embedded default: the paper's NeRF-derived bunny dropped on the
+    ground (scene bunny-drop); writes the trajectory, a video, the asset's sample plot and a
+    summary.
+
+    Args:
+        out_dir: folder for the outputs.
+        quiet: no progress bars.
     """
     from .data import load_builtin
     from .viz import plot_samples
 
-    asset = load_builtin("bunny")
-    out.print(_summary_table(asset))
-    out_dir.mkdir(parents=True, exist_ok=True)
+    import numpy as np
+
     from .asset import _atomic_write
 
-    summary = json.dumps(asset.summary(), indent=2).encode()
-    _atomic_write(out_dir / "bunny_summary.json", lambda f: f.write(summary))
+    asset = load_builtin("bunny")
+    out.print(_summary_table(asset))
     plot_samples(asset, out_dir / "bunny_samples.png")
-    err.print(f"wrote {out_dir / 'bunny_summary.json'} and {out_dir / 'bunny_samples.png'}")
+    setup, traj, wall = simulate("bunny-drop", out=out_dir / "bunny-drop.npz", video=out_dir / "bunny-drop.mp4",
+                                 quiet=quiet)
+    k = float(np.asarray(setup.params.contact.impact_spring)[0])
+    summary = {
+        "asset": asset.summary(),
+        "scene": setup.scene.name,
+        "steps": len(traj.time) - 1,
+        "dt": setup.scene.dt,
+        "final_center_of_mass": traj.dano_pose("bunny")[0][-1].tolist(),
+        "final_speed": float(np.linalg.norm(traj.qvel[-1, :3])),
+        "final_overlap": float(traj.psi[-1, 0]),
+        "rest_overlap_mg_over_k": asset.mass * 9.81 / k,
+        "wall_time_s": wall,
+        "files": ["bunny-drop.npz", "bunny-drop.mp4", "bunny_samples.png"],
+    }
+    text = json.dumps(summary, indent=2).encode()
+    _atomic_write(out_dir / "summary.json", lambda f: f.write(text))
+    err.print(f"wrote {out_dir / 'bunny_samples.png'} and {out_dir / 'summary.json'}")
 
 
 def bench(
@@ -189,7 +329,7 @@ def bench(
     print(text)
 
 
-COMMANDS = {"build": build, "inspect": inspect, "demo": demo, "bench": bench}
+COMMANDS = {"build": build, "inspect": inspect, "simulate": simulate, "demo": demo, "bench": bench}
 
 
 def main(argv: list[str] | None = None) -> int:

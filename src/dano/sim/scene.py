@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
+from .._mjx import mjx
 from scipy.spatial import cKDTree
 
 from ..asset import DanoAsset
@@ -176,6 +176,31 @@ class Scene:
         return SimParams(cp.broadcast(len(self.static.pairs)),
                          jnp.asarray([a.alpha for a in self.assets], dtype=jnp.float64))
 
+    def set_param(self, params: SimParams, name: str, value: float, target: str | None = None) -> SimParams:
+        """A copy of ``params`` with contact parameter ``name`` (or ``"alpha"``) set to
+        ``value`` for every pair (every DANO for alpha), or only for pair/DANO ``target``.
+        Raises DanoError for unknown names or non-finite values."""
+        if not np.isfinite(value):
+            raise DanoError(f"parameter {name} must be finite, got {value}")
+        if name == "alpha":
+            idx = slice(None) if target is None else self.dano_index(target)
+            new = SimParams(params.contact, jnp.asarray(params.alpha).at[idx].set(value))
+        elif name in ContactParams.names():
+            if target is None:
+                idx = slice(None)
+            elif target in self.pair_names:
+                idx = self.pair_names.index(target)
+            else:
+                raise DanoError(f"no contact pair {target!r}; pairs: {list(self.pair_names)}")
+            arr = jnp.asarray(getattr(params.contact, name)).at[idx].set(value)
+            new = SimParams(dataclasses.replace(params.contact, **{name: arr}), params.alpha)
+        else:
+            raise DanoError(f"unknown parameter {name!r}; known: alpha, {', '.join(ContactParams.names())}")
+        new.contact.validate()
+        if np.any(np.asarray(new.alpha) <= 0):
+            raise DanoError(f"alpha must be positive, got {value}")
+        return new
+
     def dano_index(self, name: str) -> int:
         try:
             return self.dano_names.index(name)
@@ -284,6 +309,7 @@ def compose(
     dt: float = 0.01,
     ground: bool | None = None,
     contacts: Sequence[tuple[str, str]] | None = None,
+    gravity: Sequence[float] = (0.0, 0.0, -9.81),
     name: str = "scene",
 ) -> Scene:
     """Build a scene from DANOs and a MuJoCo model.
@@ -291,7 +317,8 @@ def compose(
     objects: the DANOs; base: an MJCF path, MJCF string or MjSpec (robots, primitives),
     or None for an empty world; dt: time step [s]; ground: add a ground plane at z = 0
     named "ground" (default: when ``base`` is None); contacts: restrict the DANO pairs
-    to these (name, name) pairs of DANO and geom/DANO names (default: all).
+    to these (name, name) pairs of DANO and geom/DANO names (default: all);
+    gravity: (3,) [m/s²].
     Raises DanoError if the MJCF does not load or compile, for duplicate or unknown
     names, a non-positive dt, or a requested DANO-DANO pair without a queryable field.
     """
@@ -306,12 +333,14 @@ def compose(
     for o in objects:
         _add_dano(spec, o)
     spec.option.timestep = dt
+    spec.option.gravity = list(map(float, gravity))
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
     spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
     try:
         mj_model = spec.compile()
     except Exception as exc:
-        raise DanoError(f"the scene's MuJoCo model does not compile: {exc}") from exc
+        where = f"{base}: " if isinstance(base, (str, Path)) and not str(base).lstrip().startswith("<") else ""
+        raise DanoError(f"{where}the scene's MuJoCo model does not compile: {exc}") from exc
 
     body_ids = [mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_BODY, n) for n in names]
     pairs = []

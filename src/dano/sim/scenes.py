@@ -74,7 +74,7 @@ def bunny_drop(dt: float | None = None) -> Setup:
     bunny = load_builtin("bunny")
     scene = compose([DanoObject("bunny", bunny, (0, 0, 1.1), PAPER_DROP_QUAT)], dt=dt or 0.01, name="bunny-drop")
     state = _free_state(scene, {"bunny": ((0, 0, 1.1), PAPER_DROP_QUAT)}, {"bunny": ((2, 2, 1), (0.5, 1, 1))})
-    return Setup(scene, state, scene.default_params(sliding_friction=0.1), 4.0, None, bunny_drop.__doc__)
+    return Setup(scene, state, scene.default_params(sliding_friction=0.1), 5.0, None, bunny_drop.__doc__)
 
 
 def bunny_slide(dt: float | None = None) -> Setup:

@@ -29,7 +29,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from mujoco import mjx
+from .._mjx import mjx
 
 from ..contact import geometry
 from ..contact.force import generalized_force
@@ -218,6 +218,7 @@ def rollout(
     *,
     qfrc=None,
     max_speed: float = 1e3,
+    progress=None,
 ) -> Trajectory:
     """Simulate ``steps`` steps of ``scene.dt`` from ``state0`` inside ``jax.lax.scan``.
 
@@ -228,6 +229,8 @@ def rollout(
     :class:`SimulationDiverged` (with the step number) if the state becomes
     non-finite or a speed exceeds ``max_speed`` [m/s or rad/s].
     For gradients use :func:`rollout_arrays` under ``jax.jacfwd``.
+    progress: optional ``progress(done, total, description)``; the rollout then runs
+    in 20 equal chunks (one compilation) so that it can report.
     """
     params = scene.default_params() if params is None else params
     check_params(scene, params)
@@ -242,14 +245,12 @@ def rollout(
     qvel0 = _as_jax(state0.qvel, (scene.nv,), "initial qvel")
     ctrl = jnp.zeros((steps, scene.nu)) if controls is None else _as_jax(controls, (steps, scene.nu), "controls")
     f = None if qfrc is None else _as_jax(qfrc, (steps, scene.nv), "qfrc")
-    qpos, qvel, psi = (np.asarray(x) for x in rollout_arrays(scene, State(qpos0, qvel0), ctrl, params, steps, f))
+    if progress is None:
+        qpos, qvel, psi = (np.asarray(x) for x in rollout_arrays(scene, State(qpos0, qvel0), ctrl, params, steps, f))
+    else:
+        qpos, qvel, psi = _chunked(scene, State(qpos0, qvel0), ctrl, params, steps, f, progress)
     time = np.arange(steps + 1) * scene.dt
-    bad = ~np.all(np.isfinite(qpos), axis=1) | ~np.all(np.isfinite(qvel), axis=1)
-    fast = np.max(np.abs(np.nan_to_num(qvel, nan=np.inf)), axis=1) > max_speed
-    if bad.any() or fast.any():
-        k = int(np.argmax(bad | fast))
-        reason = "non-finite state" if bad[k] else f"speed {np.max(np.abs(qvel[k])):.3g} above {max_speed:g}"
-        raise SimulationDiverged(k, float(time[k]), reason)
+    _check_divergence(scene, params, time, qpos, qvel, psi, max_speed)
     return Trajectory(
         time=time,
         qpos=qpos,
@@ -262,6 +263,49 @@ def rollout(
         pair_names=scene.pair_names,
         metadata={"scene": scene.name, "dt": scene.dt, "params": params_to_dict(scene, params)},
     )
+
+
+def _check_divergence(scene, params, time, qpos, qvel, psi, max_speed):
+    """Raise SimulationDiverged at the first step with a non-finite state, a speed above
+    ``max_speed``, or an overlap above half the DANO's mass (bodies passed through each
+    other: the time step is too large for the contact stiffness)."""
+    bad = ~np.all(np.isfinite(qpos), axis=1) | ~np.all(np.isfinite(qvel), axis=1)
+    fast = np.max(np.abs(np.nan_to_num(qvel, nan=np.inf)), axis=1) > max_speed
+    masses = np.array([scene.assets[p.a].mass / scene.assets[p.a].alpha for p in scene.static.pairs])
+    limit = 0.5 * masses * np.asarray(params.alpha)[[p.a for p in scene.static.pairs]].reshape(-1)
+    deep = np.any(np.nan_to_num(psi, nan=np.inf) > limit, axis=1) if psi.shape[1] else np.zeros(len(time), bool)
+    if bad.any() or fast.any() or deep.any():
+        k = int(np.argmax(bad | fast | deep))
+        if bad[k]:
+            reason = "non-finite state"
+        elif fast[k]:
+            reason = f"speed {np.max(np.abs(qvel[k])):.3g} above {max_speed:g}"
+        else:
+            j = int(np.argmax(psi[k] / limit))
+            reason = f"overlap of pair {scene.pair_names[j]} is {psi[k, j]:.3g}, more than half the object's mass"
+        raise SimulationDiverged(k, float(time[k]), reason)
+
+
+def _chunked(scene, state0, ctrl, params, steps, qfrc, progress, n_chunks: int = 20):
+    size = -(-steps // n_chunks)
+    pad = size * n_chunks - steps
+    ctrl = jnp.concatenate([ctrl, jnp.repeat(ctrl[-1:], pad, axis=0)])
+    qfrc = jnp.zeros((size * n_chunks, scene.nv)) if qfrc is None else jnp.concatenate([qfrc, jnp.zeros((pad, scene.nv))])
+    parts, state = [], state0
+    for k in range(n_chunks):
+        sl = slice(k * size, (k + 1) * size)
+        qpos, qvel, psi = rollout_arrays(scene, state, ctrl[sl], params, size, qfrc[sl])
+        parts.append([np.asarray(x) for x in (qpos, qvel, psi)] if k == 0 else [np.asarray(x)[1:] for x in (qpos, qvel, psi)])
+        state = State(qpos[-1], qvel[-1])
+        progress(min((k + 1) * size, steps), steps, "simulating")
+        if not (np.all(np.isfinite(parts[-1][0])) and np.all(np.isfinite(parts[-1][1]))):
+            break  # diverged: the caller reports where
+    qpos, qvel, psi = (np.concatenate([p[i] for p in parts]) for i in range(3))
+    n = min(steps + 1, len(qpos))
+    if n < steps + 1:  # stopped early; pad with NaN so the divergence check finds the step
+        fill = lambda a: np.concatenate([a[:n], np.full((steps + 1 - n,) + a.shape[1:], np.nan)])  # noqa: E731
+        return fill(qpos), fill(qvel), fill(psi)
+    return qpos[:n], qvel[:n], psi[:n]
 
 
 def params_to_dict(scene: Scene, params: SimParams) -> dict:

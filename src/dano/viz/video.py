@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -71,9 +72,13 @@ def write_video(scene, traj, path: str | Path, fps: float = 30.0, width: int = 6
         kwargs = {"fps": fps}
         if suffix == ".mp4":
             kwargs.update(codec="libx264", quality=7, macro_block_size=8, ffmpeg_log_level="error")
-        with imageio.get_writer(tmp, **kwargs) as writer:
-            for frame in render_frames(scene, traj, fps, width, height, progress):
-                writer.append_data(frame)
+        with warnings.catch_warnings():
+            # imageio-ffmpeg starts ffmpeg with fork+exec; the child execs at once, so
+            # Python's "fork with threads" warning does not apply
+            warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
+            with imageio.get_writer(tmp, **kwargs) as writer:
+                for frame in render_frames(scene, traj, fps, width, height, progress):
+                    writer.append_data(frame)
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     except BaseException:

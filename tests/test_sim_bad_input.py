@@ -1,0 +1,90 @@
+"""Bad simulation input: clear errors, no NaN results, no partial files."""
+
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dano.cli import main
+from dano.data import load_builtin
+from dano.errors import DanoError
+from dano.sim import DanoObject, SimulationDiverged, State, compose, rollout
+from dano.sim.scenes import load_scene
+
+
+def run(capsys, *args):
+    code = main([str(a) for a in args])
+    cap = capsys.readouterr()
+    return code, cap.out, " ".join(cap.err.split())
+
+
+def test_unknown_scene(capsys):
+    with pytest.raises(DanoError, match="unknown scene 'bunny-fly'; built-in scenes: bunny-drop"):
+        load_scene("bunny-fly")
+    code, _, err = run(capsys, "simulate", "bunny-fly")
+    assert code == 1 and "unknown scene 'bunny-fly'" in err
+
+
+def test_mjcf_that_does_not_compile(tmp_path, capsys):
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<mujoco><worldbody><body><geom type='sphere'/></body></worldbody>")  # unclosed
+    with pytest.raises(DanoError, match="bad.xml: cannot load MJCF"):
+        compose([DanoObject("b", load_builtin("bunny"))], bad)
+    code, _, err = run(capsys, "simulate", bad, "--out", tmp_path / "t.npz")
+    assert code == 1 and "bad.xml: cannot load MJCF" in err
+    assert not (tmp_path / "t.npz").exists()
+    wrong = tmp_path / "wrong.xml"
+    wrong.write_text("<mujoco><worldbody><geom type='box' size='-1 1 1'/></worldbody></mujoco>")
+    with pytest.raises(DanoError, match="wrong.xml"):
+        compose([DanoObject("b", load_builtin("bunny"))], wrong)
+
+
+def test_mjcf_scene_runs_from_the_cli(tmp_path, capsys):
+    xml = tmp_path / "table.xml"
+    xml.write_text("<mujoco><worldbody><geom name='floor' type='plane' size='0 0 1'/>"
+                   "<geom name='block' type='box' size='0.3 0.3 0.1' pos='0 0 0.1'/></worldbody></mujoco>")
+    out = tmp_path / "t.npz"
+    code, _, err = run(capsys, "simulate", xml, "--object", "builtin:bunny@0,0,0.8", "--duration", 0.3,
+                       "--out", out, "--quiet")
+    assert code == 0, err
+    z = np.load(out)
+    assert z["qpos"].shape == (31, 7) and list(z["pair_names"]) == ["bunny/floor", "bunny/block"]
+    assert json.loads(str(z["metadata"]))["scene"] == "table"
+
+
+@pytest.mark.parametrize("param, message", [
+    ("sliding_friction=nan", "must be finite"),
+    ("impact_spring=-1", "impact_spring must be positive"),
+    ("bounciness=1", "unknown parameter 'bounciness'"),
+    ("nopair:sliding_friction=0.3", "no contact pair 'nopair'"),
+    ("sliding_friction", "expected name=value"),
+])
+def test_bad_parameters(capsys, tmp_path, param, message):
+    code, _, err = run(capsys, "simulate", "bunny-drop", "--param", param, "--out", tmp_path / "t.npz")
+    assert code == 1 and message in err, err
+    assert not (tmp_path / "t.npz").exists()
+
+
+def test_library_refuses_non_finite_parameters_and_states():
+    s = load_scene("bunny-drop")
+    with pytest.raises(DanoError, match="alpha must be"):
+        rollout(s.scene, s.state0, None, s.params.__class__(s.params.contact, jnp.asarray([np.inf])), 5)
+    with pytest.raises(DanoError, match="initial qvel contains NaN"):
+        rollout(s.scene, State(s.state0.qpos, s.state0.qvel.at[0].set(np.nan)), None, s.params, 5)
+    with pytest.raises(DanoError, match=r"initial qpos must have shape \(7,\)"):
+        rollout(s.scene, State(jnp.zeros(3), s.state0.qvel), None, s.params, 5)
+    with pytest.raises(DanoError, match="time step dt must be positive"):
+        load_scene("bunny-drop", dt=-0.01)
+
+
+def test_divergence_is_detected_with_the_step_number(tmp_path, capsys):
+    s = load_scene("bunny-drop", dt=0.2)
+    with pytest.raises(SimulationDiverged, match=r"simulation diverged at step \d+ \(t = [\d.]+ s\)") as info:
+        rollout(s.scene, s.state0, None, s.params, 20)
+    assert 0 < info.value.step <= 20
+    out = tmp_path / "t.npz"
+    code, _, err = run(capsys, "simulate", "bunny-drop", "--dt", 0.2, "--out", out, "--video", tmp_path / "v.mp4",
+                       "--quiet")
+    assert code == 1 and "simulation diverged at step" in err
+    assert list(tmp_path.iterdir()) == []

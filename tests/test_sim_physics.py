@@ -1,0 +1,109 @@
+"""Simulation physics against analytic answers and the paper (issue 3, "Must show")."""
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dano.asset import build
+from dano.data import load_builtin
+from dano.fields import BoxField
+from dano.sim import DanoObject, State, compose, rollout
+from dano.sim.scenes import PAPER_DROP_QUAT, load_scene
+
+G = 9.81
+
+
+@pytest.fixture(scope="module")
+def box_asset():
+    # 20 x 20 x 10 cm box, 1 kg
+    return build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=3000, mesh_resolution=24,
+                 name="box")
+
+
+def test_box_stopping_distance(box_asset):
+    v0, mu = 2.0, 0.5
+    z = -box_asset.points[:, 2].min()
+    scene = compose([DanoObject("box", box_asset, (0, 0, z))], dt=0.005)
+    state = State(jnp.asarray([0, 0, z, 1, 0, 0, 0.0]), jnp.asarray([v0, 0, 0, 0, 0, 0.0]))
+    params = scene.default_params(sliding_friction=mu, sliding_drag=0.0)
+    traj = rollout(scene, state, None, params, 200)
+    expected = v0**2 / (2 * mu * G)
+    travelled = traj.qpos[-1, 0]
+    assert abs(np.linalg.norm(traj.qvel[-1, :3])) < 1e-2  # it has stopped
+    assert abs(travelled / expected - 1) < 0.05, (travelled, expected)
+
+
+def energy(scene, traj, body=1):
+    from scipy.spatial.transform import Rotation
+
+    m = scene.mj_model
+    mass, I = m.body_mass[body], m.body_inertia[body]
+    Ri = Rotation.from_quat(m.body_iquat[body], scalar_first=True).as_matrix()
+    w = traj.qvel[:, 3:6] @ Ri  # body-frame angular velocity in principal axes
+    return 0.5 * mass * np.sum(traj.qvel[:, :3] ** 2, 1) + 0.5 * np.sum(I * w**2, 1) + mass * G * traj.qpos[:, 2]
+
+
+def test_paper_bunny_drop_settles():
+    setup = load_scene("bunny-drop")
+    traj = rollout(setup.scene, setup.state0, None, setup.params, 500)  # 5 s
+    bunny = setup.scene.assets[0]
+    z = traj.qpos[-1, 2]
+    assert 0.25 < z < 0.55
+    assert np.linalg.norm(traj.qvel[-1, :3]) < 1e-3  # speed of the centre of mass [m/s]
+    assert np.linalg.norm(traj.qvel[-1, 3:]) < 1e-3  # and it does not rock [rad/s]
+    assert traj.psi[-1, 0] == pytest.approx(bunny.mass * G / 3e4, rel=0.10)
+    E = energy(setup.scene, traj)
+    assert np.max(E - E[0]) <= 1e-9 * E[0]  # never more energy than at the start
+    assert E[-1] < 0.7 * E[0]
+
+
+def test_paper_step_of_real_soap_is_stable():
+    setup = load_scene("bunny-drop", dt=0.0326)
+    traj = rollout(setup.scene, setup.state0, None, setup.params, 200)  # 6.5 s
+    bunny = setup.scene.assets[0]
+    assert 0.25 < traj.qpos[-1, 2] < 0.55
+    assert traj.psi[-1, 0] == pytest.approx(bunny.mass * G / 3e4, rel=0.10)
+    assert np.linalg.norm(traj.qvel[-1, :3]) < 0.05
+    E = energy(setup.scene, traj)
+    assert np.max(E - E[0]) <= 1e-9 * E[0]
+
+
+def test_dano_dano_collision_conserves_momentum():
+    bunny = load_builtin("bunny_lowpoly")
+    objs = [DanoObject("a", bunny, (0, 0, 0)), DanoObject("b", bunny, (0.6, 0.05, 0.02))]
+    scene = compose(objs, dt=0.005, ground=False, gravity=(0, 0, 0))
+    assert scene.pair_names == ("a/b",)
+    q0 = np.r_[0, 0, 0, 1, 0, 0, 0, 0.6, 0.05, 0.02, 1, 0, 0, 0]
+    v0 = np.r_[1.5, 0, 0, 0, 0, 0, -0.5, 0, 0, 0, 0, 0]
+    traj = rollout(scene, State(jnp.asarray(q0), jnp.asarray(v0)), None, None, 200)
+    assert traj.psi[:, 0].max() > 1e-3  # they did collide
+    m = bunny.mass
+    p = m * traj.qvel[:, 0:3] + m * traj.qvel[:, 6:9]
+    assert np.max(np.linalg.norm(p - p[0], axis=1)) < 1e-6 * np.linalg.norm(p[0])
+    assert traj.qvel[-1, 6] > traj.qvel[-1, 0]  # b now moves away from a
+
+
+def mirror_asset(asset):
+    S = np.diag([1.0, -1.0, 1.0])
+    return dataclasses.replace(asset, points=asset.points @ S, normals=asset.normals @ S,
+                               center_of_mass=asset.center_of_mass @ S, inertia=S @ asset.inertia @ S,
+                               mesh_vertices=asset.mesh_vertices @ S, mesh_faces=asset.mesh_faces[:, ::-1])
+
+
+def test_mirrored_scenes_give_mirrored_trajectories():
+    bunny = load_builtin("bunny")
+    q = PAPER_DROP_QUAT
+    qm = q * np.array([1, -1, 1, -1])  # reflection y -> -y of a rotation
+    v, w = np.array([2.0, 2.0, 1.0]), np.array([0.5, 1.0, 1.0])
+    runs = []
+    for asset, quat, vel, om in [(bunny, q, v, w), (mirror_asset(bunny), qm, v * [1, -1, 1], w * [-1, 1, -1])]:
+        scene = compose([DanoObject("bunny", asset, (0, 0, 1.1), quat)], dt=0.01)
+        state = State(jnp.asarray(np.r_[0, 0, 1.1, quat]), jnp.asarray(np.r_[vel, om]))
+        runs.append(rollout(scene, state, None, scene.default_params(sliding_friction=0.1), 120))
+    a, b = runs
+    assert a.psi[:, 0].max() > 0  # the window includes the first impacts
+    np.testing.assert_allclose(b.qpos[:, :3], a.qpos[:, :3] * [1, -1, 1], atol=1e-7)
+    np.testing.assert_allclose(b.qpos[:, 3:], a.qpos[:, 3:] * [1, -1, 1, -1], atol=1e-7)
+    np.testing.assert_allclose(b.psi, a.psi, atol=1e-10)
