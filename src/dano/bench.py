@@ -3,6 +3,7 @@ compiling run reported separately). Machines are noisy: compare ratios measured 
 
 from __future__ import annotations
 
+import os
 import platform
 import statistics
 import time
@@ -47,6 +48,92 @@ def bench_build(repeats: int = 3, mesh_path=None) -> dict:
     return results
 
 
+def _steps_per_second(fn, steps: int, repeats: int) -> dict:
+    """Time ``fn()`` (a jitted rollout of ``steps`` steps; blocks until done)."""
+    r = _time(lambda: jax.block_until_ready(fn()), repeats)
+    r["steps"] = steps
+    r["steps_per_s"] = steps / r["median_s"]
+    r["us_per_step"] = 1e6 * r["median_s"] / steps
+    r["compile_s"] = max(r["first_s"] - r["median_s"], 0.0)
+    return r
+
+
+def bench_sim(repeats: int = 5, steps: int = 2000) -> dict:
+    """Simulation speed (CPU or GPU, float64), all measured in this one run:
+
+    * ``bunny_drop``: the paper bunny (5000 samples) on the ground, ``steps`` steps inside
+      one jitted ``lax.scan``; steps/s and compile time;
+    * ``mujoco_c_convex_hull``: what a user would otherwise pick: MuJoCo C (``mujoco.rollout``,
+      no Python loop) simulating the same bunny as a convex-hull mesh collider from the same
+      state; ``ratio_dano_over_mujoco_c`` compares steps/s;
+    * ``panda_push_bunny``: the Panda + bunny scene (needs ``$MENAGERIE_ROOT``); a collapse
+      of its steps/s would show the CPU fusion-emitter slowdown coming back;
+    * ``jacfwd_200``: forward-mode Jacobian of a 200-step bunny rollout w.r.t. 2 parameters
+      (sliding friction, mass scale α).
+    """
+    import dataclasses
+    import os
+
+    import jax.numpy as jnp
+    import mujoco
+    import mujoco.rollout
+    import trimesh
+
+    from .sim import SimParams, State, rollout_arrays
+    from .sim.scenes import load_scene
+
+    out: dict = {}
+    setup = load_scene("bunny-drop")
+    sc, s0, p = setup.scene, setup.state0, setup.params
+    out["bunny_drop"] = _steps_per_second(lambda: rollout_arrays(sc, s0, None, p, steps), steps, repeats)
+    out["bunny_drop"]["num_samples"] = sc.assets[0].num_samples
+
+    # MuJoCo C with the bunny as a convex hull of its samples
+    bunny = sc.assets[0]
+    hull = trimesh.convex.convex_hull(bunny.points)
+    spec = mujoco.MjSpec()
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05])
+    spec.add_mesh(name="hull", uservert=hull.vertices.ravel().tolist(), userface=hull.faces.ravel().tolist())
+    body = spec.worldbody.add_body(name="bunny")
+    body.add_freejoint()
+    J = bunny.inertia
+    body.mass, body.ipos, body.explicitinertial = bunny.mass, [0, 0, 0], True
+    body.fullinertia = [J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2]]
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname="hull", density=0, friction=[0.1, 0.005, 0.0001])
+    spec.option.timestep = sc.dt
+    m = spec.compile()
+    d = mujoco.MjData(m)
+    d.qpos[:], d.qvel[:] = np.asarray(s0.qpos), np.asarray(s0.qvel)
+    state0 = np.empty(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+    mujoco.mj_getState(m, d, state0, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    c = _time(lambda: mujoco.rollout.rollout(m, d, state0[None], nstep=steps), repeats)
+    c["steps_per_s"] = steps / c["median_s"]
+    c["us_per_step"] = 1e6 * c["median_s"] / steps
+    c["hull_vertices"] = int(len(hull.vertices))
+    out["mujoco_c_convex_hull"] = c
+    out["ratio_dano_over_mujoco_c"] = out["bunny_drop"]["steps_per_s"] / c["steps_per_s"]
+
+    if os.environ.get("MENAGERIE_ROOT"):
+        ps = load_scene("panda-push-bunny")
+        n = 1000
+        ctrl = jnp.asarray(ps.controls(np.arange(n) * ps.scene.dt))
+        out["panda_push_bunny"] = _steps_per_second(
+            lambda: rollout_arrays(ps.scene, ps.state0, ctrl, ps.params, n), n, repeats)
+    else:
+        out["panda_push_bunny"] = "skipped: set MENAGERIE_ROOT to the Menagerie folder"
+
+    def final_state(theta):
+        params = SimParams(dataclasses.replace(p.contact, sliding_friction=theta[:1]), theta[1:2])
+        qpos, qvel, _ = rollout_arrays(sc, State(s0.qpos, s0.qvel), None, params, 200)
+        return jnp.concatenate([qpos[-1], qvel[-1]])
+
+    jac = jax.jit(jax.jacfwd(final_state))
+    theta = jnp.asarray([0.1, float(p.alpha[0])])
+    out["jacfwd_200"] = _time(lambda: jax.block_until_ready(jac(theta)), repeats)
+    out["jacfwd_200"]["parameters"] = ["sliding_friction", "alpha"]
+    return out
+
+
 def environment() -> dict:
     from . import __version__
 
@@ -60,10 +147,12 @@ def environment() -> dict:
         "processor": platform.processor(),
         "python": platform.python_version(),
         "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "cpu_count": os.cpu_count(),
     }
 
 
-SUITES = {"build": bench_build}
+SUITES = {"build": bench_build, "sim": bench_sim}
 
 
 def run(suites: list[str] | None = None, repeats: int = 3) -> dict:
