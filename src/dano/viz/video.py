@@ -71,7 +71,10 @@ def write_video(scene, traj, path: str | Path, fps: float = 30.0, width: int = 6
     try:
         kwargs = {"fps": fps}
         if suffix == ".mp4":
-            kwargs.update(codec="libx264", quality=7, macro_block_size=8, ffmpeg_log_level="error")
+            kwargs.update(format="FFMPEG", codec="libx264", quality=7, macro_block_size=8, ffmpeg_log_level="error")
+        else:
+            kwargs.update(format="GIF", duration=1.0 / fps)
+            del kwargs["fps"]
         with warnings.catch_warnings():
             # imageio-ffmpeg starts ffmpeg with fork+exec; the child execs at once, so
             # Python's "fork with threads" warning does not apply
