@@ -49,6 +49,17 @@ def lowpoly_bunny():
                         "rotated +90 deg about x, scaled 0.5")
 
 
+def bluesoap():
+    """The paper's real-soap collider. Its stored gradients are all zero (an export bug), so
+    normals come from the paper's φ = 0.70 level-set mesh (bluesoap_level_70.stl)."""
+    return load_paper_collider(SHARED / "dano" / "bluesoap.jld2", name="bluesoap",
+                               normals_mesh=SHARED / "dano" / "bluesoap_level_70.stl")
+
+
 if __name__ == "__main__":
+    import shutil
+
+    print(save(bluesoap(), OUT / "bluesoap.dano"))
+    shutil.copyfile(SHARED / "real" / "soap_pose_traj.csv", OUT / "soap_pose_traj.csv")
     print(save(paper_bunny(), OUT / "bunny.dano"), dano.__version__)
     print(save(lowpoly_bunny(), OUT / "bunny_lowpoly.dano"))

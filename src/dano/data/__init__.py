@@ -7,6 +7,10 @@
 * ``bunny_lowpoly``: a queryable DANO (signed-distance field) built from the watertight
   low-poly Stanford bunny of pybullet_data (zlib licence), upright, 0.72 units tall,
   mass 3.2; used where DANOs touch each other.
+* ``bluesoap``: the paper's collider of a real bar of soap (``bluesoap.jld2``, MIT), its
+  zero gradients replaced by normals from the paper's level-set mesh.
+* ``soap_pose_traj.csv`` (:func:`builtin_file`): the soap sliding on a table, tracked by
+  the paper's authors in a real video at 120 frames/s (7 rows x, y, z, qw, qx, qy, qz; MIT).
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from importlib import resources
 
 from ..errors import DanoError
 
-BUILTIN_ASSETS = ("bunny", "bunny_lowpoly")
+BUILTIN_ASSETS = ("bunny", "bunny_lowpoly", "bluesoap")
 
 
 def builtin_path(name: str):
@@ -23,6 +27,14 @@ def builtin_path(name: str):
     if name not in BUILTIN_ASSETS:
         raise DanoError(f"unknown built-in asset {name!r}; available: {', '.join(BUILTIN_ASSETS)}")
     return resources.files(__name__) / f"{name}.dano"
+
+
+def builtin_file(name: str):
+    """A data file shipped with dano (e.g. ``soap_pose_traj.csv``), as a Traversable."""
+    path = resources.files(__name__) / name
+    if not path.is_file():
+        raise DanoError(f"no built-in data file {name!r}")
+    return path
 
 
 def load_builtin(name: str = "bunny"):

@@ -44,3 +44,47 @@ def plot_samples(asset, path: str | Path, max_arrows: int = 600, seed: int = 0) 
     _atomic_write(path, lambda f: fig.savefig(f, format=fmt, dpi=120))
     plt.close(fig)
     return path
+
+
+def plot_sysid(problem, result, path, max_trajectories: int = 4) -> Path:
+    """Observed vs fitted trajectories (top-down x–y paths of the tracked DANOs and their
+    positions over time) and the cost per iteration, to an image file. Written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..asset import _atomic_write
+
+    segs = problem.segments[:max_trajectories]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, seg in enumerate(segs):
+        obs = problem.observations[seg.obs]
+        fitted = result.fitted[i] if i < len(result.fitted) else None
+        t = np.asarray(obs.time)[seg.start : seg.start + seg.frames]
+        for name, poses in obs.poses.items():
+            k = problem.scene.dano_index(name)
+            a = problem.scene.qpos_adr[k]
+            p = np.asarray(poses)[seg.start : seg.start + seg.frames]
+            c = colors[i % len(colors)]
+            axes[0].plot(p[:, 0], p[:, 1], "o", ms=3, color=c, alpha=0.6, label=f"{obs.name or i} observed")
+            axes[1].plot(t, p[:, 0], "o", ms=3, color=c, alpha=0.6)
+            axes[1].plot(t, p[:, 1], "s", ms=3, color=c, alpha=0.6)
+            if fitted is not None:
+                axes[0].plot(fitted[:, a], fitted[:, a + 1], "-", color=c, label="fitted")
+                axes[1].plot(t, fitted[:, a], "-", color=c)
+                axes[1].plot(t, fitted[:, a + 1], "--", color=c)
+    axes[0].set(xlabel="x [m]", ylabel="y [m]", title="paths (top view)", aspect="equal")
+    axes[0].legend(fontsize=7)
+    axes[1].set(xlabel="time [s]", ylabel="position [m]", title="x (o, solid) and y (s, dashed)")
+    axes[2].semilogy(np.maximum(result.cost_history, 1e-300), "o-")
+    axes[2].set(xlabel="iteration", ylabel="cost ½‖r‖²", title="cost")
+    est = ", ".join(f"{k} = {v:.4g} ± {s:.2g}" for k, v, s in
+                    zip(result.labels, result.estimates, result.standard_errors) if not k.startswith("v0["))
+    fig.suptitle(est, fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    _atomic_write(path, lambda f: fig.savefig(f, format=path.suffix.lstrip(".") or "png", dpi=110))
+    plt.close(fig)
+    return path

@@ -1,0 +1,163 @@
+"""Built-in identification problems: the paper's real soap video and the bunny pushes."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..data import builtin_file, load_builtin
+from ..sim.scene import DanoObject, compose
+from ..sim.scenes import _resting_height
+from .problem import FitParameter, Observation, SysIdProblem, Weights
+
+# ../shared/README.md: the soap video is 120 frames/s; the paper Froude-scaled time by
+# sqrt(15.342) because its collider is 15.342x larger than the real soap.
+SOAP_FPS = 120.0
+SOAP_FROUDE = np.sqrt(15.342)
+SOAP_FRAME_DT = SOAP_FROUDE / SOAP_FPS  # 0.03264 s of simulation per video frame
+#: paper's mapping from the NeRF world frame to its simulation frame
+SOAP_MAP_ROTATION = Rotation.from_rotvec(0.39 * np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0))
+SOAP_MAP_OFFSET = np.array([0.0, 0.0, 1.2])
+SOAP_MAP_SCALE = 1.0 / 3.0
+
+
+def soap_poses(length_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """The real soap trajectory in the paper's simulation frame: (time (33,) [s], poses (33, 7)).
+
+    Positions: p_sim = R·(p − p₀ + [0, 0, 1.2])/3 with R a 0.39 rad rotation about
+    (1, −1, 0)/√2 (the paper's mapping: the table becomes z = 0). ``length_scale`` scales
+    the displacements (a different assumed real length per scene unit). Orientation: the
+    tracked (constant) orientation composed with R. Time: frame k at k·√15.342/120 s.
+    """
+    data = np.loadtxt(builtin_file("soap_pose_traj.csv").open(), delimiter=",")
+    p, q = data[:3].T, data[3:].T
+    pos = SOAP_MAP_ROTATION.apply(p - p[0] + SOAP_MAP_OFFSET) * SOAP_MAP_SCALE
+    pos = pos[0] + length_scale * (pos - pos[0])
+    quat = (SOAP_MAP_ROTATION * Rotation.from_quat(q, scalar_first=True)).as_quat(scalar_first=True)
+    quat *= np.sign(quat[:, :1])
+    return np.arange(len(pos)) * SOAP_FRAME_DT, np.concatenate([pos, quat], axis=1)
+
+
+def soap_problem(length_scale: float = 1.0, substeps: int = 1, initial_friction: float = 0.3) -> SysIdProblem:
+    """Identify the sliding friction of the real soap (paper §VI-A) from its video track.
+
+    Unknowns: the sliding friction of the soap/ground pair (initial guess
+    ``initial_friction``, bounds [0, 2]) and, as nuisance, the initial horizontal
+    velocity. Residuals: horizontal positions only (weights x, y: 1, z: 0; orientation
+    0): only translation was tracked, and the tracked height is noise around the resting
+    height. The observed heights are shifted by a constant so that the soap starts resting
+    on the table (its tracked point is not its centre of mass). The other contact
+    parameters are the paper's defaults.
+    """
+    soap = load_builtin("bluesoap")
+    time, poses = soap_poses(length_scale)
+    z_rest = _resting_height(soap, poses[0, 3:])
+    poses = poses.copy()
+    poses[:, 2] += z_rest - poses[0, 2]
+    scene = compose([DanoObject("soap", soap, poses[0, :3], poses[0, 3:])], dt=SOAP_FRAME_DT / substeps,
+                    name="soap")
+    obs = Observation(time=time, poses={"soap": poses}, name="soap_pose_traj.csv")
+    return SysIdProblem(scene, [obs], [FitParameter("sliding_friction", initial_friction, 0.0, 2.0)],
+                        weights=Weights(position=(1.0, 1.0, 0.0), rotation=0.0), substeps=substeps,
+                        fit_velocity="xy")
+
+
+def pusher_scene(bunny=None, dt: float = 0.01, kp: float = 500.0, kv: float = 140.0):
+    """The paper's interactive-perception set-up: the paper bunny on the ground and a
+    floating sphere (radius 0.25, mass 10) on three slide joints ``pusher_x/y/z`` driven by
+    position actuators (PD: F = kp·(target − x) − kv·ẋ, gravity compensated). The sphere
+    touches only the bunny (DANO contact), not the ground."""
+    import mujoco
+
+    from ..sim.scene import add_ground
+
+    bunny = bunny or load_builtin("bunny")
+    spec = mujoco.MjSpec()
+    add_ground(spec)
+    body = spec.worldbody.add_body(name="pusher", pos=[0, 0, 0], gravcomp=1.0)
+    for axis, vec in zip("xyz", np.eye(3)):
+        body.add_joint(name=f"pusher_{axis}", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=list(vec))
+        spec.add_actuator(name=f"pusher_{axis}", target=f"pusher_{axis}", trntype=mujoco.mjtTrn.mjTRN_JOINT,
+                          gaintype=mujoco.mjtGain.mjGAIN_FIXED, gainprm=[kp] + [0] * 9,
+                          biastype=mujoco.mjtBias.mjBIAS_AFFINE, biasprm=[0, -kp, -kv] + [0] * 7)
+    body.add_geom(name="pusher", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.25, 0, 0], mass=10.0, contype=2,
+                  conaffinity=2, rgba=[0.3, 0.5, 0.9, 1])
+    z = _resting_height(bunny)
+    return compose([DanoObject("bunny", bunny, (0, 0, z))], spec, dt=dt, name="bunny-pushes"), z
+
+
+def push_observations(scene, z_bunny: float, params, num_pushes: int = 10, duration: float = 2.0,
+                      position_noise: float = 0.0, rotation_noise_deg: float = 0.0, seed: int = 0,
+                      rest_frames: int = 20):
+    """Simulate ``num_pushes`` pushes of the bunny by the sphere under ``params`` (the hidden
+    ground truth) and return them as :class:`Observation` s of the bunny's pose and the
+    sphere's position, with optional Gaussian noise (position [m], rotation angle [deg]).
+
+    Push k approaches from the direction 2πk/N with a lateral offset, along a straight
+    target line through the bunny over ``duration`` s. Bunny and sphere are at rest for the
+    first ``rest_frames`` frames (the sphere reaches the bunny after about 0.35 s): the
+    observations say so, and the initial state is averaged over them."""
+    import jax.numpy as jnp
+
+    from ..sim.step import State, rollout_arrays
+
+    rng = np.random.default_rng(seed)
+    dt = scene.dt
+    steps = int(round(duration / dt))
+    # let the bunny settle on the ground first (sphere parked far away)
+    settle = np.array(scene.qpos0)
+    settle[:3] = [5.0, 5.0, 0.3]
+    settle[3:10] = [0, 0, z_bunny, 1, 0, 0, 0]
+    hold = jnp.tile(jnp.asarray(settle[:3]), (200, 1))
+    rest = np.asarray(rollout_arrays(scene, State(jnp.asarray(settle), jnp.zeros(scene.nv)), hold, params, 200)[0][-1])
+    t = np.arange(steps + 1) * dt
+    obs = []
+    for k in range(num_pushes):
+        ang = 2 * np.pi * k / num_pushes
+        d = np.array([np.cos(ang), np.sin(ang), 0.0])
+        side = np.array([-d[1], d[0], 0.0]) * 0.15 * np.sin(3 * ang + 0.5)
+        start = -0.95 * d + side + [0, 0, 0.3]
+        end = 0.6 * d + side + [0, 0, 0.3]
+        s = np.clip(t[:-1] / (0.8 * duration), 0, 1)
+        targets = start + (end - start) * (3 * s**2 - 2 * s**3)[:, None]
+        qpos0 = rest.copy()
+        qpos0[:3] = start
+        qpos, _, _ = rollout_arrays(scene, State(jnp.asarray(qpos0), jnp.zeros(scene.nv)), jnp.asarray(targets),
+                                    params, steps)
+        qpos = np.asarray(qpos)
+        bunny = qpos[:, 3:10].copy()
+        pusher = qpos[:, :3].copy()
+        if position_noise:
+            bunny[:, :3] += rng.normal(0, position_noise, bunny[:, :3].shape)
+            pusher += rng.normal(0, position_noise, pusher.shape)
+        if rotation_noise_deg:
+            noise = Rotation.from_rotvec(rng.normal(0, np.radians(rotation_noise_deg) / np.sqrt(3), (len(t), 3)))
+            bunny[:, 3:] = (Rotation.from_quat(bunny[:, 3:], scalar_first=True) * noise).as_quat(scalar_first=True)
+        obs.append(Observation(time=t, poses={"bunny": bunny},
+                               joints={"pusher_x": pusher[:, 0], "pusher_y": pusher[:, 1], "pusher_z": pusher[:, 2]},
+                               qvel0=np.zeros(scene.nv), controls=targets, name=f"push {k}", rest_frames=rest_frames,
+                               settle_steps=50))
+    return obs
+
+
+#: hidden ground truth and the distant initial guess of the bunny experiment
+PUSH_TRUTH = {"alpha": 0.13, "sliding_friction": 0.35}
+PUSH_GUESS = {"alpha": 0.05, "sliding_friction": 0.8}
+
+
+def push_problem(position_noise: float = 0.0, rotation_noise_deg: float = 0.0, num_pushes: int = 10,
+                 seed: int = 0) -> SysIdProblem:
+    """The paper's §VI-A bunny experiment: identify the bunny's mass scale α and its sliding
+    friction on the ground from ``num_pushes`` pushes with known PD targets, observing only
+    the bunny's pose and the sphere's position. Truth α = 0.13, μ = 0.35; guess α = 0.05,
+    μ = 0.8. Residuals are weighted by the inverse noise levels (1 mm : 0.5°)."""
+    scene, z = pusher_scene()
+    pair = "bunny/ground"
+    truth = scene.set_param(scene.default_params(), "sliding_friction", PUSH_TRUTH["sliding_friction"], pair)
+    truth = scene.set_param(truth, "alpha", PUSH_TRUTH["alpha"], "bunny")
+    obs = push_observations(scene, z, truth, num_pushes, position_noise=position_noise,
+                            rotation_noise_deg=rotation_noise_deg, seed=seed)
+    params = [FitParameter("alpha", PUSH_GUESS["alpha"], 0.01, 1.0, target="bunny"),
+              FitParameter("sliding_friction", PUSH_GUESS["sliding_friction"], 0.0, 2.0, target=pair)]
+    w_rot = (1e-3 / np.radians(0.5)) ** 2
+    return SysIdProblem(scene, obs, params, weights=Weights((1.0, 1.0, 1.0), w_rot, 1.0))

@@ -1,0 +1,422 @@
+"""Observed trajectories and the identification problem (paper §V-A, Eq. 13).
+
+θ* = argmin_θ Σ_trajectories Σ_t ‖x̂_t − x_t(θ)‖²_W,  θ_min ≤ θ ≤ θ_max,
+
+where x_t(θ) comes from an open-loop rollout from the observed initial state and x̂_t
+are the observed poses. Residuals: position differences (per-axis weights) and
+orientation differences on SO(3), log(q̂_t⁻¹ ⊗ q_t) (rotation vector; q and −q are the
+same rotation, so sign flips between frames do not matter).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..contact.params import ContactParams
+from ..errors import DanoError
+from ..sim.scene import Scene, SimParams
+from ..sim.step import State, rollout_arrays
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One observed trajectory.
+
+    time: (T,) strictly increasing frame times [s], uniformly spaced;
+    poses: {DANO name: (T, 7)} observed centre-of-mass position [m] (scene/world frame)
+    and wxyz orientation of each tracked DANO;
+    joints: {joint name: (T,)} observed positions of other joints (e.g. a pusher's slide
+    joints) [m or rad];
+    qpos0 / qvel0: optional full initial state (nq,) / (nv,); by default qpos0 is the
+    scene's qpos0 with the observed first poses and joint values, and qvel0 is derived
+    from the first frames (second-order one-sided differences);
+    controls: optional (T−1, nu) actuator controls per frame interval;
+    qfrc: optional (T−1, nv) known generalized forces per frame interval [N, N·m];
+    units: length unit of the poses; must be "m" (scene units);
+    rest_frames: if > 1, the tracked bodies are known to be at rest during the first
+    ``rest_frames`` frames: the initial pose is their mean (rotations averaged with
+    :meth:`scipy.spatial.transform.Rotation.mean`), which reduces tracking noise in the
+    initial state by about √rest_frames;
+    settle_steps: with rest_frames > 1, simulate this many steps from that initial state
+    (controls held at their first value) before the rollout is compared with the frames,
+    so that the bodies start in the model's own resting contact (a pose estimate off by a
+    fraction of a millimetre otherwise starts with a spurious impact).
+    """
+
+    time: np.ndarray
+    poses: dict = field(default_factory=dict)
+    joints: dict = field(default_factory=dict)
+    qpos0: np.ndarray | None = None
+    qvel0: np.ndarray | None = None
+    controls: np.ndarray | None = None
+    qfrc: np.ndarray | None = None
+    units: str = "m"
+    name: str = ""
+    rest_frames: int = 1
+    settle_steps: int = 0
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.time)
+
+    @property
+    def frame_dt(self) -> float:
+        return float(np.median(np.diff(self.time)))
+
+
+@dataclass(frozen=True)
+class FitParameter:
+    """A parameter to identify: name is a contact parameter (ContactParams field) or
+    "alpha"; target: a pair name (contact) or DANO name (alpha), None for all;
+    initial guess and bounds [lower, upper]."""
+
+    name: str
+    initial: float
+    lower: float = 0.0
+    upper: float = np.inf
+    target: str | None = None
+
+    @property
+    def label(self) -> str:
+        return self.name if self.target is None else f"{self.target}:{self.name}"
+
+
+@dataclass(frozen=True)
+class Weights:
+    """Residual weights: position (3,) per axis [1/m²], rotation [1/rad²], joints [1/unit²]."""
+
+    position: Sequence[float] = (1.0, 1.0, 1.0)
+    rotation: float = 1.0
+    joints: float = 1.0
+
+
+def _check_observation(obs: Observation, scene: Scene, k: int) -> None:
+    tag = obs.name or f"trajectory {k}"
+    t = np.asarray(obs.time, dtype=np.float64)
+    if t.ndim != 1 or len(t) < 2:
+        raise DanoError(f"{tag}: time must be a 1-D array of at least 2 frames, got shape {t.shape}")
+    if not np.all(np.isfinite(t)):
+        raise DanoError(f"{tag}: time contains NaN or infinite values")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        i = int(np.argmax(dt <= 0))
+        raise DanoError(f"{tag}: timestamps must increase; frame {i + 1} (t = {t[i + 1]:.6g}) is not after frame {i}")
+    if np.max(np.abs(dt - dt.mean())) > 1e-6 * dt.mean() + 1e-9:
+        raise DanoError(f"{tag}: frames must be uniformly spaced (a known frame rate); intervals range over "
+                        f"[{dt.min():.6g}, {dt.max():.6g}] s")
+    if obs.units != "m":
+        raise DanoError(f"{tag}: poses are in {obs.units!r}; convert them to the scene's units (m) first")
+    if not obs.poses and not obs.joints:
+        raise DanoError(f"{tag}: nothing observed (no poses and no joints)")
+    for name, p in obs.poses.items():
+        scene.dano_index(name)
+        p = np.asarray(p, dtype=np.float64)
+        if p.shape != (len(t), 7):
+            raise DanoError(f"{tag}: poses of {name!r} must have shape ({len(t)}, 7) (x y z qw qx qy qz), got {p.shape}")
+        if not np.all(np.isfinite(p)):
+            bad = int(np.argmax(~np.all(np.isfinite(p), axis=1)))
+            raise DanoError(f"{tag}: poses of {name!r} contain NaN or infinite values (first at frame {bad})")
+        if np.any(np.abs(np.linalg.norm(p[:, 3:], axis=1) - 1) > 1e-3):
+            raise DanoError(f"{tag}: quaternions of {name!r} are not unit length")
+    import mujoco
+
+    for name, v in obs.joints.items():
+        if mujoco.mj_name2id(scene.mj_model, mujoco.mjtObj.mjOBJ_JOINT, name) < 0:
+            raise DanoError(f"{tag}: the scene has no joint named {name!r}")
+        v = np.asarray(v, dtype=np.float64)
+        if v.shape != (len(t),) or not np.all(np.isfinite(v)):
+            raise DanoError(f"{tag}: joint {name!r} must be {len(t)} finite values, got shape {v.shape}")
+    for what, arr, width in (("controls", obs.controls, scene.nu), ("qfrc", obs.qfrc, scene.nv)):
+        if arr is not None:
+            a = np.asarray(arr)
+            if a.shape != (len(t) - 1, width) or not np.all(np.isfinite(a)):
+                raise DanoError(f"{tag}: {what} must be finite with shape ({len(t) - 1}, {width}), got {a.shape}")
+
+
+def finite_difference_velocity(times: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """(6,) initial velocity of a free body from its first three poses: linear (world frame)
+    by a second-order one-sided difference, angular (body frame) from the relative rotations."""
+    h = times[1] - times[0]
+    p = poses[:3, :3]
+    v = (-3 * p[0] + 4 * p[1] - p[2]) / (2 * h)
+    R = Rotation.from_quat(poses[:3, 3:], scalar_first=True)
+    w1 = (R[0].inv() * R[1]).as_rotvec() / h
+    w2 = (R[0].inv() * R[2]).as_rotvec() / (2 * h)
+    return np.r_[v, 2 * w1 - w2]
+
+
+def quat_log_error(q_obs: jax.Array, q_sim: jax.Array) -> jax.Array:
+    """Rotation vector of q_obs⁻¹ ⊗ q_sim, (..., 3) [rad]; sign-invariant and NaN-free."""
+    w1, v1 = q_obs[..., :1], q_obs[..., 1:]
+    w2, v2 = q_sim[..., :1], q_sim[..., 1:]
+    w = w1 * w2 + jnp.sum(v1 * v2, axis=-1, keepdims=True)
+    v = w1 * v2 - w2 * v1 - jnp.cross(v1, v2)
+    v = jnp.where(w < 0, -v, v)
+    w = jnp.abs(w)
+    sq = jnp.sum(v * v, axis=-1, keepdims=True)
+    n = jnp.sqrt(jnp.where(sq > 0, sq, 1.0))
+    scale = jnp.where(sq > 1e-24, 2.0 * jnp.arctan2(n, w) / n, 2.0 / jnp.maximum(w, 1e-12))
+    return scale * v
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A rollout segment (a whole trajectory or a window of one): observation index,
+    first frame, number of frames."""
+
+    obs: int
+    start: int
+    frames: int
+
+
+class SysIdProblem:
+    """Identification of ``parameters`` from ``observations`` of ``scene``.
+
+    substeps: simulation steps per frame interval (scene.dt must equal frame_dt/substeps);
+    fit_velocity: axes ("x", "y", "z" letters) of each tracked DANO's initial linear
+    velocity to fit as nuisance parameters, per segment (e.g. "xy"); window: split
+    trajectories into windows of this many frame intervals, each rolled out from its
+    observed state (multiple shooting for long or chaotic motions); None: whole trajectories.
+    Raises DanoError for inconsistent input (see :func:`_check_observation`), unknown
+    parameters, bounds that exclude the initial guess, or fewer residuals than parameters.
+    """
+
+    def __init__(self, scene: Scene, observations: Sequence[Observation], parameters: Sequence[FitParameter],
+                 weights: Weights = Weights(), base_params: SimParams | None = None, substeps: int = 1,
+                 fit_velocity: str = "", window: int | None = None):
+        self._args = dict(weights=weights, base_params=base_params, substeps=substeps, fit_velocity=fit_velocity,
+                          window=window)
+        if not observations:
+            raise DanoError("no observed trajectories given")
+        if not parameters and not fit_velocity:
+            raise DanoError("no parameters to identify")
+        self.scene, self.observations = scene, list(observations)
+        self.parameters, self.weights = list(parameters), weights
+        self.base_params = base_params or scene.default_params()
+        self.substeps = int(substeps)
+        for k, obs in enumerate(self.observations):
+            _check_observation(obs, scene, k)
+            expected = obs.frame_dt / self.substeps
+            if abs(expected - scene.dt) > 1e-9 * max(scene.dt, 1e-12) + 1e-12:
+                raise DanoError(
+                    f"{obs.name or f'trajectory {k}'}: frame interval {obs.frame_dt:.6g} s "
+                    f"({1 / obs.frame_dt:.4g} frames/s) does not match the scene's time step {scene.dt:.6g} s x "
+                    f"{self.substeps} substeps")
+        if set(fit_velocity) - set("xyz"):
+            raise DanoError(f"fit_velocity must be made of the letters x, y, z, got {fit_velocity!r}")
+        self.fit_axes = tuple("xyz".index(c) for c in fit_velocity)
+        for p in self.parameters:
+            if p.name != "alpha" and p.name not in ContactParams.names():
+                raise DanoError(f"unknown parameter {p.name!r}; known: alpha, {', '.join(ContactParams.names())}")
+            if p.target is not None and p.name == "alpha":
+                scene.dano_index(p.target)
+            elif p.target is not None and p.target not in scene.pair_names:
+                raise DanoError(f"no contact pair {p.target!r}; pairs: {list(scene.pair_names)}")
+            if not (p.lower <= p.initial <= p.upper) or not np.isfinite(p.initial):
+                raise DanoError(f"bounds [{p.lower}, {p.upper}] of {p.label} exclude the initial guess {p.initial}")
+        self.segments = self._segments(window)
+        self._tracked = [sorted(o.poses) for o in self.observations]
+        n_res = self.num_residuals
+        if n_res < self.num_parameters:
+            raise DanoError(f"{n_res} residuals for {self.num_parameters} parameters: observe more frames "
+                            "or fit fewer parameters")
+
+    def truncated(self, fraction: float) -> "SysIdProblem":
+        """The same problem on the first ``fraction`` of every trajectory (at least 3 frames)."""
+        obs = []
+        for o in self.observations:
+            n = max(3, int(np.ceil(fraction * o.num_frames)))
+            cut = lambda a, k=n: None if a is None else np.asarray(a)[:k]  # noqa: E731
+            obs.append(dataclasses.replace(
+                o, time=cut(o.time), poses={k: cut(v) for k, v in o.poses.items()},
+                joints={k: cut(v) for k, v in o.joints.items()}, controls=cut(o.controls, n - 1),
+                qfrc=cut(o.qfrc, n - 1)))
+        return SysIdProblem(self.scene, obs, self.parameters, **self._args)
+
+    def with_initial(self, theta) -> "SysIdProblem":
+        """The same problem with the global parameters' initial guesses set from θ."""
+        params = [dataclasses.replace(p, initial=float(np.clip(v, p.lower, p.upper)))
+                  for p, v in zip(self.parameters, theta)]
+        return SysIdProblem(self.scene, self.observations, params, **self._args)
+
+    # -- layout
+    def _segments(self, window):
+        segs = []
+        for k, o in enumerate(self.observations):
+            T = o.num_frames
+            if window is None:
+                segs.append(Segment(k, 0, T))
+            else:
+                if window < 2:
+                    raise DanoError(f"window must be at least 2 frame intervals, got {window}")
+                for s in range(0, T - 1, window):
+                    segs.append(Segment(k, s, min(window, T - 1 - s) + 1))
+        return segs
+
+    @property
+    def labels(self) -> list[str]:
+        names = [p.label for p in self.parameters]
+        for i, s in enumerate(self.segments):
+            for d in self._tracked[s.obs]:
+                names += [f"v0[{i}]:{d}:{'xyz'[a]}" for a in self.fit_axes]
+        return names
+
+    @property
+    def num_parameters(self) -> int:
+        return len(self.labels)
+
+    @property
+    def num_residuals(self) -> int:
+        n = 0
+        for s in self.segments:
+            o = self.observations[s.obs]
+            n += (s.frames - 1) * (6 * len(o.poses) + len(o.joints))
+        return n
+
+    def initial(self) -> np.ndarray:
+        return np.array([p.initial for p in self.parameters] + [0.0] * (self.num_parameters - len(self.parameters)))
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        n_extra = self.num_parameters - len(self.parameters)
+        lo = np.array([p.lower for p in self.parameters] + [-np.inf] * n_extra)
+        hi = np.array([p.upper for p in self.parameters] + [np.inf] * n_extra)
+        return lo, hi
+
+    def sim_params(self, theta) -> SimParams:
+        """SimParams with the identified parameters from θ (the rest from base_params)."""
+        contact, alpha = self.base_params.contact, jnp.asarray(self.base_params.alpha)
+        for i, p in enumerate(self.parameters):
+            if p.name == "alpha":
+                idx = slice(None) if p.target is None else self.scene.dano_index(p.target)
+                alpha = alpha.at[idx].set(theta[i])
+            else:
+                idx = slice(None) if p.target is None else self.scene.pair_names.index(p.target)
+                arr = jnp.asarray(getattr(contact, p.name)).at[idx].set(theta[i])
+                contact = dataclasses.replace(contact, **{p.name: arr})
+        return SimParams(contact, alpha)
+
+    # -- data per segment
+    def _segment_data(self, seg: Segment):
+        import mujoco
+
+        o, sc = self.observations[seg.obs], self.scene
+        sl = slice(seg.start, seg.start + seg.frames)
+        t = np.asarray(o.time, dtype=np.float64)[sl]
+        qpos = np.array(o.qpos0 if (o.qpos0 is not None and seg.start == 0) else sc.qpos0, dtype=np.float64)
+        qvel = np.zeros(sc.nv)
+        if o.qvel0 is not None and seg.start == 0:
+            qvel = np.array(o.qvel0, dtype=np.float64)
+        for name, p in o.poses.items():
+            p = np.asarray(p, dtype=np.float64)[sl]
+            i = sc.dano_index(name)
+            qpos[sc.qpos_adr[i] : sc.qpos_adr[i] + 7] = p[0]
+            if seg.start == 0 and o.rest_frames > 1:
+                k = min(o.rest_frames, len(p))
+                mean_q = Rotation.from_quat(p[:k, 3:], scalar_first=True).mean().as_quat(scalar_first=True)
+                qpos[sc.qpos_adr[i] : sc.qpos_adr[i] + 7] = np.r_[p[:k, :3].mean(0), mean_q]
+            if o.qvel0 is None or seg.start > 0:
+                qvel[sc.dof_adr[i] : sc.dof_adr[i] + 6] = finite_difference_velocity(t, p)
+        jadr = []
+        for name, v in o.joints.items():
+            j = mujoco.mj_name2id(sc.mj_model, mujoco.mjtObj.mjOBJ_JOINT, name)
+            qa, da = int(sc.mj_model.jnt_qposadr[j]), int(sc.mj_model.jnt_dofadr[j])
+            v = np.asarray(v, dtype=np.float64)[sl]
+            qpos[qa] = v[:min(o.rest_frames, len(v))].mean() if seg.start == 0 else v[0]
+            if o.qvel0 is None or seg.start > 0:
+                qvel[da] = (-3 * v[0] + 4 * v[1] - v[2]) / (2 * (t[1] - t[0]))
+            jadr.append(qa)
+        steps = (seg.frames - 1) * self.substeps
+        ctrl = np.zeros((steps, sc.nu))
+        if o.controls is not None:
+            ctrl = np.repeat(np.asarray(o.controls, dtype=np.float64)[seg.start : seg.start + seg.frames - 1],
+                             self.substeps, axis=0)
+        qfrc = np.zeros((steps, sc.nv))
+        if o.qfrc is not None:
+            qfrc = np.repeat(np.asarray(o.qfrc, dtype=np.float64)[seg.start : seg.start + seg.frames - 1],
+                             self.substeps, axis=0)
+        settle = o.settle_steps if (seg.start == 0 and o.rest_frames > 1) else 0
+        if settle:
+            ctrl = np.concatenate([np.repeat(ctrl[:1], settle, axis=0), ctrl])
+            qfrc = np.concatenate([np.zeros((settle, sc.nv)), qfrc])
+        obs_pose = np.stack([np.asarray(o.poses[n], dtype=np.float64)[sl] for n in self._tracked[seg.obs]]) \
+            if o.poses else np.zeros((0, seg.frames, 7))
+        obs_joint = np.stack([np.asarray(v, dtype=np.float64)[sl] for v in o.joints.values()]) \
+            if o.joints else np.zeros((0, seg.frames))
+        didx = [sc.dano_index(n) for n in self._tracked[seg.obs]]
+        return dict(qpos0=qpos, qvel0=qvel, ctrl=ctrl, qfrc=qfrc, obs_pose=obs_pose, obs_joint=obs_joint), \
+            (tuple(sc.qpos_adr[i] for i in didx), tuple(sc.dof_adr[i] for i in didx), tuple(jadr), steps, settle)
+
+    def residual_function(self):
+        """(θ) -> residual vector, a pure JAX function (jit/jacfwd it). Segments of the same
+        layout are batched with ``vmap``."""
+        groups: dict = {}
+        for i, seg in enumerate(self.segments):
+            data, layout = self._segment_data(seg)
+            groups.setdefault(layout, []).append((i, data))
+        batches = []
+        for layout, items in groups.items():
+            stacked = {k: jnp.asarray(np.stack([d[k] for _, d in items])) for k in items[0][1]}
+            batches.append((layout, [i for i, _ in items], stacked))
+        wpos = jnp.sqrt(jnp.asarray(self.weights.position, dtype=jnp.float64))
+        wrot, wjoint = float(np.sqrt(self.weights.rotation)), float(np.sqrt(self.weights.joints))
+        n_global = len(self.parameters)
+        axes = self.fit_axes
+        scene, substeps = self.scene, self.substeps
+        tracked_counts = [len(self._tracked[s.obs]) for s in self.segments]
+        offsets = np.cumsum([0] + [c * len(axes) for c in tracked_counts])
+
+        def residuals(theta):
+            params = self.sim_params(theta)
+            out = []
+            for (qadr, dadr, jadr, steps, settle), seg_ids, data in batches:
+                # nuisance initial velocities of this batch's segments
+                dv = jnp.zeros((len(seg_ids), scene.nv), dtype=theta.dtype)
+                if axes:
+                    for row, sid in enumerate(seg_ids):
+                        block = theta[n_global + offsets[sid] : n_global + offsets[sid + 1]].reshape(-1, len(axes))
+                        for b, d in enumerate(dadr):
+                            dv = dv.at[row, jnp.asarray([d + a for a in axes])].add(block[b])
+
+                def one(qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, dv_):
+                    qpos, _, _ = rollout_arrays(scene, State(qpos0, qvel0 + dv_), ctrl, params, settle + steps, qfrc)
+                    frames = qpos[settle + substeps :: substeps]  # states at frames 1..F-1
+                    res = []
+                    for b, a in enumerate(qadr):
+                        res.append(((frames[:, a : a + 3] - obs_pose[b, 1:, :3]) * wpos).ravel())
+                        res.append((wrot * quat_log_error(obs_pose[b, 1:, 3:], frames[:, a + 3 : a + 7])).ravel())
+                    for b, a in enumerate(jadr):
+                        res.append(wjoint * (frames[:, a] - obs_joint[b, 1:]))
+                    return jnp.concatenate(res)
+
+                r = jax.vmap(one)(data["qpos0"], data["qvel0"], data["ctrl"], data["qfrc"], data["obs_pose"],
+                                  data["obs_joint"], dv)
+                out.append(r.ravel())
+            return jnp.concatenate(out)
+
+        return residuals
+
+    def simulate(self, theta) -> list[np.ndarray]:
+        """Fitted qpos (frames, nq) of every segment at θ (for plots and reports)."""
+        params = self.sim_params(jnp.asarray(theta))
+        n_global, axes = len(self.parameters), self.fit_axes
+        tracked_counts = [len(self._tracked[s.obs]) for s in self.segments]
+        offsets = np.cumsum([0] + [c * len(axes) for c in tracked_counts])
+        out = []
+        for sid, seg in enumerate(self.segments):
+            data, (qadr, dadr, jadr, steps, settle) = self._segment_data(seg)
+            qvel0 = np.array(data["qvel0"])
+            if axes:
+                block = np.asarray(theta)[n_global + offsets[sid] : n_global + offsets[sid + 1]].reshape(-1, len(axes))
+                for b, d in enumerate(dadr):
+                    qvel0[[d + a for a in axes]] += block[b]
+            qpos, _, _ = rollout_arrays(self.scene, State(jnp.asarray(data["qpos0"]), jnp.asarray(qvel0)),
+                                        jnp.asarray(data["ctrl"]), params, settle + steps, jnp.asarray(data["qfrc"]))
+            out.append(np.asarray(qpos)[settle :: self.substeps])
+        return out
