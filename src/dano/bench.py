@@ -134,6 +134,38 @@ def bench_sim(repeats: int = 5, steps: int = 2000) -> dict:
     return out
 
 
+def bench_sysid(repeats: int = 3) -> dict:
+    """Identification wall times (solver only; compilation reported separately), with AD
+    Jacobians and, in the same run, with SciPy's finite-difference Jacobians:
+
+    * ``soap``: the real soap video (sliding friction + 2 nuisance velocities), median of
+      ``repeats`` solves;
+    * ``bunny_pushes``: α and friction from 10 noisy pushes (one solve each way; the slow one).
+    """
+    from .sysid import identify
+    from .sysid.examples import PUSH_TRUTH, push_problem, soap_problem
+
+    out: dict = {}
+    problem = soap_problem(substeps=4)
+    for jac in ("ad", "fd"):
+        runs = [identify(problem, jacobian=jac) for _ in range(repeats + 1)]
+        walls = [r.wall_time_s for r in runs[1:]]
+        out[f"soap_{jac}"] = {"median_s": statistics.median(walls), "first_compile_s": runs[0].compile_time_s,
+                              "sliding_friction": float(runs[-1].estimates[0]), "nfev": runs[-1].nfev,
+                              "njev": runs[-1].njev}
+    out["soap_ratio_fd_over_ad"] = out["soap_fd"]["median_s"] / out["soap_ad"]["median_s"]
+    problem = push_problem(1e-3, 0.5)
+    for jac in ("ad", "fd"):
+        r = identify(problem, jacobian=jac, horizons=(0.4,))
+        est = dict(zip(r.labels, r.estimates))
+        out[f"bunny_pushes_{jac}"] = {
+            "wall_s": r.wall_time_s, "compile_s": r.compile_time_s, "nfev": r.nfev, "njev": r.njev,
+            "alpha_rel_error": est["bunny:alpha"] / PUSH_TRUTH["alpha"] - 1,
+            "friction_rel_error": est["bunny/ground:sliding_friction"] / PUSH_TRUTH["sliding_friction"] - 1}
+    out["bunny_pushes_ratio_fd_over_ad"] = out["bunny_pushes_fd"]["wall_s"] / out["bunny_pushes_ad"]["wall_s"]
+    return out
+
+
 def environment() -> dict:
     from . import __version__
 
@@ -152,7 +184,7 @@ def environment() -> dict:
     }
 
 
-SUITES = {"build": bench_build, "sim": bench_sim}
+SUITES = {"build": bench_build, "sim": bench_sim, "sysid": bench_sysid}
 
 
 def run(suites: list[str] | None = None, repeats: int = 3) -> dict:
