@@ -44,8 +44,28 @@ DEFAULT_NUM_SAMPLES = 5000
 # --------------------------------------------------------------------------- mass
 
 
+class _PrincipalInertia:
+    """Principal moments and axes of an ``inertia`` (3, 3) attribute."""
+
+    inertia: np.ndarray
+
+    @property
+    def principal_moments(self) -> np.ndarray:
+        """(3,) principal moments of inertia [kg m²], ascending."""
+        return np.linalg.eigvalsh(self.inertia)
+
+    @property
+    def principal_axes(self) -> np.ndarray:
+        """(3, 3) columns: principal axes (object frame, right-handed), matching
+        :attr:`principal_moments`."""
+        _, axes = np.linalg.eigh(self.inertia)
+        if np.linalg.det(axes) < 0:
+            axes[:, 2] *= -1
+        return axes
+
+
 @dataclass(frozen=True)
-class MassProperties:
+class MassProperties(_PrincipalInertia):
     """Mass properties of αφ with one-sigma error estimates.
 
     mass [kg]; center_of_mass (3,) object frame [m]; inertia (3, 3) [kg m²] about
@@ -62,23 +82,6 @@ class MassProperties:
     inertia_std: np.ndarray
     method: str
     num_points: int
-
-    @property
-    def principal_moments(self) -> np.ndarray:
-        """(3,) principal moments of inertia [kg m²], ascending."""
-        return np.linalg.eigvalsh(self.inertia)
-
-    @property
-    def principal_axes(self) -> np.ndarray:
-        """(3, 3) columns: principal axes in the object frame (right-handed)."""
-        return _principal_axes(self.inertia)
-
-
-def _principal_axes(inertia: np.ndarray) -> np.ndarray:
-    _, axes = np.linalg.eigh(inertia)
-    if np.linalg.det(axes) < 0:
-        axes[:, 2] *= -1
-    return axes
 
 
 @jax.jit
@@ -385,7 +388,7 @@ def _frozen(a, dtype=np.float64) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class DanoAsset:
+class DanoAsset(_PrincipalInertia):
     """A dynamics-augmented neural object: mass properties + boundary samples.
 
     mass: total mass m = α∫φ [kg]; alpha: mass scale α;
@@ -430,16 +433,6 @@ class DanoAsset:
     @property
     def num_samples(self) -> int:
         return int(self.points.shape[0])
-
-    @property
-    def principal_moments(self) -> np.ndarray:
-        """(3,) principal moments of inertia [kg m²], ascending."""
-        return np.linalg.eigvalsh(self.inertia)
-
-    @property
-    def principal_axes(self) -> np.ndarray:
-        """(3, 3) columns: principal axes (object frame), matching :attr:`principal_moments`."""
-        return _principal_axes(self.inertia)
 
     @property
     def normals_valid(self) -> np.ndarray:

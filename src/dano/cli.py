@@ -225,7 +225,7 @@ def simulate(
     import numpy as np
 
     from .sim import compose, rollout, save_trajectory
-    from .sim.scenes import BUILTIN_SCENES, Setup, _free_state, load_scene
+    from .sim.scenes import BUILTIN_SCENES, Setup, initial_state, load_scene
 
     if scene in BUILTIN_SCENES:
         if object:
@@ -237,7 +237,7 @@ def simulate(
             raise ValueError(f"unknown scene {scene!r}; built-in scenes: {', '.join(BUILTIN_SCENES)} (or an MJCF path)")
         objs = [_parse_object(o) for o in (object or ("builtin:bunny@0,0,1",))]
         sc = compose(objs, path, dt=dt or 0.01, name=path.stem)
-        state = _free_state(sc, {o.name: (o.pos, o.quat) for o in objs})
+        state = initial_state(sc, {o.name: (o.pos, o.quat) for o in objs})
         setup = Setup(sc, state, sc.default_params(), 2.0, None, f"MJCF {path}")
     params = _apply_params(setup.scene, setup.params, param)
     T = int(round((duration if duration is not None else setup.duration) / setup.scene.dt))
@@ -286,8 +286,7 @@ def sysid(
     from .sysid.config import run
     from .viz import plot_sysid
 
-    with _progress(False):
-        problem, result, report = run(config, jacobian=jacobian, noise=not no_noise)
+    problem, result, report = run(config, jacobian=jacobian, noise=not no_noise)
     out_dir = out_dir or Path(f"sysid-{Path(config).stem}")
     text = json.dumps(report["report"], indent=2).encode()
     _atomic_write(out_dir / "result.json", lambda f: f.write(text))

@@ -40,9 +40,12 @@ def _normalize(q) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-def _free_state(scene: Scene, poses: dict, velocities: dict | None = None) -> State:
-    """Initial state: qpos0 of the model with DANO/body free joints set from poses
-    {name: (pos, quat)} and velocities {name: (v world, ω body)}."""
+def initial_state(scene: Scene, poses: dict, velocities: dict | None = None) -> State:
+    """A :class:`State` from the model's qpos0 with free bodies placed and launched.
+
+    poses: {body name: (pos (3,) world [m], quat (4,) wxyz)}; velocities: {body name:
+    (v (3,) world [m/s], ω (3,) body frame [rad/s])}; other dofs keep qpos0 and zero
+    velocity. Bodies must have a free joint."""
     qpos = np.array(scene.mj_model.qpos0)
     qvel = np.zeros(scene.nv)
     m = scene.mj_model
@@ -57,7 +60,7 @@ def _free_state(scene: Scene, poses: dict, velocities: dict | None = None) -> St
     return State(jnp.asarray(qpos), jnp.asarray(qvel))
 
 
-def _resting_height(asset, quat=(1, 0, 0, 0)) -> float:
+def resting_height(asset, quat=(1, 0, 0, 0)) -> float:
     """Centre-of-mass height at which the lowest sample touches z = 0."""
     from scipy.spatial.transform import Rotation
 
@@ -73,7 +76,7 @@ def bunny_drop(dt: float | None = None) -> Setup:
     ω = (0.5, 1, 1) (body frame), sliding friction 0.1, h = 0.01 s: it tumbles to rest."""
     bunny = load_builtin("bunny")
     scene = compose([DanoObject("bunny", bunny, (0, 0, 1.1), PAPER_DROP_QUAT)], dt=dt or 0.01, name="bunny-drop")
-    state = _free_state(scene, {"bunny": ((0, 0, 1.1), PAPER_DROP_QUAT)}, {"bunny": ((2, 2, 1), (0.5, 1, 1))})
+    state = initial_state(scene, {"bunny": ((0, 0, 1.1), PAPER_DROP_QUAT)}, {"bunny": ((2, 2, 1), (0.5, 1, 1))})
     return Setup(scene, state, scene.default_params(sliding_friction=0.1), 5.0, None, bunny_drop.__doc__)
 
 
@@ -81,9 +84,9 @@ def bunny_slide(dt: float | None = None) -> Setup:
     """The paper bunny, upright on the ground, thrown along +x at 2.5 m/s (paper friction
     0.2): it slides to a stop after about v²/(2μg) = 1.6 m."""
     bunny = load_builtin("bunny")
-    z = _resting_height(bunny)
+    z = resting_height(bunny)
     scene = compose([DanoObject("bunny", bunny, (0, 0, z))], dt=dt or 0.01, name="bunny-slide")
-    state = _free_state(scene, {"bunny": ((0, 0, z), (1, 0, 0, 0))}, {"bunny": ((2.5, 0, 0), (0, 0, 0))})
+    state = initial_state(scene, {"bunny": ((0, 0, z), (1, 0, 0, 0))}, {"bunny": ((2.5, 0, 0), (0, 0, 0))})
     return Setup(scene, state, scene.default_params(), 2.5, None, bunny_slide.__doc__)
 
 
@@ -99,12 +102,12 @@ def sphere_hits_bunny(dt: float | None = None) -> Setup:
     bunny resting on the ground. Sphere-ground contact is MuJoCo's own; sphere-bunny and
     bunny-ground are DANO contacts."""
     bunny = load_builtin("bunny")
-    z = _resting_height(bunny)
+    z = resting_height(bunny)
     spec = mujoco.MjSpec()
     add_ground(spec)
     _add_ball(spec, "sphere", (-1.2, 0, 0.25))
     scene = compose([DanoObject("bunny", bunny, (0, 0, z))], spec, dt=dt or 0.01, name="sphere-hits-bunny")
-    state = _free_state(scene, {"bunny": ((0, 0, z), (1, 0, 0, 0)), "sphere": ((-1.2, 0, 0.25), (1, 0, 0, 0))},
+    state = initial_state(scene, {"bunny": ((0, 0, z), (1, 0, 0, 0)), "sphere": ((-1.2, 0, 0.25), (1, 0, 0, 0))},
                         {"sphere": ((3.0, 0, 0), (0, 12.0, 0))})
     return Setup(scene, state, scene.default_params(), 2.0, None, sphere_hits_bunny.__doc__)
 
@@ -114,13 +117,13 @@ def two_bunnies_sphere(dt: float | None = None) -> Setup:
     bunnies are queryable DANOs (signed-distance fields of the low-poly Stanford bunny),
     so their contact queries each other's field in both directions."""
     bunny = load_builtin("bunny_lowpoly")
-    z = _resting_height(bunny) + 0.005
+    z = resting_height(bunny) + 0.005
     spec = mujoco.MjSpec()
     add_ground(spec)
     _add_ball(spec, "sphere", (-1.0, 0, 0.25))
     objs = [DanoObject("bunny_a", bunny, (0, 0, z)), DanoObject("bunny_b", bunny, (0.75, 0.05, z), rgba=(0.6, 0.75, 0.5, 1))]
     scene = compose(objs, spec, dt=dt or 0.01, name="two-bunnies-sphere")
-    state = _free_state(scene, {"bunny_a": ((0, 0, z), (1, 0, 0, 0)), "bunny_b": ((0.75, 0.05, z), (1, 0, 0, 0)),
+    state = initial_state(scene, {"bunny_a": ((0, 0, z), (1, 0, 0, 0)), "bunny_b": ((0.75, 0.05, z), (1, 0, 0, 0)),
                                 "sphere": ((-1.0, 0, 0.25), (1, 0, 0, 0))},
                         {"sphere": ((4.0, 0, 0), (0, 16.0, 0))})
     return Setup(scene, state, scene.default_params(), 2.5, None, two_bunnies_sphere.__doc__)
@@ -174,10 +177,10 @@ def panda_push_bunny(dt: float | None = None) -> Setup:
                                 pos=[0, 0, 0.107 + 0.06], contype=2, conaffinity=2, mass=0.1, rgba=[0.9, 0.2, 0.2, 1])
     add_ground(spec)
     bunny = load_builtin("bunny").scaled(0.15).with_mass(0.25)
-    z = _resting_height(bunny) + 0.001
+    z = resting_height(bunny) + 0.001
     pos = (0.45, 0.0, z)
     scene = compose([DanoObject("bunny", bunny, pos)], spec, dt=dt or 0.005, name="panda-push-bunny")
-    free = _free_state(scene, {"bunny": (pos, (1, 0, 0, 0))})
+    free = initial_state(scene, {"bunny": (pos, (1, 0, 0, 0))})
     state = State(free.qpos.at[:7].set(PANDA_WAYPOINTS[0]), free.qvel)
 
     def controls(times: np.ndarray) -> np.ndarray:

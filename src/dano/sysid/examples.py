@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 
 from ..data import builtin_file, load_builtin
 from ..sim.scene import DanoObject, compose
-from ..sim.scenes import _resting_height
+from ..sim.scenes import resting_height
 from .problem import FitParameter, Observation, SysIdProblem, Weights
 
 # ../shared/README.md: the soap video is 120 frames/s; the paper Froude-scaled time by
@@ -51,7 +51,7 @@ def soap_problem(length_scale: float = 1.0, substeps: int = 1, initial_friction:
     """
     soap = load_builtin("bluesoap")
     time, poses = soap_poses(length_scale)
-    z_rest = _resting_height(soap, poses[0, 3:])
+    z_rest = resting_height(soap, poses[0, 3:])
     poses = poses.copy()
     poses[:, 2] += z_rest - poses[0, 2]
     scene = compose([DanoObject("soap", soap, poses[0, :3], poses[0, 3:])], dt=SOAP_FRAME_DT / substeps,
@@ -82,7 +82,7 @@ def pusher_scene(bunny=None, dt: float = 0.01, kp: float = 500.0, kv: float = 14
                           biastype=mujoco.mjtBias.mjBIAS_AFFINE, biasprm=[0, -kp, -kv] + [0] * 7)
     body.add_geom(name="pusher", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.25, 0, 0], mass=10.0, contype=2,
                   conaffinity=2, rgba=[0.3, 0.5, 0.9, 1])
-    z = _resting_height(bunny)
+    z = resting_height(bunny)
     return compose([DanoObject("bunny", bunny, (0, 0, z))], spec, dt=dt, name="bunny-pushes"), z
 
 
