@@ -131,3 +131,21 @@ def test_dano_rests_on_every_primitive(kind, size, top, box_asset):
     assert abs(traj.qpos[-1, 2] - (top + half)) < 0.01
     assert np.all(np.abs(traj.qpos[:, :2]) < 0.05)  # stays on top
     assert np.linalg.norm(traj.qvel[-1, :3]) < (1e-3 if kind == "box" else 2e-2)
+
+
+def test_robot_from_urdf(tmp_path):
+    """A URDF model (MuJoCo's URDF importer) is a valid scene base; its collision box is a
+    DANO contact partner."""
+    urdf = tmp_path / "table.urdf"
+    urdf.write_text(
+        '<robot name="table"><link name="top"><collision><origin xyz="0 0 0.1"/><geometry><box size="1 1 0.2"/>'
+        '</geometry></collision><inertial><mass value="5"/><inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" '
+        'iyz="0"/></inertial></link></robot>')
+    bunny = load_builtin("bunny")
+    z0 = 0.2 + -bunny.points[:, 2].min() + 0.05
+    scene = compose([DanoObject("bunny", bunny, (0, 0, z0))], urdf, ground=True, dt=0.01)
+    assert len(scene.pair_names) == 2 and "bunny/ground" in scene.pair_names
+    traj = rollout(scene, State(jnp.asarray([0, 0, z0, 1, 0, 0, 0.0]), jnp.zeros(6)), None, None, 150)
+    top = [k for k, n in enumerate(scene.pair_names) if n != "bunny/ground"][0]
+    assert traj.psi[-1, top] == pytest.approx(bunny.mass * G / 3e4, rel=0.1)  # resting on the URDF box
+    assert traj.qpos[-1, 2] > 0.2
