@@ -2,7 +2,9 @@
 
 The flat public API; stages live in submodules: :mod:`dano.fields` (density fields),
 :mod:`dano.asset` (mass properties, boundary samples, ``.dano`` files), :mod:`dano.io`
-(importers), :mod:`dano.viz` (plots).
+(importers), :mod:`dano.contact` (overlap and force law), :mod:`dano.sim` (scenes and
+rollouts on MJX), :mod:`dano.sysid` (identification), :mod:`dano.viz` (plots, videos).
+Simulation and identification names load lazily (they import MuJoCo MJX).
 """
 
 from . import _jax_setup  # noqa: F401  (must run before anything imports jax)
@@ -14,7 +16,23 @@ from .data import load_builtin  # noqa: E402
 from .errors import DanoError, FileFormatError  # noqa: E402
 from .io import load_paper_collider  # noqa: E402
 
-__all__ = [
+_LAZY = {
+    "DanoObject": "sim", "Scene": "sim", "SimParams": "sim", "SimulationDiverged": "sim", "State": "sim",
+    "Trajectory": "sim", "compose": "sim", "rollout": "sim", "rollout_arrays": "sim", "save_trajectory": "sim",
+    "load_trajectory": "sim", "ContactParams": "contact", "FitParameter": "sysid", "Observation": "sysid",
+    "SysIdProblem": "sysid", "identify": "sysid", "load_scene": "sim.scenes",
+}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module 'dano' has no attribute {name!r}")
+
+
+__all__ = sorted(_LAZY) + [
     "DanoAsset",
     "DanoError",
     "FileFormatError",
