@@ -37,7 +37,7 @@ def _progress(enabled: bool = True):
 
 
 def build(
-    source: Annotated[Path, tyro.conf.Positional],
+    source: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="SOURCE")],
     out: Annotated[Path, tyro.conf.arg(aliases=("-o",))],
     mass: float | None = None,
     alpha: float | None = None,
@@ -115,7 +115,7 @@ def _summary_table(asset) -> Table:
 
 
 def inspect(
-    file: Annotated[Path, tyro.conf.Positional],
+    file: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="FILE.dano")],
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False,
     plot: Path | None = None,
 ) -> None:
@@ -194,11 +194,11 @@ def _simulate_summary(setup, traj, wall: float) -> Table:
 
 
 def simulate(
-    scene: Annotated[str, tyro.conf.Positional],
+    scene: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="SCENE")],
     duration: float | None = None,
     dt: float | None = None,
-    param: tuple[str, ...] = (),
-    object: tuple[str, ...] = (),
+    param: Annotated[tuple[str, ...], tyro.conf.arg(metavar="NAME=VALUE")] = (),
+    object: Annotated[tuple[str, ...], tyro.conf.arg(metavar="FILE@X,Y,Z")] = (),
     out: Path | None = None,
     video: Path | None = None,
     fps: float = 30.0,
@@ -264,7 +264,7 @@ def simulate(
 
 
 def sysid(
-    config: Annotated[str, tyro.conf.Positional],
+    config: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="CONFIG")],
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False,
     out_dir: Path | None = None,
     jacobian: str | None = None,
