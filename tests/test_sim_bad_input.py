@@ -88,3 +88,16 @@ def test_divergence_is_detected_with_the_step_number(tmp_path, capsys):
                        "--quiet")
     assert code == 1 and "simulation diverged at step" in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_initial_state_refuses_unknown_or_jointed_bodies():
+    from dano.sim.scenes import initial_state, load_scene as load
+
+    s = load("sphere-hits-bunny")
+    with pytest.raises(DanoError, match="no body named 'bunyy'"):
+        initial_state(s.scene, {"bunyy": ((1, 2, 3), (1, 0, 0, 0))})
+    from dano.sysid.examples import pusher_scene
+
+    scene, _ = pusher_scene()
+    with pytest.raises(DanoError, match="body 'pusher' has no free joint"):
+        initial_state(scene, {"pusher": ((1, 2, 3), (1, 0, 0, 0))})

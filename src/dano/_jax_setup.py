@@ -41,6 +41,7 @@ def _backend_started() -> bool:
 
 
 _STARTED_BEFORE_US = _backend_started()
+_FLAG_BEFORE_US = FUSION_FLAG in os.environ.get("XLA_FLAGS", "")
 _set_xla_flags()
 if not os.environ.get("DISPLAY") and "mujoco" not in sys.modules:
     os.environ.setdefault("MUJOCO_GL", "egl")
@@ -62,7 +63,7 @@ def check_xla_flags() -> bool:
     Warns (once) when JAX was initialised before :mod:`dano` was imported, in which
     case MJX steps of robots can be ~400x slower on CPU.
     """
-    if _STARTED_BEFORE_US and FUSION_FLAG not in os.environ.get("XLA_FLAGS", ""):
+    if _STARTED_BEFORE_US and not _FLAG_BEFORE_US:
         warnings.warn(
             "JAX was started before dano was imported, without "
             f"XLA_FLAGS={FUSION_FLAG}; MJX steps of articulated robots may be "

@@ -689,5 +689,5 @@ def load(path: str | Path) -> DanoAsset:
             metadata=extra,
             **{k: arrays[k] for k in _ARRAYS},
         )
-    except (DanoError, KeyError) as exc:
+    except (DanoError, KeyError, ValueError, TypeError) as exc:
         raise FileFormatError(f"{path}: {exc}") from exc

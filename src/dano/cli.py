@@ -356,7 +356,7 @@ def bench(
 
     Args:
         json_: print one JSON object.
-        suite: suites to run (default all): build.
+        suite: suites to run (default all): build, sim, sysid.
         repeats: timed repeats after the first call.
         out: also write the JSON here.
     """
@@ -391,7 +391,9 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exc:  # tyro's own parse errors and --help
         return int(exc.code or 0)
     except (DanoError, ValueError, OSError) as exc:
-        err.print(f"[bold red]error:[/] {exc}", highlight=False, markup=True, soft_wrap=True)
+        from rich.markup import escape
+
+        err.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
         return 1
     return 0
 

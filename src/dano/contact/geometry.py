@@ -18,7 +18,8 @@ of the sampled normals (−n_A of A's samples, +n_B of B's), as in the paper.
 
 All functions take body poses (x: (3,) world [m], R: (3, 3) world-from-body) and
 return ``(psi, chi (3,) world [m], normal (3,) world)``; they are pure JAX, finite
-(no NaN) when nothing overlaps (ψ = 0, χ = body origin).
+(no NaN) when nothing overlaps (ψ = 0; χ = the DANO's origin, or for two DANOs the
+midpoint of their origins).
 """
 
 from __future__ import annotations

@@ -49,13 +49,21 @@ def initial_state(scene: Scene, poses: dict, velocities: dict | None = None) -> 
     qpos = np.array(scene.mj_model.qpos0)
     qvel = np.zeros(scene.nv)
     m = scene.mj_model
+
+    def free_joint(name):
+        b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
+        if b < 0:
+            raise DanoError(f"no body named {name!r} in scene {scene.name!r}")
+        j = m.body_jntadr[b]
+        if j < 0 or int(m.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_FREE):
+            raise DanoError(f"body {name!r} has no free joint; set its joints through qpos instead")
+        return j
+
     for name, (pos, quat) in poses.items():
-        j = m.body_jntadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)]
-        a = m.jnt_qposadr[j]
+        a = m.jnt_qposadr[free_joint(name)]
         qpos[a : a + 7] = np.r_[pos, _normalize(quat)]
     for name, (v, w) in (velocities or {}).items():
-        j = m.body_jntadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)]
-        a = m.jnt_dofadr[j]
+        a = m.jnt_dofadr[free_joint(name)]
         qvel[a : a + 6] = np.r_[v, w]
     return State(jnp.asarray(qpos), jnp.asarray(qvel))
 

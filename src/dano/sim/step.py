@@ -271,8 +271,8 @@ def _check_divergence(scene, params, time, qpos, qvel, psi, max_speed):
     other: the time step is too large for the contact stiffness)."""
     bad = ~np.all(np.isfinite(qpos), axis=1) | ~np.all(np.isfinite(qvel), axis=1)
     fast = np.max(np.abs(np.nan_to_num(qvel, nan=np.inf)), axis=1) > max_speed
-    masses = np.array([scene.assets[p.a].mass / scene.assets[p.a].alpha for p in scene.static.pairs])
-    limit = 0.5 * masses * np.asarray(params.alpha)[[p.a for p in scene.static.pairs]].reshape(-1)
+    dano_of_pair = [p.a for p in scene.static.pairs]
+    limit = 0.5 * np.asarray(scene.arrays.base_mass)[dano_of_pair] * np.asarray(params.alpha)[dano_of_pair]
     deep = np.any(np.nan_to_num(psi, nan=np.inf) > limit, axis=1) if psi.shape[1] else np.zeros(len(time), bool)
     if bad.any() or fast.any() or deep.any():
         k = int(np.argmax(bad | fast | deep))
@@ -349,10 +349,15 @@ def load_trajectory(path: str | Path) -> Trajectory:
     missing = {"time", "qpos", "qvel"} - set(a)
     if missing:
         raise FileFormatError(f"{path}: missing arrays {sorted(missing)}")
-    meta = json.loads(str(a["metadata"])) if "metadata" in a else {}
+    try:
+        meta = json.loads(str(a["metadata"])) if "metadata" in a else {}
+    except ValueError as exc:
+        raise FileFormatError(f"{path}: corrupt metadata ({exc})") from exc
     T = len(a["time"])
-    if a["qpos"].shape[0] != T or a["qvel"].shape[0] != T:
-        raise FileFormatError(f"{path}: time {a['time'].shape}, qpos {a['qpos'].shape}, qvel {a['qvel'].shape} disagree")
+    psi = a.get("psi", np.zeros((T, 0)))
+    if a["qpos"].shape[0] != T or a["qvel"].shape[0] != T or psi.shape[0] != T:
+        raise FileFormatError(f"{path}: time {a['time'].shape}, qpos {a['qpos'].shape}, qvel {a['qvel'].shape}, "
+                              f"psi {psi.shape} disagree")
     tup = lambda k: tuple(a[k].tolist()) if k in a else ()  # noqa: E731
-    return Trajectory(a["time"], a["qpos"], a["qvel"], a.get("psi", np.zeros((T, 0))), tup("body_names"),
+    return Trajectory(a["time"], a["qpos"], a["qvel"], psi, tup("body_names"),
                       tup("dano_names"), tup("qpos_adr"), tup("dof_adr"), tup("pair_names"), meta)

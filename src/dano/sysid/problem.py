@@ -29,14 +29,15 @@ from ..sim.step import State, rollout_arrays
 class Observation:
     """One observed trajectory.
 
-    time: (T,) strictly increasing frame times [s], uniformly spaced;
+    time: (T,) strictly increasing frame times [s], uniformly spaced, T >= 3;
     poses: {DANO name: (T, 7)} observed centre-of-mass position [m] (scene/world frame)
     and wxyz orientation of each tracked DANO;
-    joints: {joint name: (T,)} observed positions of other joints (e.g. a pusher's slide
-    joints) [m or rad];
-    qpos0 / qvel0: optional full initial state (nq,) / (nv,); by default qpos0 is the
-    scene's qpos0 with the observed first poses and joint values, and qvel0 is derived
-    from the first frames (second-order one-sided differences);
+    joints: {joint name: (T,)} observed positions of other one-dof (slide or hinge) joints,
+    e.g. a pusher's slide joints [m or rad];
+    qpos0 / qvel0: optional full initial state (nq,) / (nv,) (the tracked DANOs' poses and
+    joints are still taken from the observation); by default qpos0 is the scene's qpos0
+    with the observed first poses and joint values, and qvel0 is derived from the first
+    frames (second-order one-sided differences), or zero with ``rest_frames`` > 1;
     controls: optional (T−1, nu) actuator controls per frame interval;
     qfrc: optional (T−1, nv) known generalized forces per frame interval [N, N·m];
     units: length unit of the poses; must be "m" (scene units);
@@ -100,8 +101,9 @@ class Weights:
 def _check_observation(obs: Observation, scene: Scene, k: int) -> None:
     tag = obs.name or f"trajectory {k}"
     t = np.asarray(obs.time, dtype=np.float64)
-    if t.ndim != 1 or len(t) < 2:
-        raise DanoError(f"{tag}: time must be a 1-D array of at least 2 frames, got shape {t.shape}")
+    if t.ndim != 1 or len(t) < 3:
+        raise DanoError(f"{tag}: time must be a 1-D array of at least 3 frames (velocities are estimated from the "
+                        f"first three), got shape {t.shape}")
     if not np.all(np.isfinite(t)):
         raise DanoError(f"{tag}: time contains NaN or infinite values")
     dt = np.diff(t)
@@ -128,11 +130,17 @@ def _check_observation(obs: Observation, scene: Scene, k: int) -> None:
     import mujoco
 
     for name, v in obs.joints.items():
-        if mujoco.mj_name2id(scene.mj_model, mujoco.mjtObj.mjOBJ_JOINT, name) < 0:
+        j = mujoco.mj_name2id(scene.mj_model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if j < 0:
             raise DanoError(f"{tag}: the scene has no joint named {name!r}")
+        if int(scene.mj_model.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_SLIDE), int(mujoco.mjtJoint.mjJNT_HINGE)):
+            raise DanoError(f"{tag}: joint {name!r} is not a slide or hinge joint; observe free bodies as poses")
         v = np.asarray(v, dtype=np.float64)
         if v.shape != (len(t),) or not np.all(np.isfinite(v)):
             raise DanoError(f"{tag}: joint {name!r} must be {len(t)} finite values, got shape {v.shape}")
+    for what, arr, shape in (("qpos0", obs.qpos0, (scene.nq,)), ("qvel0", obs.qvel0, (scene.nv,))):
+        if arr is not None and (np.shape(arr) != shape or not np.all(np.isfinite(arr))):
+            raise DanoError(f"{tag}: {what} must be {shape[0]} finite values, got shape {np.shape(arr)}")
     for what, arr, width in (("controls", obs.controls, scene.nu), ("qfrc", obs.qfrc, scene.nv)):
         if arr is not None:
             a = np.asarray(arr)
@@ -140,12 +148,17 @@ def _check_observation(obs: Observation, scene: Scene, k: int) -> None:
                 raise DanoError(f"{tag}: {what} must be finite with shape ({len(t) - 1}, {width}), got {a.shape}")
 
 
+def _one_sided_difference(times: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Second-order one-sided derivative at the first sample: (−3x₀ + 4x₁ − x₂)/(2h)."""
+    return (-3 * x[0] + 4 * x[1] - x[2]) / (2 * (times[1] - times[0]))
+
+
 def finite_difference_velocity(times: np.ndarray, poses: np.ndarray) -> np.ndarray:
-    """(6,) initial velocity of a free body from its first three poses: linear (world frame)
-    by a second-order one-sided difference, angular (body frame) from the relative rotations."""
+    """(6,) initial velocity of a free body from its first three poses (times (≥3,) [s],
+    poses (≥3, 7) x y z qw qx qy qz): linear velocity (world frame) [m/s] by a second-order
+    one-sided difference, angular velocity (body frame) [rad/s] from the relative rotations."""
     h = times[1] - times[0]
-    p = poses[:3, :3]
-    v = (-3 * p[0] + 4 * p[1] - p[2]) / (2 * h)
+    v = _one_sided_difference(times, poses[:3, :3])
     R = Rotation.from_quat(poses[:3, 3:], scalar_first=True)
     w1 = (R[0].inv() * R[1]).as_rotvec() / h
     w2 = (R[0].inv() * R[2]).as_rotvec() / (2 * h)
@@ -209,6 +222,13 @@ class SysIdProblem:
                     f"{obs.name or f'trajectory {k}'}: frame interval {obs.frame_dt:.6g} s "
                     f"({1 / obs.frame_dt:.4g} frames/s) does not match the scene's time step {scene.dt:.6g} s x "
                     f"{self.substeps} substeps")
+        wp = np.asarray(weights.position, dtype=np.float64)
+        if wp.shape != (3,) or not np.all(np.isfinite(wp)) or np.any(wp < 0) or not all(
+                np.isfinite(w) and w >= 0 for w in (weights.rotation, weights.joints)):
+            raise DanoError(f"weights must be finite and non-negative with 3 position weights, got {weights}")
+        labels = [p.label for p in self.parameters]
+        if len(set(labels)) != len(labels):
+            raise DanoError(f"parameters are listed twice: {sorted({x for x in labels if labels.count(x) > 1})}")
         if set(fit_velocity) - set("xyz"):
             raise DanoError(f"fit_velocity must be made of the letters x, y, z, got {fit_velocity!r}")
         self.fit_axes = tuple("xyz".index(c) for c in fit_velocity)
@@ -219,6 +239,8 @@ class SysIdProblem:
                 scene.dano_index(p.target)
             elif p.target is not None and p.target not in scene.pair_names:
                 raise DanoError(f"no contact pair {p.target!r}; pairs: {list(scene.pair_names)}")
+            if not p.lower < p.upper:
+                raise DanoError(f"bounds [{p.lower}, {p.upper}] of {p.label} are empty: lower must be below upper")
             if not (p.lower <= p.initial <= p.upper) or not np.isfinite(p.initial):
                 raise DanoError(f"bounds [{p.lower}, {p.upper}] of {p.label} exclude the initial guess {p.initial}")
         self.segments = self._segments(window)
@@ -254,14 +276,22 @@ class SysIdProblem:
             if window is None:
                 segs.append(Segment(k, 0, T))
             else:
-                if window < 2:
-                    raise DanoError(f"window must be at least 2 frame intervals, got {window}")
-                for s in range(0, T - 1, window):
-                    segs.append(Segment(k, s, min(window, T - 1 - s) + 1))
+                if not isinstance(window, (int, np.integer)) or window < 2:
+                    raise DanoError(f"window must be an integer of at least 2 frame intervals, got {window!r}")
+                starts = list(range(0, T - 1, window))
+                if len(starts) > 1 and T - 1 - starts[-1] < 2:
+                    starts.pop()  # fold a 1-interval remainder into the previous window
+                for i, s in enumerate(starts):
+                    end = starts[i + 1] if i + 1 < len(starts) else T - 1
+                    segs.append(Segment(k, s, end - s + 1))
         return segs
 
     @property
     def labels(self) -> list[str]:
+        """Names of θ's entries: the global parameters (``name`` or ``target:name``) first,
+        then for each segment, each tracked DANO (sorted by name) and each fitted axis, the
+        initial linear velocity offset [m/s, world frame] added to the finite-difference
+        estimate: ``v0[segment]:dano:axis``."""
         names = [p.label for p in self.parameters]
         for i, s in enumerate(self.segments):
             for d in self._tracked[s.obs]:
@@ -274,11 +304,21 @@ class SysIdProblem:
 
     @property
     def num_residuals(self) -> int:
+        """Residual count m; components with zero weight are left out."""
+        per_pose = len(self._pos_axes()) + (3 if self.weights.rotation > 0 else 0)
         n = 0
-        for s in self.segments:
-            o = self.observations[s.obs]
-            n += (s.frames - 1) * (6 * len(o.poses) + len(o.joints))
+        for seg in self.segments:
+            o = self.observations[seg.obs]
+            n += (seg.frames - 1) * (per_pose * len(o.poses) + (len(o.joints) if self.weights.joints > 0 else 0))
         return n
+
+    def _pos_axes(self) -> tuple[int, ...]:
+        return tuple(k for k in range(3) if self.weights.position[k] > 0)
+
+    def _nuisance_offsets(self) -> np.ndarray:
+        """Start of each segment's block of nuisance velocities in θ (after the global ones)."""
+        counts = [len(self._tracked[s.obs]) * len(self.fit_axes) for s in self.segments]
+        return len(self.parameters) + np.cumsum([0] + counts)
 
     def initial(self) -> np.ndarray:
         return np.array([p.initial for p in self.parameters] + [0.0] * (self.num_parameters - len(self.parameters)))
@@ -321,16 +361,20 @@ class SysIdProblem:
                 k = min(o.rest_frames, len(p))
                 mean_q = Rotation.from_quat(p[:k, 3:], scalar_first=True).mean().as_quat(scalar_first=True)
                 qpos[sc.qpos_adr[i] : sc.qpos_adr[i] + 7] = np.r_[p[:k, :3].mean(0), mean_q]
-            if o.qvel0 is None or seg.start > 0:
+            if seg.start > 0 or (o.qvel0 is None and o.rest_frames <= 1):
                 qvel[sc.dof_adr[i] : sc.dof_adr[i] + 6] = finite_difference_velocity(t, p)
+            elif o.qvel0 is None:  # known to be at rest
+                qvel[sc.dof_adr[i] : sc.dof_adr[i] + 6] = 0.0
         jadr = []
         for name, v in o.joints.items():
             j = mujoco.mj_name2id(sc.mj_model, mujoco.mjtObj.mjOBJ_JOINT, name)
             qa, da = int(sc.mj_model.jnt_qposadr[j]), int(sc.mj_model.jnt_dofadr[j])
             v = np.asarray(v, dtype=np.float64)[sl]
             qpos[qa] = v[:min(o.rest_frames, len(v))].mean() if seg.start == 0 else v[0]
-            if o.qvel0 is None or seg.start > 0:
-                qvel[da] = (-3 * v[0] + 4 * v[1] - v[2]) / (2 * (t[1] - t[0]))
+            if seg.start > 0 or (o.qvel0 is None and o.rest_frames <= 1):
+                qvel[da] = _one_sided_difference(t, v)
+            elif o.qvel0 is None:
+                qvel[da] = 0.0
             jadr.append(qa)
         steps = (seg.frames - 1) * self.substeps
         ctrl = np.zeros((steps, sc.nu))
@@ -354,8 +398,10 @@ class SysIdProblem:
             (tuple(sc.qpos_adr[i] for i in didx), tuple(sc.dof_adr[i] for i in didx), tuple(jadr), steps, settle)
 
     def residual_function(self):
-        """(θ) -> residual vector, a pure JAX function (jit/jacfwd it). Segments of the same
-        layout are batched with ``vmap``."""
+        """(θ) -> residual vector (m,), a pure JAX function (jit/jacfwd it). Segments of the
+        same layout are batched with ``vmap``; residuals are ordered by batch, then segment,
+        then tracked DANO (position axes with non-zero weight [m·√w], rotation vector
+        [rad·√w]) and joints, frame by frame."""
         groups: dict = {}
         for i, seg in enumerate(self.segments):
             data, layout = self._segment_data(seg)
@@ -364,13 +410,12 @@ class SysIdProblem:
         for layout, items in groups.items():
             stacked = {k: jnp.asarray(np.stack([d[k] for _, d in items])) for k in items[0][1]}
             batches.append((layout, [i for i, _ in items], stacked))
-        wpos = jnp.sqrt(jnp.asarray(self.weights.position, dtype=jnp.float64))
+        pos_axes = jnp.asarray(self._pos_axes(), dtype=jnp.int32)
+        wpos = jnp.sqrt(jnp.asarray(self.weights.position, dtype=jnp.float64))[pos_axes]
         wrot, wjoint = float(np.sqrt(self.weights.rotation)), float(np.sqrt(self.weights.joints))
-        n_global = len(self.parameters)
         axes = self.fit_axes
         scene, substeps = self.scene, self.substeps
-        tracked_counts = [len(self._tracked[s.obs]) for s in self.segments]
-        offsets = np.cumsum([0] + [c * len(axes) for c in tracked_counts])
+        offsets = self._nuisance_offsets()
 
         def residuals(theta):
             params = self.sim_params(theta)
@@ -380,19 +425,23 @@ class SysIdProblem:
                 dv = jnp.zeros((len(seg_ids), scene.nv), dtype=theta.dtype)
                 if axes:
                     for row, sid in enumerate(seg_ids):
-                        block = theta[n_global + offsets[sid] : n_global + offsets[sid + 1]].reshape(-1, len(axes))
+                        block = theta[offsets[sid] : offsets[sid + 1]].reshape(-1, len(axes))
                         for b, d in enumerate(dadr):
                             dv = dv.at[row, jnp.asarray([d + a for a in axes])].add(block[b])
 
                 def one(qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, dv_):
                     qpos, _, _ = rollout_arrays(scene, State(qpos0, qvel0 + dv_), ctrl, params, settle + steps, qfrc)
                     frames = qpos[settle + substeps :: substeps]  # states at frames 1..F-1
-                    res = []
+                    res = []  # components with zero weight are left out (they would dilute σ²)
                     for b, a in enumerate(qadr):
-                        res.append(((frames[:, a : a + 3] - obs_pose[b, 1:, :3]) * wpos).ravel())
-                        res.append((wrot * quat_log_error(obs_pose[b, 1:, 3:], frames[:, a + 3 : a + 7])).ravel())
-                    for b, a in enumerate(jadr):
-                        res.append(wjoint * (frames[:, a] - obs_joint[b, 1:]))
+                        if len(pos_axes):
+                            err = frames[:, a : a + 3] - obs_pose[b, 1:, :3]
+                            res.append((err[:, pos_axes] * wpos).ravel())
+                        if wrot > 0:
+                            res.append((wrot * quat_log_error(obs_pose[b, 1:, 3:], frames[:, a + 3 : a + 7])).ravel())
+                    if wjoint > 0:
+                        for b, a in enumerate(jadr):
+                            res.append(wjoint * (frames[:, a] - obs_joint[b, 1:]))
                     return jnp.concatenate(res)
 
                 r = jax.vmap(one)(data["qpos0"], data["qvel0"], data["ctrl"], data["qfrc"], data["obs_pose"],
@@ -405,15 +454,13 @@ class SysIdProblem:
     def simulate(self, theta) -> list[np.ndarray]:
         """Fitted qpos (frames, nq) of every segment at θ (for plots and reports)."""
         params = self.sim_params(jnp.asarray(theta))
-        n_global, axes = len(self.parameters), self.fit_axes
-        tracked_counts = [len(self._tracked[s.obs]) for s in self.segments]
-        offsets = np.cumsum([0] + [c * len(axes) for c in tracked_counts])
+        axes, offsets = self.fit_axes, self._nuisance_offsets()
         out = []
         for sid, seg in enumerate(self.segments):
             data, (qadr, dadr, jadr, steps, settle) = self._segment_data(seg)
             qvel0 = np.array(data["qvel0"])
             if axes:
-                block = np.asarray(theta)[n_global + offsets[sid] : n_global + offsets[sid + 1]].reshape(-1, len(axes))
+                block = np.asarray(theta)[offsets[sid] : offsets[sid + 1]].reshape(-1, len(axes))
                 for b, d in enumerate(dadr):
                     qvel0[[d + a for a in axes]] += block[b]
             qpos, _, _ = rollout_arrays(self.scene, State(jnp.asarray(data["qpos0"]), jnp.asarray(qvel0)),

@@ -75,7 +75,9 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     """Identify the problem's parameters; returns a :class:`SysIdResult`.
 
     jacobian: "ad" (forward-mode AD, default) or "fd" (SciPy's 2-point finite
-    differences, for comparison). horizons: continuation over the trajectory length,
+    differences, for comparison). max_iterations: the most residual evaluations per
+    stage (SciPy's ``max_nfev``; the trust-region method makes about one per iteration).
+    horizons: continuation over the trajectory length,
     e.g. (0.4,): first fit on the first 40 % of every trajectory, then on all of it from
     that estimate (contact-rich cost landscapes are much smoother over short horizons,
     so a distant initial guess still reaches the right basin). Raises DanoError if the
@@ -123,7 +125,8 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         return np.where(np.isfinite(r), r, 1e6)  # keep the solver away from diverging rollouts
 
     def jac(x):
-        return np.asarray(jac_fn(jnp.asarray(x)))
+        J = np.asarray(jac_fn(jnp.asarray(x)))
+        return np.where(np.isfinite(J), J, 0.0)  # rows of diverging rollouts carry no slope
 
     def callback(intermediate_result):
         history.append(float(intermediate_result.cost))

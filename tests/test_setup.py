@@ -1,0 +1,21 @@
+"""Process set-up done on import: the XLA flag trap is handled or reported."""
+
+import subprocess
+import sys
+
+
+def test_warns_when_jax_started_before_dano_without_the_flag():
+    code = "import jax, jax.numpy as jnp; jnp.ones(2) + 1; import dano.sim"
+    env = {"PATH": "/usr/bin:/bin", "JAX_PLATFORMS": "cpu"}
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "xla_cpu_use_fusion_emitters=false" in res.stderr
+
+
+def test_sets_the_flag_when_imported_first():
+    code = "import os, dano, dano.sim; print(os.environ['XLA_FLAGS'])"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={"PATH": "/usr/bin:/bin", "JAX_PLATFORMS": "cpu"}, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "--xla_cpu_use_fusion_emitters=false" in res.stdout
+    assert "RuntimeWarning" not in res.stderr
