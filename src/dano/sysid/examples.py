@@ -104,11 +104,16 @@ def push_observations(scene, z_bunny: float, params, num_pushes: int = 10, durat
     rng = np.random.default_rng(seed)
     dt = scene.dt
     steps = int(round(duration / dt))
+    import mujoco
+
+    pj = [int(scene.mj_model.jnt_qposadr[mujoco.mj_name2id(scene.mj_model, mujoco.mjtObj.mjOBJ_JOINT, f"pusher_{a}")])
+          for a in "xyz"]  # the sphere's slide joints (actuated in this order)
+    b = scene.qpos_adr[scene.dano_index("bunny")]
     # let the bunny settle on the ground first (sphere parked far away)
     settle = np.array(scene.qpos0)
-    settle[:3] = [5.0, 5.0, 0.3]
-    settle[3:10] = [0, 0, z_bunny, 1, 0, 0, 0]
-    hold = jnp.tile(jnp.asarray(settle[:3]), (200, 1))
+    settle[pj] = [5.0, 5.0, 0.3]
+    settle[b : b + 7] = [0, 0, z_bunny, 1, 0, 0, 0]
+    hold = jnp.tile(jnp.asarray(settle[pj]), (200, 1))
     rest = np.asarray(rollout_arrays(scene, State(jnp.asarray(settle), jnp.zeros(scene.nv)), hold, params, 200)[0][-1])
     t = np.arange(steps + 1) * dt
     obs = []
@@ -121,12 +126,12 @@ def push_observations(scene, z_bunny: float, params, num_pushes: int = 10, durat
         s = np.clip(t[:-1] / (0.8 * duration), 0, 1)
         targets = start + (end - start) * (3 * s**2 - 2 * s**3)[:, None]
         qpos0 = rest.copy()
-        qpos0[:3] = start
+        qpos0[pj] = start
         qpos, _, _ = rollout_arrays(scene, State(jnp.asarray(qpos0), jnp.zeros(scene.nv)), jnp.asarray(targets),
                                     params, steps)
         qpos = np.asarray(qpos)
-        bunny = qpos[:, 3:10].copy()
-        pusher = qpos[:, :3].copy()
+        bunny = qpos[:, b : b + 7].copy()
+        pusher = qpos[:, pj].copy()
         if position_noise:
             bunny[:, :3] += rng.normal(0, position_noise, bunny[:, :3].shape)
             pusher += rng.normal(0, position_noise, pusher.shape)
