@@ -176,11 +176,13 @@ class Scene:
         return SimParams(cp.broadcast(len(self.static.pairs)),
                          jnp.asarray([a.alpha for a in self.assets], dtype=jnp.float64))
 
-    def set_param(self, params: SimParams, name: str, value: float, target: str | None = None) -> SimParams:
+    def set_param(self, params: SimParams, name: str, value, target: str | None = None) -> SimParams:
         """A copy of ``params`` with contact parameter ``name`` (or ``"alpha"``) set to
         ``value`` for every pair (every DANO for alpha), or only for pair/DANO ``target``.
-        Raises DanoError for unknown names or non-finite values."""
-        if not np.isfinite(value):
+        Differentiable in ``value`` (usable under ``jax.jacfwd``); concrete values are
+        validated. Raises DanoError for unknown names or targets and invalid values."""
+        concrete = not isinstance(value, jax.core.Tracer)
+        if concrete and not np.isfinite(value):
             raise DanoError(f"parameter {name} must be finite, got {value}")
         if name == "alpha":
             idx = slice(None) if target is None else self.dano_index(target)
@@ -196,9 +198,10 @@ class Scene:
             new = SimParams(dataclasses.replace(params.contact, **{name: arr}), params.alpha)
         else:
             raise DanoError(f"unknown parameter {name!r}; known: alpha, {', '.join(ContactParams.names())}")
-        new.contact.validate()
-        if np.any(np.asarray(new.alpha) <= 0):
-            raise DanoError(f"alpha must be positive, got {value}")
+        if concrete:
+            new.contact.validate()
+            if np.any(np.asarray(new.alpha) <= 0):
+                raise DanoError(f"alpha must be positive, got {value}")
         return new
 
     def dano_index(self, name: str) -> int:

@@ -331,16 +331,10 @@ class SysIdProblem:
 
     def sim_params(self, theta) -> SimParams:
         """SimParams with the identified parameters from θ (the rest from base_params)."""
-        contact, alpha = self.base_params.contact, jnp.asarray(self.base_params.alpha)
+        params = self.base_params
         for i, p in enumerate(self.parameters):
-            if p.name == "alpha":
-                idx = slice(None) if p.target is None else self.scene.dano_index(p.target)
-                alpha = alpha.at[idx].set(theta[i])
-            else:
-                idx = slice(None) if p.target is None else self.scene.pair_names.index(p.target)
-                arr = jnp.asarray(getattr(contact, p.name)).at[idx].set(theta[i])
-                contact = dataclasses.replace(contact, **{p.name: arr})
-        return SimParams(contact, alpha)
+            params = self.scene.set_param(params, p.name, theta[i], p.target)
+        return params
 
     # -- data per segment
     def _segment_data(self, seg: Segment):
