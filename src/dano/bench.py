@@ -166,6 +166,31 @@ def bench_sysid(repeats: int = 3) -> dict:
     return out
 
 
+def bench_batched(repeats: int = 3, steps: int = 200, batches: tuple[int, ...] | None = None) -> dict:
+    """Batched throughput: ``jax.vmap`` of the bunny-drop rollout over B initial states
+    (perturbed drop velocities), as env-steps per second. Default B: 1, 16, 64 on CPU and
+    1, 1024, 4096 on a GPU."""
+    import jax.numpy as jnp
+
+    from .sim import State, rollout_arrays
+    from .sim.scenes import load_scene
+
+    setup = load_scene("bunny-drop")
+    sc, s0, p = setup.scene, setup.state0, setup.params
+    if batches is None:
+        batches = (1, 1024, 4096) if jax.default_backend() == "gpu" else (1, 16, 64)
+    out: dict = {"steps": steps, "backend": jax.default_backend()}
+    run = jax.jit(jax.vmap(lambda q, v: rollout_arrays(sc, State(q, v), None, p, steps)[0][-1]))
+    for b in batches:
+        rng = np.random.default_rng(b)
+        qpos = jnp.tile(s0.qpos, (b, 1))
+        qvel = jnp.asarray(np.asarray(s0.qvel) + rng.normal(0, 0.2, (b, sc.nv)))
+        r = _time(lambda: jax.block_until_ready(run(qpos, qvel)), repeats)
+        r["env_steps_per_s"] = b * steps / r["median_s"]
+        out[f"batch_{b}"] = r
+    return out
+
+
 def environment() -> dict:
     from . import __version__
 
@@ -184,7 +209,7 @@ def environment() -> dict:
     }
 
 
-SUITES = {"build": bench_build, "sim": bench_sim, "sysid": bench_sysid}
+SUITES = {"build": bench_build, "sim": bench_sim, "sysid": bench_sysid, "batched": bench_batched}
 
 
 def run(suites: list[str] | None = None, repeats: int = 3) -> dict:

@@ -356,7 +356,7 @@ def bench(
 
     Args:
         json_: print one JSON object.
-        suite: suites to run (default all): build, sim, sysid.
+        suite: suites to run (default all): build, sim, sysid, batched.
         repeats: timed repeats after the first call.
         out: also write the JSON here.
     """
