@@ -16,8 +16,6 @@ from __future__ import annotations
 import dataclasses
 import datetime as _dt
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from dataclasses import field as dc_field
 from pathlib import Path
@@ -29,6 +27,7 @@ import numpy as np
 from scipy.stats import qmc
 
 from . import __version__
+from ._files import atomic_write
 from .errors import DanoError, FileFormatError
 from .fields import DensityField, from_arrays, to_arrays
 from .fields.base import check_bounds, evaluate
@@ -628,24 +627,8 @@ def save(asset: DanoAsset, path: str | Path) -> Path:
     if asset.field is not None:
         arrays.update(to_arrays(asset.field) or {})
     arrays["metadata"] = np.asarray(json.dumps(meta))
-    _atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+    atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
     return path
-
-
-def _atomic_write(path: Path, writer: Callable[[Any], None]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            writer(f)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def load(path: str | Path) -> DanoAsset:

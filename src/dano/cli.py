@@ -14,6 +14,8 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from ._files import atomic_write
+
 err = Console(stderr=True)
 out = Console()
 
@@ -224,8 +226,8 @@ def simulate(
 
     import numpy as np
 
-    from .sim import compose, rollout, save_trajectory
-    from .sim.scenes import BUILTIN_SCENES, Setup, initial_state, load_scene
+    from .sim import rollout, save_trajectory
+    from .sim.scenes import BUILTIN_SCENES, load_scene, mjcf_setup
 
     if scene in BUILTIN_SCENES:
         if object:
@@ -236,9 +238,7 @@ def simulate(
         if path.suffix.lower() != ".xml" and not path.exists():
             raise ValueError(f"unknown scene {scene!r}; built-in scenes: {', '.join(BUILTIN_SCENES)} (or an MJCF path)")
         objs = [_parse_object(o) for o in (object or ("builtin:bunny@0,0,1",))]
-        sc = compose(objs, path, dt=dt or 0.01, name=path.stem)
-        state = initial_state(sc, {o.name: (o.pos, o.quat) for o in objs})
-        setup = Setup(sc, state, sc.default_params(), 2.0, None, f"MJCF {path}")
+        setup = mjcf_setup(path, objs, dt=dt or 0.01)
     params = _apply_params(setup.scene, setup.params, param)
     T = int(round((duration if duration is not None else setup.duration) / setup.scene.dt))
     if T < 1:
@@ -282,16 +282,15 @@ def sysid(
         jacobian: ad (forward-mode AD, default) or fd (finite differences, for comparison).
         no_noise: bunny-pushes: observations without the 1 mm / 0.5 deg pose noise.
     """
-    from .asset import _atomic_write
     from .sysid.config import run
     from .viz import plot_sysid
 
     problem, result, report = run(config, jacobian=jacobian, noise=not no_noise)
     out_dir = out_dir or Path(f"sysid-{Path(config).stem}")
     text = json.dumps(report["report"], indent=2).encode()
-    _atomic_write(out_dir / "result.json", lambda f: f.write(text))
+    atomic_write(out_dir / "result.json", lambda f: f.write(text))
     cfg = json.dumps(report["config"], indent=2, default=str).encode()
-    _atomic_write(out_dir / "config.json", lambda f: f.write(cfg))
+    atomic_write(out_dir / "config.json", lambda f: f.write(cfg))
     plot_sysid(problem, result, out_dir / "fit.png")
     if json_:
         print(json.dumps(report["report"]))
@@ -321,7 +320,6 @@ def demo(out_dir: Path = Path("dano-demo"), quiet: bool = False) -> None:
 
     import numpy as np
 
-    from .asset import _atomic_write
 
     asset = load_builtin("bunny")
     out.print(_summary_table(asset))
@@ -342,7 +340,7 @@ def demo(out_dir: Path = Path("dano-demo"), quiet: bool = False) -> None:
         "files": ["bunny-drop.npz", "bunny-drop.mp4", "bunny_samples.png"],
     }
     text = json.dumps(summary, indent=2).encode()
-    _atomic_write(out_dir / "summary.json", lambda f: f.write(text))
+    atomic_write(out_dir / "summary.json", lambda f: f.write(text))
     err.print(f"wrote {out_dir / 'bunny_samples.png'} and {out_dir / 'summary.json'}")
 
 
@@ -360,7 +358,6 @@ def bench(
         repeats: timed repeats after the first call.
         out: also write the JSON here.
     """
-    from .asset import _atomic_write
     from .bench import SUITES, run
 
     unknown = set(suite) - set(SUITES)
@@ -369,7 +366,7 @@ def bench(
     result = run(list(suite) or None, repeats=repeats)
     text = json.dumps(result, indent=None if json_ else 2)
     if out is not None:
-        _atomic_write(out, lambda f: f.write(text.encode()))
+        atomic_write(out, lambda f: f.write(text.encode()))
     print(text)
 
 

@@ -29,6 +29,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from .._files import atomic_write
 from .._mjx import mjx
 
 from ..contact import geometry
@@ -49,8 +50,8 @@ class State:
 
 
 class SimulationDiverged(DanoError):
-    """The state became non-finite or exceeded the speed limit; ``step`` and ``time``
-    tell when."""
+    """The state became non-finite, too fast or too deeply interpenetrating; ``step`` and
+    ``time`` [s] tell when."""
 
     def __init__(self, step: int, time: float, reason: str):
         self.step, self.time = step, time
@@ -105,8 +106,8 @@ def contact_geometry(static: SceneStatic, arrays: SceneArrays, alpha, m, d):
     return jnp.stack(psis), jnp.stack(chis), jnp.stack(normals), jnp.stack(jps), jnp.stack(jrs)
 
 
-def _step(static: SceneStatic, arrays: SceneArrays, params: SimParams, d, ctrl, qfrc):
-    m = _model_with_alpha(static, arrays, params.alpha)
+def _step(static: SceneStatic, arrays: SceneArrays, params: SimParams, m, d, ctrl, qfrc):
+    """One step of Data ``d`` on model ``m`` (α already applied, :func:`_model_with_alpha`)."""
     d = d.replace(ctrl=ctrl)
     d = mjx.fwd_position(m, d)
     psi, _, normal, jacp, jacr = contact_geometry(static, arrays, params.alpha, m, d)
@@ -139,7 +140,7 @@ def _rollout(static: SceneStatic, arrays: SceneArrays, params: SimParams, qpos0,
 
     def body(d, inputs):
         ctrl, f = inputs
-        d_next, psi = _step(static, arrays, params, d, ctrl, f)
+        d_next, psi = _step(static, arrays, params, m, d, ctrl, f)
         return d_next, (d_next.qpos, d_next.qvel, psi)
 
     d_last, (qpos, qvel, psi) = jax.lax.scan(body, d0, (controls, qfrc))
@@ -227,7 +228,8 @@ def rollout(
     (default :meth:`Scene.default_params`); steps: T (default len(controls)).
     Returns a :class:`Trajectory`. Raises DanoError for bad shapes or parameters and
     :class:`SimulationDiverged` (with the step number) if the state becomes
-    non-finite or a speed exceeds ``max_speed`` [m/s or rad/s].
+    non-finite, a speed exceeds ``max_speed`` [m/s or rad/s] or an overlap exceeds half
+    the DANO's mass (bodies passed through each other).
     For gradients use :func:`rollout_arrays` under ``jax.jacfwd``.
     progress: optional ``progress(done, total, description)``; the rollout then runs
     in 20 equal chunks (one compilation) so that it can report.
@@ -321,7 +323,6 @@ def save_trajectory(traj: Trajectory, path: str | Path) -> Path:
     """Write a trajectory to ``.npz``: arrays time (T+1,) [s], qpos (T+1, nq), qvel
     (T+1, nv), psi (T+1, P), body_names, dano_names, qpos_adr, dof_adr, pair_names and
     ``metadata`` (JSON string). Written atomically; refuses non-finite data."""
-    from ..asset import _atomic_write
 
     for k in ("qpos", "qvel", "psi"):
         if not np.all(np.isfinite(getattr(traj, k))):
@@ -334,7 +335,7 @@ def save_trajectory(traj: Trajectory, path: str | Path) -> Path:
         "metadata": np.asarray(json.dumps({"format": "dano-trajectory", "version": 1, **traj.metadata})),
     }
     path = Path(path)
-    _atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+    atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
     return path
 
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._files import atomic_write
+
 
 def plot_samples(asset, path: str | Path, max_arrows: int = 600, seed: int = 0) -> Path:
     """Draw an asset's boundary samples, their outward normals and the centre of mass
@@ -19,7 +21,6 @@ def plot_samples(asset, path: str | Path, max_arrows: int = 600, seed: int = 0) 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..asset import _atomic_write
 
     pts = asset.points + asset.center_of_mass
     size = float(np.ptp(pts, axis=0).max())
@@ -41,7 +42,7 @@ def plot_samples(asset, path: str | Path, max_arrows: int = 600, seed: int = 0) 
     ax.legend(loc="upper left")
     path = Path(path)
     fmt = path.suffix.lstrip(".") or "png"
-    _atomic_write(path, lambda f: fig.savefig(f, format=fmt, dpi=120))
+    atomic_write(path, lambda f: fig.savefig(f, format=fmt, dpi=120))
     plt.close(fig)
     return path
 
@@ -54,7 +55,6 @@ def plot_sysid(problem, result, path, max_trajectories: int = 4) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..asset import _atomic_write
 
     segs = problem.segments[:max_trajectories]
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
@@ -85,6 +85,6 @@ def plot_sysid(problem, result, path, max_trajectories: int = 4) -> Path:
     fig.suptitle(est, fontsize=10)
     fig.tight_layout()
     path = Path(path)
-    _atomic_write(path, lambda f: fig.savefig(f, format=path.suffix.lstrip(".") or "png", dpi=110))
+    atomic_write(path, lambda f: fig.savefig(f, format=path.suffix.lstrip(".") or "png", dpi=110))
     plt.close(fig)
     return path

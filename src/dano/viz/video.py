@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import os
-import tempfile
 import warnings
 from pathlib import Path
 
 import numpy as np
 
+from .._files import atomic_path
 from ..errors import DanoError
 
 
@@ -65,27 +65,17 @@ def write_video(scene, traj, path: str | Path, fps: float = 30.0, width: int = 6
     suffix = path.suffix.lower()
     if suffix not in (".mp4", ".gif"):
         raise DanoError(f"{path}: video must be .mp4 or .gif")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        kwargs = {"fps": fps}
-        if suffix == ".mp4":
-            kwargs.update(format="FFMPEG", codec="libx264", quality=7, macro_block_size=8, ffmpeg_log_level="error")
-        else:
-            kwargs.update(format="GIF", duration=1.0 / fps)
-            del kwargs["fps"]
-        with warnings.catch_warnings():
-            # imageio-ffmpeg starts ffmpeg with fork+exec; the child execs at once, so
-            # Python's "fork with threads" warning does not apply
-            warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
-            with imageio.get_writer(tmp, **kwargs) as writer:
-                for frame in render_frames(scene, traj, fps, width, height, progress):
-                    writer.append_data(frame)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    kwargs = {"fps": fps}
+    if suffix == ".mp4":
+        kwargs.update(format="FFMPEG", codec="libx264", quality=7, macro_block_size=8, ffmpeg_log_level="error")
+    else:
+        kwargs.update(format="GIF", duration=1.0 / fps)
+        del kwargs["fps"]
+    with atomic_path(path) as tmp, warnings.catch_warnings():
+        # imageio-ffmpeg starts ffmpeg with fork+exec; the child execs at once, so
+        # Python's "fork with threads" warning does not apply
+        warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
+        with imageio.get_writer(tmp, **kwargs) as writer:
+            for frame in render_frames(scene, traj, fps, width, height, progress):
+                writer.append_data(frame)
     return path
