@@ -60,6 +60,10 @@ def plane(wp, points, radius, alpha, x, R, plane_pos, plane_normal):
     return psi, chi, plane_normal
 
 
+# Signed distances of MuJoCo primitives: y (3, N) points in the geom frame [m], size: the
+# geom's MuJoCo size vector; return (N,) [m], negative inside.
+
+
 def sdf_sphere(y, size):
     return safe_norm(y, axis=0) - size[0]
 
@@ -72,7 +76,7 @@ def sdf_capsule(y, size):
 
 def sdf_box(y, size):
     """Box with half-extents size[:3]."""
-    q = jnp.abs(y) - size[:3, None] if y.ndim == 2 else jnp.abs(y) - size[:3]
+    q = jnp.abs(y) - size[:3, None]
     outside = safe_norm(jnp.maximum(q, 0.0), axis=0)
     inside = jnp.minimum(jnp.max(q, axis=0), 0.0)
     return outside + inside

@@ -12,7 +12,7 @@ included), and between every two DANOs that both carry a queryable field.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -144,7 +144,11 @@ class Scene:
     qpos_adr: tuple[int, ...]
     dof_adr: tuple[int, ...]
     name: str = "scene"
-    qpos0: np.ndarray = field(default=None)
+
+    @property
+    def qpos0(self) -> np.ndarray:
+        """(nq,) the model's reference configuration (a copy of ``mj_model.qpos0``)."""
+        return np.array(self.mj_model.qpos0)
 
     @property
     def pair_names(self) -> tuple[str, ...]:
@@ -247,7 +251,7 @@ def _load_spec(base) -> mujoco.MjSpec:
     if base is None:
         return mujoco.MjSpec()
     if isinstance(base, mujoco.MjSpec):
-        return base
+        return base.copy()  # the caller's spec is not modified
     try:
         if isinstance(base, Path) or (isinstance(base, str) and not base.lstrip().startswith("<")):
             path = Path(base)
@@ -326,8 +330,8 @@ def compose(
 ) -> Scene:
     """Build a scene from DANOs and a MuJoCo model.
 
-    objects: the DANOs; base: an MJCF path, MJCF string or MjSpec (robots, primitives),
-    or None for an empty world; dt: time step [s]; ground: add a ground plane at z = 0
+    objects: the DANOs; base: an MJCF or URDF path, MJCF string or MjSpec (robots,
+    primitives; a given MjSpec is copied, not modified), or None for an empty world; dt: time step [s]; ground: add a ground plane at z = 0
     named "ground" (default: when ``base`` is None); contacts: restrict the DANO pairs
     to these (name, name) pairs of DANO and geom/DANO names (default: all);
     gravity: (3,) [m/s²].
@@ -394,5 +398,4 @@ def compose(
         qpos_adr=tuple(int(mj_model.jnt_qposadr[j]) for j in jnt),
         dof_adr=tuple(int(mj_model.jnt_dofadr[j]) for j in jnt),
         name=name,
-        qpos0=np.array(mj_model.qpos0),
     )

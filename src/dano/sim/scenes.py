@@ -46,7 +46,7 @@ def initial_state(scene: Scene, poses: dict, velocities: dict | None = None) -> 
     poses: {body name: (pos (3,) world [m], quat (4,) wxyz)}; velocities: {body name:
     (v (3,) world [m/s], ω (3,) body frame [rad/s])}; other dofs keep qpos0 and zero
     velocity. Bodies must have a free joint."""
-    qpos = np.array(scene.mj_model.qpos0)
+    qpos = scene.qpos0
     qvel = np.zeros(scene.nv)
     m = scene.mj_model
 
@@ -195,6 +195,16 @@ def panda_push_bunny(dt: float | None = None) -> Setup:
         return np.stack([np.interp(times, PANDA_WAYPOINT_TIMES, PANDA_WAYPOINTS[:, k]) for k in range(7)], axis=1)
 
     return Setup(scene, state, scene.default_params(sliding_friction=0.3), 3.2, controls, panda_push_bunny.__doc__)
+
+
+def mjcf_setup(path: str | Path, objects: list[DanoObject], dt: float = 0.01, duration: float = 2.0) -> Setup:
+    """A runnable :class:`Setup` from a user's MJCF/URDF file and DANOs placed at their
+    ``pos``/``quat`` at rest (paper default contact parameters, zero controls).
+    Raises DanoError if the file is missing or does not compile."""
+    path = Path(path)
+    scene = compose(objects, path, dt=dt, name=path.stem)
+    state = initial_state(scene, {o.name: (o.pos, o.quat) for o in objects})
+    return Setup(scene, state, scene.default_params(), duration, None, f"MJCF {path}")
 
 
 BUILTIN_SCENES: dict[str, Callable[..., Setup]] = {

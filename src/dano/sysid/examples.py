@@ -110,7 +110,7 @@ def push_observations(scene, z_bunny: float, params, num_pushes: int = 10, durat
           for a in "xyz"]  # the sphere's slide joints (actuated in this order)
     b = scene.qpos_adr[scene.dano_index("bunny")]
     # let the bunny settle on the ground first (sphere parked far away)
-    settle = np.array(scene.qpos0)
+    settle = scene.qpos0
     settle[pj] = [5.0, 5.0, 0.3]
     settle[b : b + 7] = [0, 0, z_bunny, 1, 0, 0, 0]
     hold = jnp.tile(jnp.asarray(settle[pj]), (200, 1))

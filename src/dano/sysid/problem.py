@@ -343,7 +343,7 @@ class SysIdProblem:
         o, sc = self.observations[seg.obs], self.scene
         sl = slice(seg.start, seg.start + seg.frames)
         t = np.asarray(o.time, dtype=np.float64)[sl]
-        qpos = np.array(o.qpos0 if (o.qpos0 is not None and seg.start == 0) else sc.qpos0, dtype=np.float64)
+        qpos = np.array(o.qpos0, dtype=np.float64) if (o.qpos0 is not None and seg.start == 0) else sc.qpos0
         qvel = np.zeros(sc.nv)
         if o.qvel0 is not None and seg.start == 0:
             qvel = np.array(o.qvel0, dtype=np.float64)

@@ -83,6 +83,8 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     so a distant initial guess still reaches the right basin). Raises DanoError if the
     rollout produces non-finite residuals at the initial guess.
     """
+    if jacobian not in ("ad", "fd"):
+        raise DanoError(f"jacobian must be 'ad' or 'fd', got {jacobian!r}")
     if horizons:
         for h in horizons:
             if not 0 < h < 1:
@@ -102,11 +104,9 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         final.stages = [{"horizon": h, "estimates": r.estimates.tolist(), "cost_history": r.cost_history}
                         for h, r in zip(horizons, stages)]
         return final
-    if jacobian not in ("ad", "fd"):
-        raise DanoError(f"jacobian must be 'ad' or 'fd', got {jacobian!r}")
     r_fn = problem.residual_function()
     fun = jax.jit(r_fn)
-    jac_fn = jax.jit(jax.jacfwd(r_fn))
+    jac_fn = jax.jit(jax.jacfwd(r_fn))  # compiled only when used (jacobian="ad")
     x0 = problem.initial()
     lo, hi = problem.bounds()
 
@@ -137,7 +137,7 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
                         ftol=ftol, gtol=gtol, callback=callback)
     wall = time.perf_counter() - t0
     m, n = len(sol.fun), len(x0)
-    J = sol.jac if jacobian == "ad" else jac(sol.x)
+    J = sol.jac  # AD, or SciPy's finite differences, at the solution
     sigma2 = 2 * sol.cost / max(m - n, 1)
     try:
         cov = sigma2 * np.linalg.inv(J.T @ J)
