@@ -1,9 +1,16 @@
+import os
 from pathlib import Path
 
-import numpy as np
-import pytest
+# One XLA CPU thread, as the dano command line uses (must be set before JAX starts).
+os.environ.setdefault("NPROC", "1")
 
-import dano  # noqa: F401  (sets up JAX before any test imports it)
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+import dano  # noqa: E402,F401  (sets up JAX before any test imports it)
+
+dano.enable_float64()  # physics and gradient tests compare in float64
+dano.enable_compilation_cache()
 
 SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 

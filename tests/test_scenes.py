@@ -19,10 +19,20 @@ def run(name, steps=None):
     return s, rollout(s.scene, s.state0, ctrl, s.params, T)
 
 
-def test_bunny_slide_stops_near_coulomb_distance():
+def sliding_distance(v0, mu, drag, g=9.81):
+    """Stopping distance under Coulomb friction μ and the paper's viscous drag scaled by the
+    normal force m·g (Eq. 9): dv/dt = −g(μ + drag·v), so x = (v0 − (μ/drag)·ln(1 + drag·v0/μ))/(g·drag)."""
+    if drag == 0:
+        return v0**2 / (2 * mu * g)
+    return (v0 - mu / drag * np.log1p(drag * v0 / mu)) / (g * drag)
+
+
+def test_bunny_slide_stops_at_the_coulomb_and_drag_distance():
     s, traj = run("bunny-slide")
-    expected = 2.5**2 / (2 * 0.2 * 9.81)
-    assert abs(traj.qpos[-1, 0] / expected - 1) < 0.05
+    p = s.params.contact
+    expected = sliding_distance(2.5, float(p.sliding_friction[0]), float(p.sliding_drag[0]))
+    assert float(p.sliding_drag[0]) == 0.1  # the paper's default drag, which now acts
+    assert abs(traj.qpos[-1, 0] / expected - 1) < 0.03
     assert np.linalg.norm(traj.qvel[-1, :3]) < 1e-2
 
 
@@ -45,7 +55,9 @@ def test_panda_pushes_bunny(menagerie):
     s, traj = run("panda-push-bunny")
     b, _ = traj.dano_pose("bunny")
     assert traj.psi[:, s.scene.pair_names.index("bunny/pusher")].max() > 0
-    assert b[-1, 0] - b[0, 0] > 0.2
+    # the pusher bar sweeps x = 0.30 ... 0.75 at bunny height and stops; the bunny (15 cm) is
+    # carried ahead of it (with the paper's drag it barely slides on after the push)
+    assert b[-1, 0] - b[0, 0] > 0.15
     assert abs(b[-1, 2] - b[0, 2]) < 0.02  # still on the ground
 
 

@@ -24,6 +24,10 @@ def sliding_box():
     return scene, q0, v0
 
 
+def alpha_of(scene):
+    return float(scene.assets[0].alpha)
+
+
 def outputs(scene, q0, v0, theta, steps=40):
     mu, alpha, vx = theta
     base = scene.default_params()
@@ -36,7 +40,7 @@ def outputs(scene, q0, v0, theta, steps=40):
 
 def test_ad_matches_finite_differences(sliding_box):
     scene, q0, v0 = sliding_box
-    theta = jnp.asarray([0.4, 1.0, 1.5])
+    theta = jnp.asarray([0.4, alpha_of(scene), 1.5])  # the box's own mass scale (1 kg)
     f = lambda th: outputs(scene, q0, v0, th)  # noqa: E731
     y = f(theta)
     assert np.all(np.isfinite(np.asarray(y)))
@@ -68,7 +72,7 @@ def test_no_nan_at_rest_at_onset_and_without_contact(sliding_box):
             qpos, qvel, psi = rollout_arrays(scene, State(q, v * theta[3]), None, p, 20)
             return jnp.concatenate([qpos.ravel(), qvel.ravel(), psi.ravel()])
 
-        theta = jnp.asarray([0.3, 3e4, 1.0, 1.0])
+        theta = jnp.asarray([0.3, 3e4, alpha_of(scene), 1.0])
         val, jac = f(theta), jax.jacfwd(f)(theta)
         assert np.all(np.isfinite(np.asarray(val))), name
         assert np.all(np.isfinite(np.asarray(jac))), name

@@ -8,8 +8,9 @@ Simulation and identification names load lazily (they import MuJoCo MJX).
 """
 
 from . import _jax_setup  # noqa: F401  (must run before anything imports jax)
+from ._jax_setup import enable_compilation_cache, enable_float64  # noqa: E402
 
-__version__ = "0.1.0"
+from ._version import __version__  # noqa: E402,F401
 
 from .asset import DanoAsset, MassProperties, boundary_samples, build, load, mass_properties, save  # noqa: E402
 from .data import load_builtin  # noqa: E402
@@ -17,10 +18,11 @@ from .errors import DanoError, FileFormatError  # noqa: E402
 from .io import load_paper_collider  # noqa: E402
 
 _LAZY = {
-    "DanoObject": "sim", "Scene": "sim", "SimParams": "sim", "SimulationDiverged": "sim", "State": "sim",
-    "Trajectory": "sim", "compose": "sim", "rollout": "sim", "rollout_arrays": "sim", "save_trajectory": "sim",
-    "load_trajectory": "sim", "ContactParams": "contact", "FitParameter": "sysid", "Observation": "sysid",
-    "SysIdProblem": "sysid", "identify": "sysid", "load_scene": "sim.scenes",
+    "DanoObject": "sim", "NewtonOptions": "sim", "Scene": "sim", "SimParams": "sim", "SimulationDiverged": "sim",
+    "State": "sim", "compose": "sim", "make_data": "sim", "rollout": "sim", "rollout_arrays": "sim", "step": "sim",
+    "Trajectory": "trajectory", "save_trajectory": "trajectory", "load_trajectory": "trajectory",
+    "ContactParams": "contact", "FitParameter": "sysid", "Observation": "sysid", "SysIdProblem": "sysid",
+    "identify": "sysid", "load_scene": "sim.scenes",
 }
 
 
@@ -35,6 +37,8 @@ def __getattr__(name):
 __all__ = sorted(_LAZY) + [
     "DanoAsset",
     "DanoError",
+    "enable_compilation_cache",
+    "enable_float64",
     "FileFormatError",
     "MassProperties",
     "boundary_samples",

@@ -1,17 +1,24 @@
-"""Process-wide JAX set-up, applied once when :mod:`dano` is imported.
+"""What importing dano does to the process, and the explicit switches it offers.
 
-* ``XLA_FLAGS=--xla_cpu_use_fusion_emitters=false``: with jaxlib >= 0.8 the CPU
-  fusion emitters make MJX steps of deep kinematic chains exponentially slow
-  (one Franka Panda step: 0.45 s with them, 1.0 ms without; ``../shared/GUIDE.md``).
-  XLA reads the flag when the CPU backend starts, so it is only effective if
-  ``dano`` is imported before the first JAX computation. If JAX was started
-  earlier without it, :func:`check_xla_flags` warns once.
-* ``jax_enable_x64``: mass properties, gradient checks and identification need
-  float64 (guide: finite differences are only meaningful in float64).
-* ``MUJOCO_GL=egl`` when no display is set (and the user chose nothing): MuJoCo picks
-  its OpenGL platform when it is imported, and headless machines render through EGL.
-* A persistent compilation cache (``~/.cache/dano/jax``, or ``$DANO_CACHE_DIR``)
-  so that the 5-20 s compiles of MJX functions are paid once per machine.
+Importing dano changes no JAX configuration. It sets two environment variables, each
+only when the user has not set it and only when it can still take effect:
+
+* ``XLA_FLAGS=--xla_cpu_use_fusion_emitters=false``, appended when JAX's backend has not
+  started yet: with jaxlib >= 0.8 the CPU fusion emitters make MJX steps of deep
+  kinematic chains exponentially slow (one Franka Panda step: 0.45 s with them, 1.0 ms
+  without; ``../shared/GUIDE.md``). If JAX started earlier without it,
+  :func:`check_xla_flags` warns once (when :mod:`dano.sim` is imported).
+* ``MUJOCO_GL=egl`` when no display is set and MuJoCo is not imported yet: headless
+  machines render through EGL.
+
+Explicit switches (the ``dano`` command line turns both on):
+
+* :func:`enable_float64` — JAX's 64-bit mode, for the whole process. dano computes in
+  JAX's default float type: float32 unless 64-bit mode is on. Mass-property integration
+  and identification always run in float64 locally (``with jax.enable_x64(True)``).
+* :func:`enable_compilation_cache` — JAX's persistent compilation cache in
+  ``~/.cache/dano/jax`` (or ``$DANO_CACHE_DIR``), so the 5–20 s compiles of MJX functions
+  are paid once per machine.
 """
 
 from __future__ import annotations
@@ -21,12 +28,6 @@ import sys
 import warnings
 
 FUSION_FLAG = "--xla_cpu_use_fusion_emitters=false"
-
-
-def _set_xla_flags() -> None:
-    flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_cpu_use_fusion_emitters" not in flags:
-        os.environ["XLA_FLAGS"] = (flags + " " + FUSION_FLAG).strip()
 
 
 def _backend_started() -> bool:
@@ -42,19 +43,10 @@ def _backend_started() -> bool:
 
 _STARTED_BEFORE_US = _backend_started()
 _FLAG_BEFORE_US = FUSION_FLAG in os.environ.get("XLA_FLAGS", "")
-_set_xla_flags()
+if not _STARTED_BEFORE_US and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + FUSION_FLAG).strip()
 if not os.environ.get("DISPLAY") and "mujoco" not in sys.modules:
     os.environ.setdefault("MUJOCO_GL", "egl")
-
-import jax  # noqa: E402
-
-jax.config.update("jax_enable_x64", True)
-_cache = os.environ.get("DANO_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "dano", "jax"))
-try:
-    jax.config.update("jax_compilation_cache_dir", _cache)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
-except Exception:  # pragma: no cover - older/newer jax without these options
-    pass
 
 
 def check_xla_flags() -> bool:
@@ -73,3 +65,22 @@ def check_xla_flags() -> bool:
         )
         return False
     return True
+
+
+def enable_float64() -> None:
+    """Turn on JAX's 64-bit mode for this process (``jax_enable_x64``): scenes composed
+    afterwards simulate in float64. Call it before creating arrays you mean to use."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+
+
+def enable_compilation_cache(path: str | None = None) -> str:
+    """Turn on JAX's persistent compilation cache in ``path`` (default
+    ``$DANO_CACHE_DIR`` or ``~/.cache/dano/jax``) for compilations over 1 s; returns it."""
+    import jax
+
+    path = path or os.environ.get("DANO_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "dano", "jax"))
+    jax.config.update("jax_compilation_cache_dir", path)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    return path

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.stats import qmc
 
-from . import __version__
+from ._version import __version__
 from ._files import atomic_write
 from .errors import DanoError, FileFormatError
 from .fields import DensityField, from_arrays, to_arrays

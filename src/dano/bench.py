@@ -62,7 +62,10 @@ def bench_sim(repeats: int = 5, steps: int = 2000) -> dict:
     """Simulation speed (CPU or GPU, float64), all measured in this one run:
 
     * ``bunny_drop``: the paper bunny (5000 samples) on the ground, ``steps`` steps inside
-      one jitted ``lax.scan``; steps/s and compile time;
+      one jitted ``lax.scan``, centroid contact model; steps/s and compile time;
+      ``bunny_drop_per_sample`` the same with the per-sample model
+      (``ratio_per_sample_over_centroid_time``); ``bunny_drop_float32`` the centroid model
+      in float32;
     * ``mujoco_c_convex_hull``: what a user would otherwise pick: MuJoCo C (``mujoco.rollout``,
       no Python loop) simulating the same bunny as a convex-hull mesh collider from the same
       state; ``ratio_dano_over_mujoco_c`` compares steps/s;
@@ -87,6 +90,16 @@ def bench_sim(repeats: int = 5, steps: int = 2000) -> dict:
     sc, s0, p = setup.scene, setup.state0, setup.params
     out["bunny_drop"] = _steps_per_second(lambda: rollout_arrays(sc, s0, None, p, steps), steps, repeats)
     out["bunny_drop"]["num_samples"] = sc.assets[0].num_samples
+    out["bunny_drop"]["contact_model"] = "centroid"
+    ps = load_scene("bunny-drop", contact_model="per_sample")
+    out["bunny_drop_per_sample"] = _steps_per_second(
+        lambda: rollout_arrays(ps.scene, s0, None, ps.params, steps), steps, repeats)
+    out["ratio_per_sample_over_centroid_time"] = (out["bunny_drop_per_sample"]["median_s"]
+                                                  / out["bunny_drop"]["median_s"])
+    sc32 = sc.astype(jnp.float32)
+    p32 = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), p)
+    s32 = State(jnp.asarray(s0.qpos, jnp.float32), jnp.asarray(s0.qvel, jnp.float32))
+    out["bunny_drop_float32"] = _steps_per_second(lambda: rollout_arrays(sc32, s32, None, p32, steps), steps, repeats)
 
     # MuJoCo C with the bunny as a convex hull of its samples
     bunny = sc.assets[0]
@@ -191,6 +204,126 @@ def bench_batched(repeats: int = 3, steps: int = 200, batches: tuple[int, ...] |
     return out
 
 
+#: Ranges of the random drops of :func:`bench_energy`: the paper's Table I ranges for the
+#: impact spring and damper (log-uniform), sliding friction up to 1; the other parameters
+#: up to a few times the paper's defaults (uniform).
+ENERGY_RANGES = {
+    "impact_spring": (1e4, 1e5), "impact_damper": (1e5, 1e6), "sliding_friction": (0.0, 1.0),
+    "sliding_drag": (0.0, 0.2), "torsional_friction": (0.0, 0.05), "torsional_drag": (0.0, 0.05),
+    "rolling_friction": (0.0, 0.05), "rolling_drag": (0.0, 0.05),
+}
+
+
+def random_drops(scene, drops: int, seed: int = 0, height=(0.3, 1.5), max_speed: float = 5.0,
+                 max_spin: float = 10.0):
+    """Random drops of the scene's single DANO: (qpos0 (B, 7), qvel0 (B, 6), ContactParams
+    with (B, 1) fields). Orientation uniform; the lowest sample starts ``height`` [m] above
+    the ground; velocity and spin uniform in direction, magnitude uniform up to
+    ``max_speed`` [m/s] and ``max_spin`` [rad/s]; parameters from :data:`ENERGY_RANGES`."""
+    import jax.numpy as jnp
+    from scipy.spatial.transform import Rotation
+
+    from .contact import ContactParams
+
+    rng = np.random.default_rng(seed)
+    rot = Rotation.random(drops, random_state=rng)
+    pts = np.array(scene.assets[0].points)
+    lowest = np.array([-np.min(r.apply(pts)[:, 2]) for r in rot])
+    z = lowest + rng.uniform(*height, drops)
+    unit = lambda n: (lambda v: v / np.linalg.norm(v, axis=1, keepdims=True))(rng.normal(size=(n, 3)))  # noqa: E731
+    v = unit(drops) * rng.uniform(0, max_speed, (drops, 1))
+    w = unit(drops) * rng.uniform(0, max_spin, (drops, 1))
+    qpos = np.concatenate([np.zeros((drops, 2)), z[:, None], rot.as_quat(scalar_first=True)], axis=1)
+    params = {}
+    for name, (lo, hi) in ENERGY_RANGES.items():
+        if name in ("impact_spring", "impact_damper"):
+            val = np.exp(rng.uniform(np.log(lo), np.log(hi), drops))
+        else:
+            val = rng.uniform(lo, hi, drops)
+        params[name] = jnp.asarray(val[:, None], dtype=scene.dtype)
+    return (jnp.asarray(qpos, dtype=scene.dtype), jnp.asarray(np.concatenate([v, w], axis=1), dtype=scene.dtype),
+            ContactParams(**params))
+
+
+def mechanical_energy(scene, qpos: np.ndarray, qvel: np.ndarray, alpha: float | None = None,
+                      gravity: float = 9.81) -> np.ndarray:
+    """Kinetic + gravitational potential energy [J] of the scene's single free DANO,
+    (..., T) from qpos (..., T, 7) and qvel (..., T, 6) (angular velocity in the body frame);
+    potential m·g·z with z the centre-of-mass height above z = 0."""
+    from scipy.spatial.transform import Rotation
+
+    m = scene.mj_model
+    body = scene.body_names.index(scene.dano_names[0])
+    scale = 1.0 if alpha is None else alpha / scene.assets[0].alpha
+    mass, I = m.body_mass[body] * scale, m.body_inertia[body] * scale
+    Ri = Rotation.from_quat(m.body_iquat[body], scalar_first=True).as_matrix()
+    w = qvel[..., 3:6] @ Ri  # body-frame angular velocity in principal axes
+    return (0.5 * mass * np.sum(qvel[..., :3] ** 2, -1) + 0.5 * np.sum(I * w**2, -1)
+            + mass * gravity * qpos[..., 2])
+
+
+def bench_energy(repeats: int = 1, drops: int = 1000, seed: int = 0, duration: float = 3.0,
+                 batch: int = 50, contact_model: str = "centroid") -> dict:
+    """Energy check of the contact solve: ``drops`` random paper-bunny drops (see
+    :func:`random_drops`, h = 0.01 s, ``duration`` s, unactuated, vmapped in batches),
+    counting runs that become non-finite, diverge (speed > 1000 or an overlap above half
+    the mass) or whose kinetic + potential energy ever exceeds its initial value by more
+    than 1 % (``energy_rises``); ``max_energy_ratio`` is the largest max_t E(t)/E(0);
+    ``unconverged_steps``: steps whose Newton solve used all its iterations.
+    contact_model: of the bunny/ground pair."""
+    import jax.numpy as jnp
+
+
+    from .sim import NewtonOptions, make_data, scan_steps
+    from .sim.rollout import first_divergence
+    from .sim.scenes import load_scene
+
+    del repeats
+    setup = load_scene("bunny-drop", contact_model=contact_model)
+    sc, base = setup.scene, setup.params
+    steps = int(round(duration / sc.dt))
+    qpos0, qvel0, cparams = random_drops(sc, drops, seed)
+
+    def one(q, v, p):
+        d = make_data(sc, q, v)
+        _, qpos, qvel, psi, iters = scan_steps(sc, base.replace(contact=p), d, jnp.zeros((steps, sc.nu), sc.dtype),
+                                               jnp.zeros((steps, sc.nv), sc.dtype))
+        return qpos, qvel, psi, iters
+
+    run = jax.jit(jax.vmap(one))
+    out = {"drops": drops, "nonfinite": 0, "diverged": 0, "energy_rises": 0, "max_energy_ratio": 0.0,
+           "seed": seed, "steps": steps, "dt": sc.dt, "contact_model": contact_model,
+           "unconverged_steps": 0, "max_newton_iterations": 0}
+    t0 = time.perf_counter()
+    worst = []
+    for start in range(0, drops, batch):
+        sl = slice(start, min(start + batch, drops))
+        n = sl.stop - sl.start
+        pad = lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], batch - n, axis=0)]) if n < batch else x  # noqa: E731
+        p = jax.tree_util.tree_map(lambda x: pad(x[sl]), cparams)
+        qpos, qvel, psi, iters = (np.asarray(a)[:n] for a in run(pad(qpos0[sl]), pad(qvel0[sl]), p))
+        limit = NewtonOptions().max_iterations
+        out["unconverged_steps"] += int(np.sum(iters >= limit))
+        out["max_newton_iterations"] = max(out["max_newton_iterations"], int(iters.max()))
+        E = mechanical_energy(sc, qpos, qvel)
+        for i in range(n):
+            if not (np.all(np.isfinite(qpos[i])) and np.all(np.isfinite(qvel[i]))):
+                out["nonfinite"] += 1
+                continue
+            params_i = base.replace(contact=jax.tree_util.tree_map(lambda x: x[start + i], cparams))
+            if first_divergence(sc, params_i, qpos[i], qvel[i], psi[i])[0] is not None:
+                out["diverged"] += 1
+            ratio = float(np.max(E[i]) / E[i, 0])
+            out["max_energy_ratio"] = max(out["max_energy_ratio"], ratio)
+            if ratio > 1.01:
+                out["energy_rises"] += 1
+                worst.append((ratio, start + i))
+    out["wall_time_s"] = time.perf_counter() - t0
+    out["env_steps_per_s"] = drops * steps / out["wall_time_s"]
+    out["worst_runs"] = [{"drop": i, "energy_ratio": r} for r, i in sorted(worst, reverse=True)[:5]]
+    return out
+
+
 def environment() -> dict:
     from . import __version__
 
@@ -209,10 +342,13 @@ def environment() -> dict:
     }
 
 
-SUITES = {"build": bench_build, "sim": bench_sim, "sysid": bench_sysid, "batched": bench_batched}
+SUITES = {"build": bench_build, "sim": bench_sim, "sysid": bench_sysid, "batched": bench_batched,
+          "energy": bench_energy}
 
 
-def run(suites: list[str] | None = None, repeats: int = 3) -> dict:
-    """Run the named suites (default all) and return one JSON-able dict."""
+def run(suites: list[str] | None = None, repeats: int = 3, options: dict | None = None) -> dict:
+    """Run the named suites (default all) and return one JSON-able dict; options: per-suite
+    keyword arguments, e.g. ``{"energy": {"drops": 100}}``."""
     names = suites or list(SUITES)
-    return {"environment": environment(), **{n: SUITES[n](repeats=repeats) for n in names}}
+    options = options or {}
+    return {"environment": environment(), **{n: SUITES[n](repeats=repeats, **options.get(n, {})) for n in names}}

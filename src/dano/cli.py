@@ -348,22 +348,34 @@ def bench(
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False,
     suite: tuple[str, ...] = (),
     repeats: int = 3,
+    drops: int = 1000,
+    seed: int = 0,
+    contact_model: str = "centroid",
     out: Path | None = None,
 ) -> None:
     """Run the benchmarks (wall times; medians of repeats, first compiling call separate).
 
     Args:
         json_: print one JSON object.
-        suite: suites to run (default all): build, sim, sysid, batched.
+        suite: suites to run (default all): build, sim, sysid, batched, energy.
         repeats: timed repeats after the first call.
+        drops: random bunny drops of the energy suite.
+        seed: random seed of the energy suite's drops.
+        contact_model: contact model of the energy suite (centroid or per_sample).
         out: also write the JSON here.
     """
     from .bench import SUITES, run
+    from .contact import CONTACT_MODELS
 
     unknown = set(suite) - set(SUITES)
     if unknown:
         raise ValueError(f"unknown benchmark suite(s) {sorted(unknown)}; available: {', '.join(SUITES)}")
-    result = run(list(suite) or None, repeats=repeats)
+    if drops < 1:
+        raise ValueError(f"--drops must be at least 1, got {drops}")
+    if contact_model not in CONTACT_MODELS:
+        raise ValueError(f"unknown --contact-model {contact_model!r}; available: {', '.join(CONTACT_MODELS)}")
+    result = run(list(suite) or None, repeats=repeats,
+                 options={"energy": {"drops": drops, "seed": seed, "contact_model": contact_model}})
     text = json.dumps(result, indent=None if json_ else 2)
     if out is not None:
         atomic_write(out, lambda f: f.write(text.encode()))
@@ -371,6 +383,21 @@ def bench(
 
 
 COMMANDS = {"build": build, "inspect": inspect, "simulate": simulate, "sysid": sysid, "demo": demo, "bench": bench}
+
+
+def _configure_process() -> None:
+    """The command line's own process: one XLA CPU thread unless NPROC is set (dano's
+    steps are many small operations; on the 2-core machine XLA's thread pool made single
+    and batched rollouts about 2x slower), JAX's 64-bit mode and the persistent compilation
+    cache. A library user chooses these explicitly (see docs/simulation.md)."""
+    import os
+
+    from . import _jax_setup
+
+    if "NPROC" not in os.environ and not _jax_setup._backend_started():
+        os.environ["NPROC"] = "1"
+    _jax_setup.enable_float64()
+    _jax_setup.enable_compilation_cache()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -382,6 +409,7 @@ def main(argv: list[str] | None = None) -> int:
     if args and args[0] in ("--version", "-V"):
         print(f"dano {__version__}")
         return 0
+    _configure_process()
     try:
         tyro.extras.subcommand_cli_from_dict(COMMANDS, args=args, prog="dano",
                                              description="Dynamics-augmented neural objects (DANOs).")

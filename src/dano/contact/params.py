@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, fields
 
 import jax
@@ -16,34 +17,39 @@ from ..errors import DanoError
 class ContactParams:
     """The paper's eight contact parameters (Table I), one value per contact pair.
 
-    Each field is a float or a (P,) array (P contact pairs of a scene).
-    impact_spring k [N per unit overlap]: F_n = ψ·(k − c·v_n), ψ in mass units (paper: 1e4-1e5);
-    impact_damper c [N·s/m per unit overlap] (paper: 1e5-1e6);
-    sliding_friction μ [-]: Coulomb coefficient of the tangential force;
-    sliding_drag [N·s/m per unit overlap]: viscous tangential force −drag·ψ·v_t;
-    torsional_friction [m]: Coulomb torque about the normal per unit normal force;
-    torsional_drag [N·m·s per unit overlap];
-    rolling_friction [m]: Coulomb torque about tangent axes per unit normal force;
-    rolling_drag [N·m·s per unit overlap].
-    Defaults are the paper's: 3e4, 3e5, 0.2, 0.1, 0.01, 0, 0.01, 0.
+    Every field is a float or a (P,) array (P contact pairs of a scene). ‖F_n‖ below is the
+    magnitude of the normal force ψ·max(k − c·v_n, 0) [N], damper included (paper Eq. 8).
     """
 
     impact_spring: jax.Array | float = 3e4
+    """Impact spring k [N per unit overlap]: normal force ψ·k at rest, ψ in mass units (paper: 1e4–1e5)."""
     impact_damper: jax.Array | float = 3e5
+    """Impact damper c [N·s/m per unit overlap]: normal force −ψ·c·v_n (paper: 1e5–1e6)."""
     sliding_friction: jax.Array | float = 0.2
+    """Sliding friction μ [-]: Coulomb force μ·‖F_n‖ against the slip (Eq. 9)."""
     sliding_drag: jax.Array | float = 0.1
+    """Sliding drag [s/m]: viscous force −drag·‖F_n‖·v_t (Eq. 9)."""
     torsional_friction: jax.Array | float = 0.01
+    """Torsional friction [m]: Coulomb torque about the normal, per newton of ‖F_n‖ (Eq. 10)."""
     torsional_drag: jax.Array | float = 0.0
+    """Torsional drag [m·s]: viscous torque −drag·‖F_n‖·ω_n about the normal (Eq. 10)."""
     rolling_friction: jax.Array | float = 0.01
+    """Rolling friction [m]: Coulomb torque about tangent axes, per newton of ‖F_n‖ (Eq. 11)."""
     rolling_drag: jax.Array | float = 0.0
+    """Rolling drag [m·s]: viscous torque −drag·‖F_n‖·ω_t about tangent axes (Eq. 11)."""
 
     @staticmethod
     def names() -> tuple[str, ...]:
         return tuple(f.name for f in fields(ContactParams))
 
-    def broadcast(self, num_pairs: int) -> "ContactParams":
-        """Every field as a (P,) float64 array."""
-        return ContactParams(**{n: jnp.broadcast_to(jnp.asarray(getattr(self, n), dtype=jnp.float64), (num_pairs,))
+    def replace(self, **changes) -> "ContactParams":
+        """A copy with the given fields replaced (trace-safe; no validation)."""
+        return dataclasses.replace(self, **changes)
+
+    def broadcast(self, num_pairs: int, dtype=None) -> "ContactParams":
+        """Every field as a (P,) array of ``dtype`` (default: JAX's default float type)."""
+        dtype = dtype or jnp.zeros(()).dtype
+        return ContactParams(**{n: jnp.broadcast_to(jnp.asarray(getattr(self, n), dtype=dtype), (num_pairs,))
                                 for n in self.names()})
 
     def validate(self) -> "ContactParams":
@@ -63,15 +69,15 @@ FRICTION_REGULARIZER = 1e-3
 
 
 def smooth_direction(v: jax.Array, steepness: float = FRICTION_STEEPNESS,
-                     regularizer: float = FRICTION_REGULARIZER) -> jax.Array:
-    """Smoothed −v/|v|: −(2/π)·atan(s|v|)·v/(r + |v|), for (..., 3) velocities.
+                     regularizer: float = FRICTION_REGULARIZER, axis: int = -1) -> jax.Array:
+    """Smoothed −v/|v|: −(2/π)·atan(s|v|)·v/(r + |v|), for velocities along ``axis`` (3).
 
-    The paper's code used −atan(s|v|)·v/(r+|v|) with s = 30, r = 1e-3; a later revision
-    multiplied by 2/π so that the magnitude tends to 1 (full Coulomb friction) at
-    speed; we use that revision. At 1 cm/s the magnitude is 0.17, at 10 cm/s 0.80,
-    at 1 m/s 0.98; it is 0 (and smooth, with zero derivative) at v = 0, so there is
-    no NaN at rest.
+    The paper's code used −atan(s|v|)·v/(r+|v|) with s = 30, r = 1e-3, whose magnitude
+    tends to π/2 (so its friction coefficients act as 1.57·μ at speed); a later revision
+    multiplied by 2/π so that the magnitude tends to 1 (full Coulomb friction); we use that
+    revision. At 1 cm/s the magnitude is 0.17, at 10 cm/s 0.80, at 1 m/s 0.98; it is 0 (and
+    smooth, with a finite derivative) at v = 0, so there is no NaN at rest.
     """
-    sq = jnp.sum(v * v, axis=-1, keepdims=True)
+    sq = jnp.sum(v * v, axis=axis, keepdims=True)
     speed = jnp.sqrt(jnp.where(sq > 0, sq, 1.0)) * (sq > 0)
     return -(2.0 / jnp.pi) * jnp.arctan(steepness * speed) * v / (regularizer + speed)

@@ -58,6 +58,10 @@ class SphereField:
         c = np.asarray(self.center, dtype=np.float64)
         return np.stack([c - pad, c + pad])
 
+    def interior_density(self) -> float:
+        """Density of full occupancy, ρ (the surface is the level ρ/2)."""
+        return float(self.density_scale)
+
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
@@ -96,3 +100,7 @@ class BoxField:
         pad = np.asarray(self.half_extents) + 12.0 * float(self.edge_width)
         c = np.asarray(self.center, dtype=np.float64)
         return np.stack([c - pad, c + pad])
+
+    def interior_density(self) -> float:
+        """Density of full occupancy, ρ (the surface is the level ρ/2)."""
+        return float(self.density_scale)

@@ -105,6 +105,11 @@ class VoxelField:
         """(2, 3) positions of the first and last node, object frame [m]."""
         return np.stack([np.asarray(self.lower), np.asarray(self.upper)])
 
+    def interior_density(self) -> float:
+        """Density of full occupancy: the largest voxel value (a voxel grid states no
+        interior density; the surface is taken at half of it)."""
+        return float(np.max(np.asarray(self.values)))
+
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
@@ -134,3 +139,7 @@ class SdfGridField:
 
     def bounds(self) -> np.ndarray:
         return np.stack([np.asarray(self.lower), np.asarray(self.upper)])
+
+    def interior_density(self) -> float:
+        """Density of full occupancy, ρ (the surface, d = 0, is the level ρ/2)."""
+        return float(self.density_scale)

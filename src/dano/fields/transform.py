@@ -57,3 +57,7 @@ class TransformedField:
         corners = np.array([[b[i, 0], b[j, 1], b[k, 2]] for i, j, k in product((0, 1), repeat=3)])
         world = corners * self.scale @ np.asarray(self.rotation).T + np.asarray(self.offset)
         return np.stack([world.min(0), world.max(0)])
+
+    def interior_density(self) -> float:
+        """The base field's interior density (densities keep their values)."""
+        return float(self.base.interior_density())

@@ -1,12 +1,20 @@
-"""Scenes and differentiable rollouts on MuJoCo MJX with DANO contact."""
+"""Scenes, the public step and differentiable rollouts on MuJoCo MJX with DANO contact.
+
+``compose`` builds a :class:`Scene` (a pytree); ``step(scene, params, data) -> data`` is
+the pure, jittable, vmappable, differentiable step on MJX ``Data``; ``rollout`` and
+``rollout_arrays`` run it inside one ``jax.lax.scan``.
+"""
 
 from .._jax_setup import check_xla_flags
 
 check_xla_flags()  # warn once if JAX started without the CPU fusion-emitter fix
 
+from ..trajectory import Trajectory, load_trajectory, save_trajectory
+from .implicit import NewtonOptions
+from .rollout import SimulationDiverged, rollout, rollout_arrays, scan_steps
 from .scene import DanoObject, Scene, SimParams, compose
-from .step import (SimulationDiverged, State, Trajectory, load_trajectory, rollout, rollout_arrays,
-                   save_trajectory)
+from .dynamics import State, StepInfo, make_data, overlaps, step, step_with_info
 
-__all__ = ["DanoObject", "Scene", "SimParams", "SimulationDiverged", "State", "Trajectory", "compose",
-           "load_trajectory", "rollout", "rollout_arrays", "save_trajectory"]
+__all__ = ["DanoObject", "NewtonOptions", "Scene", "SimParams", "SimulationDiverged", "State", "StepInfo",
+           "Trajectory", "compose", "load_trajectory", "make_data", "overlaps", "rollout", "rollout_arrays",
+           "save_trajectory", "scan_steps", "step", "step_with_info"]

@@ -1,12 +1,13 @@
-"""Scenes: MuJoCo models (composed with ``mujoco.MjSpec``) with DANO bodies and the
-list of DANO contact pairs.
+"""Scenes: MuJoCo models (composed with ``mujoco.MjSpec``) with DANO bodies and their
+contact pairs, as JAX pytrees.
 
-A DANO becomes a free body whose frame is the asset's body frame (object axes,
-origin at the centre of mass): ``ipos = 0``, its mass and full inertia from the
-asset, its visual mesh as a non-colliding geom (group 1). MuJoCo keeps handling
-contacts among its own geoms; dano adds a contact pair between every DANO and every
-collidable plane, sphere, capsule or box geom on another body (robot links
-included), and between every two DANOs that both carry a queryable field.
+A DANO becomes a free body whose frame is the asset's body frame (object axes, origin at
+the centre of mass): ``ipos = 0``, its mass and full inertia from the asset, its visual
+mesh as a non-colliding geom (group 1). MuJoCo keeps handling contacts among its own
+geoms; dano adds a contact pair between every DANO and every collidable plane, sphere,
+capsule or box geom on another body (robot links included), and between every two DANOs
+that both carry a queryable field. Pairs are grouped by (pair kind, contact model), and
+each group is evaluated vmapped over its pairs.
 """
 
 from __future__ import annotations
@@ -14,19 +15,19 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from .._mjx import mjx
 from scipy.spatial import cKDTree
 
+from .._mjx import mjx
 from ..asset import DanoAsset
-from ..contact.params import ContactParams
+from ..contact import PAIR_KINDS, ContactParams, Samples, contact_model
+from ..contact.surface import surface_points
 from ..errors import DanoError
-from ..fields import BoxField, SdfGridField, SphereField, TransformedField, VoxelField
 
 PRIMITIVES = {
     mujoco.mjtGeom.mjGEOM_PLANE: "plane",
@@ -42,8 +43,8 @@ class DanoObject:
 
     name: body name; asset: the :class:`~dano.asset.DanoAsset`;
     pos: (3,) initial centre-of-mass position, world [m]; quat: (4,) initial
-    orientation wxyz (object axes in the world); sample_radius: radius [m] of the
-    blob each boundary sample stands for in contact (default: half the median
+    orientation wxyz (object axes in the world); sample_radius: depth [m] over which a
+    sample's occupancy rises from 0 (at the other body's surface) to 1 (default: the median
     distance between neighbouring samples); rgba: colour of the visual mesh.
     """
 
@@ -55,32 +56,11 @@ class DanoObject:
     rgba: Sequence[float] = (0.85, 0.65, 0.45, 1.0)
 
 
-@jax.tree_util.register_dataclass
-@dataclass(frozen=True)
-class DanoBody:
-    """Device-side contact data of one DANO (body frame = object axes, origin at CoM).
-
-    points, normals: (3, N); weights: (N,) per unit mass scale α [kg/α];
-    wp: (4, N) = [weights·points; weights]; sample_radius [m]; com: (3,) object-frame
-    centre of mass [m]; rho_ref: density of full occupancy; field: object-frame
-    density field or None.
-    """
-
-    points: jax.Array
-    normals: jax.Array
-    weights: jax.Array
-    wp: jax.Array
-    sample_radius: jax.Array
-    com: jax.Array
-    rho_ref: jax.Array
-    field: Any = None
-
-
 @dataclass(frozen=True)
 class Pair:
-    """A DANO contact pair (static): kind in plane/sphere/capsule/box/dano; a: DANO
-    index; geom: MuJoCo geom id (primitives) or -1; b: other DANO index or -1;
-    body_a, body_b: MuJoCo body ids; name: "A/B"."""
+    """A DANO contact pair (static): kind (a registered pair kind: plane, sphere, capsule,
+    box, dano); a: DANO index; geom: MuJoCo geom id (primitives) or -1; b: other DANO index
+    or -1; body_a, body_b: MuJoCo body ids; name: "A/B"; model: its contact model."""
 
     kind: str
     a: int
@@ -89,27 +69,38 @@ class Pair:
     body_a: int
     body_b: int
     name: str
-
-
-@dataclass(frozen=True)
-class SceneStatic:
-    """Hashable description used as a static argument of the jitted functions."""
-
-    pairs: tuple[Pair, ...]
-    dano_bodies: tuple[int, ...]
-    dt: float
-
-
-@jax.tree_util.register_dataclass
-@dataclass(frozen=True)
-class SceneArrays:
-    """Device arrays of a scene: the MJX model and the DANO bodies; base_mass (D,) and
-    base_inertia (D, 3) are the DANOs' mass and principal inertia per unit α."""
-
     model: Any
-    danos: tuple
-    base_mass: jax.Array
-    base_inertia: jax.Array
+
+
+@dataclass(frozen=True)
+class PairGroup:
+    """Pairs of one kind and one contact model, evaluated together under ``jax.vmap``
+    (static). index: the pairs' positions in the scene's pair list (and in the (P,)
+    parameter arrays); a, geom, b, body_a, body_b: per pair, as in :class:`Pair`."""
+
+    kind: str
+    model: Any
+    index: tuple[int, ...]
+    a: tuple[int, ...]
+    geom: tuple[int, ...]
+    b: tuple[int, ...]
+    body_a: tuple[int, ...]
+    body_b: tuple[int, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class SceneInfo:
+    """Host-side facts of a scene (static pytree metadata, compared by identity): the
+    MuJoCo C model (rendering, comparison), the assets, names and qpos/qvel addresses."""
+
+    mj_model: mujoco.MjModel
+    assets: tuple[DanoAsset, ...]
+    dano_names: tuple[str, ...]
+    body_names: tuple[str, ...]
+    qpos_adr: tuple[int, ...]
+    dof_adr: tuple[int, ...]
+    pairs: tuple[Pair, ...]
+    name: str
 
 
 @jax.tree_util.register_dataclass
@@ -117,46 +108,90 @@ class SceneArrays:
 class SimParams:
     """Differentiable simulation parameters.
 
-    contact: :class:`ContactParams` with (P,) fields, one value per contact pair;
-    alpha: (D,) mass scale α of each DANO (mass, inertia and sample weights scale
-    together; the assets' own α by default).
+    contact: :class:`~dano.contact.ContactParams` with (P,) fields, one value per contact
+    pair (in ``scene.pair_names`` order); alpha: (D,) mass scale α of each DANO (mass,
+    inertia and sample weights scale together; the assets' own α by default).
     """
 
     contact: ContactParams
     alpha: jax.Array
 
+    def replace(self, **changes) -> "SimParams":
+        """A copy with the given fields replaced (trace-safe; no validation)."""
+        return dataclasses.replace(self, **changes)
 
+
+@jax.tree_util.register_dataclass
 @dataclass(frozen=True)
 class Scene:
-    """A composed scene: the MuJoCo C model (for rendering and comparison), its MJX
-    counterpart, DANO contact data and names.
+    """A composed scene, a JAX pytree: arrays are leaves (differentiable, vmappable), the
+    structure is static metadata.
 
-    dano_names (D,), pair_names (P,), body_names (nbody,); qpos_adr/dof_adr: (D,)
-    index of each DANO's free joint in qpos / qvel; dt: time step [s].
+    model: the MJX model (mjx.Model); samples: contact samples of the D DANOs
+    (:class:`~dano.contact.Samples`); fields: (D,) each DANO's object-frame density field
+    or None; base_mass: (D,) mass per unit α [kg/α]; base_inertia: (D, 3) principal
+    inertia per unit α [kg m²/α]. Static: groups (pair groups), dt (time step [s]),
+    has_constraints (whether MuJoCo's own constraint solver has anything to do), info
+    (:class:`SceneInfo`). ``replace(model=...)`` swaps arrays, e.g. to vary a geom's pose.
     """
 
-    mj_model: mujoco.MjModel
-    static: SceneStatic
-    arrays: SceneArrays
-    dano_names: tuple[str, ...]
-    assets: tuple[DanoAsset, ...]
-    body_names: tuple[str, ...]
-    qpos_adr: tuple[int, ...]
-    dof_adr: tuple[int, ...]
-    name: str = "scene"
+    model: Any
+    samples: Samples
+    fields: tuple
+    base_mass: jax.Array
+    base_inertia: jax.Array
+    groups: tuple[PairGroup, ...] = dataclasses.field(metadata=dict(static=True))
+    dt: float = dataclasses.field(metadata=dict(static=True))
+    has_constraints: bool = dataclasses.field(metadata=dict(static=True))
+    info: SceneInfo = dataclasses.field(metadata=dict(static=True))
+
+    def replace(self, **changes) -> "Scene":
+        """A copy with the given fields replaced."""
+        return dataclasses.replace(self, **changes)
+
+    # -- host-side facts
+    @property
+    def mj_model(self) -> mujoco.MjModel:
+        return self.info.mj_model
+
+    @property
+    def assets(self) -> tuple[DanoAsset, ...]:
+        return self.info.assets
+
+    @property
+    def dano_names(self) -> tuple[str, ...]:
+        return self.info.dano_names
+
+    @property
+    def body_names(self) -> tuple[str, ...]:
+        return self.info.body_names
+
+    @property
+    def qpos_adr(self) -> tuple[int, ...]:
+        """(D,) index of each DANO's free joint in qpos."""
+        return self.info.qpos_adr
+
+    @property
+    def dof_adr(self) -> tuple[int, ...]:
+        """(D,) index of each DANO's free joint in qvel."""
+        return self.info.dof_adr
+
+    @property
+    def name(self) -> str:
+        return self.info.name
+
+    @property
+    def pairs(self) -> tuple[Pair, ...]:
+        return self.info.pairs
+
+    @property
+    def pair_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.info.pairs)
 
     @property
     def qpos0(self) -> np.ndarray:
         """(nq,) the model's reference configuration (a copy of ``mj_model.qpos0``)."""
         return np.array(self.mj_model.qpos0)
-
-    @property
-    def pair_names(self) -> tuple[str, ...]:
-        return tuple(p.name for p in self.static.pairs)
-
-    @property
-    def dt(self) -> float:
-        return self.static.dt
 
     @property
     def nq(self) -> int:
@@ -170,27 +205,42 @@ class Scene:
     def nu(self) -> int:
         return int(self.mj_model.nu)
 
+    @property
+    def dtype(self):
+        """The floating-point type of the scene's arrays."""
+        return self.base_mass.dtype
+
+    def astype(self, dtype) -> "Scene":
+        """The scene with every floating-point array converted to ``dtype`` (float32 for
+        batched/GPU work, float64 for gradient checks and identification). Raises
+        DanoError for float64 while JAX's 64-bit mode is off."""
+        dtype = jnp.dtype(dtype)
+        _check_dtype(dtype)
+        return jax.tree_util.tree_map(lambda x: x.astype(dtype) if _is_float(x) else x, self)
+
     def default_params(self, **contact_overrides) -> SimParams:
         """The paper's contact parameters for every pair (overrides by name, scalar or
-        (P,)) and each asset's own α. Raises DanoError for unknown or invalid values."""
+        (P,)) and each asset's own α, in the scene's dtype. Raises DanoError for unknown
+        or invalid values."""
         unknown = set(contact_overrides) - set(ContactParams.names())
         if unknown:
             raise DanoError(f"unknown contact parameter(s) {sorted(unknown)}; known: {', '.join(ContactParams.names())}")
-        cp = dataclasses.replace(ContactParams(), **contact_overrides).validate()
-        return SimParams(cp.broadcast(len(self.static.pairs)),
-                         jnp.asarray([a.alpha for a in self.assets], dtype=jnp.float64))
+        cp = ContactParams(**contact_overrides).validate()
+        return SimParams(cp.broadcast(len(self.pairs), self.dtype),
+                         jnp.asarray([a.alpha for a in self.assets], dtype=self.dtype).reshape(len(self.assets)))
 
     def set_param(self, params: SimParams, name: str, value, target: str | None = None) -> SimParams:
         """A copy of ``params`` with contact parameter ``name`` (or ``"alpha"``) set to
         ``value`` for every pair (every DANO for alpha), or only for pair/DANO ``target``.
-        Differentiable in ``value`` (usable under ``jax.jacfwd``); concrete values are
-        validated. Raises DanoError for unknown names or targets and invalid values."""
+        A convenience over ``params.replace``: differentiable in ``value`` (usable under
+        ``jax.jacfwd``); concrete values are validated. Raises DanoError for unknown names
+        or targets and invalid values."""
         concrete = not isinstance(value, jax.core.Tracer)
         if concrete and not np.isfinite(value):
             raise DanoError(f"parameter {name} must be finite, got {value}")
         if name == "alpha":
             idx = slice(None) if target is None else self.dano_index(target)
-            new = SimParams(params.contact, jnp.asarray(params.alpha).at[idx].set(value))
+            new = params.replace(alpha=jnp.asarray(params.alpha).at[idx].set(value))
         elif name in ContactParams.names():
             if target is None:
                 idx = slice(None)
@@ -199,7 +249,7 @@ class Scene:
             else:
                 raise DanoError(f"no contact pair {target!r}; pairs: {list(self.pair_names)}")
             arr = jnp.asarray(getattr(params.contact, name)).at[idx].set(value)
-            new = SimParams(dataclasses.replace(params.contact, **{name: arr}), params.alpha)
+            new = params.replace(contact=params.contact.replace(**{name: arr}))
         else:
             raise DanoError(f"unknown parameter {name!r}; known: alpha, {', '.join(ContactParams.names())}")
         if concrete:
@@ -215,24 +265,35 @@ class Scene:
             raise DanoError(f"no DANO named {name!r}; the scene has {list(self.dano_names)}") from None
 
 
-def reference_density(fld) -> float:
-    """Density of full occupancy of a field (its interior value)."""
-    if isinstance(fld, (SphereField, BoxField, SdfGridField)):
-        return float(fld.density_scale)
-    if isinstance(fld, VoxelField):
-        return float(np.max(np.asarray(fld.values)))
-    if isinstance(fld, TransformedField):
-        return reference_density(fld.base)
-    raise DanoError(f"cannot tell the interior density of a {type(fld).__name__}")
+def _is_float(x) -> bool:
+    return hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.floating)
+
+
+def _check_dtype(dtype) -> None:
+    if dtype not in (jnp.dtype(jnp.float32), jnp.dtype(jnp.float64)):
+        raise DanoError(f"dtype must be float32 or float64, got {dtype}")
+    if dtype == jnp.float64 and not jax.config.jax_enable_x64:
+        raise DanoError("float64 needs JAX's 64-bit mode: call dano.enable_float64() (or run inside "
+                        "`with jax.enable_x64(True):`) before composing the scene")
+
+
+def interior_density(field) -> float:
+    """Density of full occupancy of a field (its interior value; the surface is half of it).
+    Fields provide it as ``interior_density()``. Raises DanoError otherwise."""
+    fn = getattr(field, "interior_density", None)
+    if fn is None:
+        raise DanoError(f"cannot tell the interior density of a {type(field).__name__}: give the field an "
+                        "interior_density() method")
+    return float(fn())
 
 
 def default_sample_radius(asset: DanoAsset) -> float:
-    """Half the median distance from a boundary sample to its nearest distinct neighbour [m]."""
+    """The median distance from a boundary sample to its nearest distinct neighbour [m]."""
     pts = np.unique(asset.points, axis=0)
     if len(pts) < 2:
         return 1e-3
     d, _ = cKDTree(pts).query(pts, k=2)
-    return 0.5 * float(np.median(d[:, 1]))
+    return float(np.median(d[:, 1]))
 
 
 def add_ground(spec: mujoco.MjSpec, name: str = "ground") -> None:
@@ -299,23 +360,61 @@ def merge_duplicate_samples(points: np.ndarray, normals: np.ndarray, weights: np
     return unique, normals[first], merged
 
 
-def _dano_body(obj: DanoObject) -> DanoBody:
+def contact_samples(obj: DanoObject) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """Contact points (N, 3) body frame [m] (on the surface when the DANO has a field; see
+    :mod:`dano.contact.surface`), normals (N, 3), weights per unit α (N,) [kg/α], the sample
+    radius [m] and the interior density of the field (1 without one)."""
     a = obj.asset
     r = obj.sample_radius if obj.sample_radius is not None else default_sample_radius(a)
     if not np.isfinite(r) or r <= 0:
         raise DanoError(f"{obj.name}: sample_radius must be positive, got {r}")
-    rho = reference_density(a.field) if a.field is not None else 1.0
-    points, normals, w = merge_duplicate_samples(a.points, np.nan_to_num(a.normals), a.weights / a.alpha)
-    return DanoBody(
-        points=jnp.asarray(points.T),
-        normals=jnp.asarray(normals.T),
-        weights=jnp.asarray(w),
-        wp=jnp.asarray(np.vstack([w * points.T, w])),
-        sample_radius=jnp.asarray(float(r)),
-        com=jnp.asarray(a.center_of_mass),
-        rho_ref=jnp.asarray(rho),
-        field=a.field,
-    )
+    normals = np.nan_to_num(a.normals)
+    points = a.points
+    rho = 1.0
+    if a.field is not None:
+        rho = interior_density(a.field)
+        obj_pts, _ = surface_points(a.field, points + a.center_of_mass, normals, 0.5 * rho,
+                                    max_shift=max(4.0 * r, 0.02 * float(np.ptp(points, axis=0).max())))
+        points = obj_pts - a.center_of_mass
+    points, normals, w = merge_duplicate_samples(points, normals, a.weights / a.alpha)
+    return points, normals, w, float(r), rho
+
+
+def _could_have_constraints(m: mujoco.MjModel) -> bool:
+    """Whether MuJoCo's constraint solver can have rows: equalities, friction loss, joint or
+    tendon limits, or geom pairs that may collide (contype/conaffinity or explicit pairs)."""
+    if m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONSTRAINT:
+        return False
+    if m.neq or m.npair or np.any(m.dof_frictionloss > 0) or np.any(m.jnt_limited) or (m.ntendon and (
+            np.any(m.tendon_limited) or np.any(m.tendon_frictionloss > 0))):
+        return True
+    if m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT:
+        return False
+    ct, ca, body = m.geom_contype, m.geom_conaffinity, m.geom_bodyid
+    for i in range(m.ngeom):
+        for j in range(i + 1, m.ngeom):
+            if body[i] != body[j] and ((ct[i] & ca[j]) or (ct[j] & ca[i])):
+                return True
+    return False
+
+
+def _pair_groups(pairs: Sequence[Pair], fields: Sequence) -> tuple[PairGroup, ...]:
+    """Group pairs by (kind, model); DANO-DANO pairs also by the structure of both fields
+    (they are stacked for vmap)."""
+    keys: dict = {}
+    for i, p in enumerate(pairs):
+        key = (p.kind, p.model)
+        if p.kind == "dano":
+            sig = lambda f: (jax.tree_util.tree_structure(f),  # noqa: E731
+                             tuple(np.shape(x) for x in jax.tree_util.tree_leaves(f)))
+            key += (sig(fields[p.a]), sig(fields[p.b]))
+        keys.setdefault(key, []).append(i)
+    groups = []
+    for key, idx in keys.items():
+        ps = [pairs[i] for i in idx]
+        groups.append(PairGroup(key[0], key[1], tuple(idx), tuple(p.a for p in ps), tuple(p.geom for p in ps),
+                                tuple(p.b for p in ps), tuple(p.body_a for p in ps), tuple(p.body_b for p in ps)))
+    return tuple(groups)
 
 
 def compose(
@@ -326,23 +425,34 @@ def compose(
     ground: bool | None = None,
     contacts: Sequence[tuple[str, str]] | None = None,
     gravity: Sequence[float] = (0.0, 0.0, -9.81),
+    contact_model: Any = "centroid",
+    pair_contact_models: Mapping[str, Any] | None = None,
+    dtype=None,
     name: str = "scene",
 ) -> Scene:
     """Build a scene from DANOs and a MuJoCo model.
 
     objects: the DANOs; base: an MJCF or URDF path, MJCF string or MjSpec (robots,
-    primitives; a given MjSpec is copied, not modified), or None for an empty world; dt: time step [s]; ground: add a ground plane at z = 0
-    named "ground" (default: when ``base`` is None); contacts: restrict the DANO pairs
-    to these (name, name) pairs of DANO and geom/DANO names (default: all);
-    gravity: (3,) [m/s²].
+    primitives; a given MjSpec is copied, not modified), or None for an empty world;
+    dt: time step [s]; ground: add a ground plane at z = 0 named "ground" (default: when
+    ``base`` is None); contacts: restrict the DANO pairs to these (name, name) pairs of DANO
+    and geom/DANO names (default: all); gravity: (3,) [m/s²];
+    contact_model: "centroid" (the paper's, default), "per_sample", or a contact model
+    instance (e.g. ``Centroid(drag="overlap")``), for every pair; pair_contact_models:
+    {pair name "A/B": model} overrides for single pairs; dtype: float32 or float64 (default:
+    JAX's default float type, float64 only in 64-bit mode).
     Raises DanoError if the MJCF does not load or compile, for duplicate or unknown
-    names, a non-positive dt, or a requested DANO-DANO pair without a queryable field.
+    names, a non-positive dt, unknown contact models or pairs, a requested DANO-DANO pair
+    without a queryable field, or float64 without JAX's 64-bit mode.
     """
     if not np.isfinite(dt) or dt <= 0:
         raise DanoError(f"time step dt must be positive, got {dt}")
+    if dtype is not None:
+        _check_dtype(jnp.dtype(dtype))
     names = [o.name for o in objects]
     if len(set(names)) != len(names):
         raise DanoError(f"DANO names must be unique, got {names}")
+    default_model = contact_model_or_error(contact_model)
     spec = _load_spec(base)
     if ground if ground is not None else base is None:
         add_ground(spec)
@@ -351,7 +461,7 @@ def compose(
     spec.option.timestep = dt
     spec.option.gravity = list(map(float, gravity))
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
-    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
+    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP  # the step integrates damping itself
     try:
         mj_model = spec.compile()
     except Exception as exc:
@@ -368,10 +478,12 @@ def compose(
             if mj_model.geom_contype[g] == 0 and mj_model.geom_conaffinity[g] == 0:
                 continue
             gname = mujoco.mj_id2name(mj_model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}"
-            pairs.append(Pair(kind, i, g, -1, body_ids[i], int(mj_model.geom_bodyid[g]), f"{o.name}/{gname}"))
+            pairs.append(Pair(kind, i, g, -1, body_ids[i], int(mj_model.geom_bodyid[g]), f"{o.name}/{gname}",
+                              default_model))
         for j in range(i + 1, len(objects)):
             if o.asset.field is not None and objects[j].asset.field is not None:
-                pairs.append(Pair("dano", i, -1, j, body_ids[i], body_ids[j], f"{o.name}/{objects[j].name}"))
+                pairs.append(Pair("dano", i, -1, j, body_ids[i], body_ids[j], f"{o.name}/{objects[j].name}",
+                                  default_model))
     if contacts is not None:
         wanted = {frozenset(c) for c in contacts}
         chosen = [p for p in pairs if frozenset(p.name.split("/")) in wanted]
@@ -383,19 +495,44 @@ def compose(
                 "plane/sphere/capsule/box geom, or two DANOs with queryable fields"
             )
         pairs = chosen
+    overrides = dict(pair_contact_models or {})
+    unknown = set(overrides) - {p.name for p in pairs}
+    if unknown:
+        raise DanoError(f"pair_contact_models names unknown pair(s) {sorted(unknown)}; pairs: {[p.name for p in pairs]}")
+    pairs = [dataclasses.replace(p, model=contact_model_or_error(overrides[p.name])) if p.name in overrides else p
+             for p in pairs]
+    missing_kinds = {p.kind for p in pairs} - set(PAIR_KINDS)
+    if missing_kinds:  # pragma: no cover - all built-in kinds are registered on import
+        raise DanoError(f"no contact pair kind registered for {sorted(missing_kinds)}")
 
-    danos = tuple(_dano_body(o) for o in objects)
+    data = [contact_samples(o) for o in objects]
+    samples = Samples.stack([d[0] for d in data], [d[1] for d in data], [d[2] for d in data],
+                            [d[3] for d in data], [o.asset.center_of_mass for o in objects], [d[4] for d in data])
+    fields = tuple(o.asset.field for o in objects)
     base_mass = np.array([mj_model.body_mass[b] / o.asset.alpha for b, o in zip(body_ids, objects)])
     base_inertia = np.array([mj_model.body_inertia[b] / o.asset.alpha for b, o in zip(body_ids, objects)])
     jnt = [mj_model.body_jntadr[b] for b in body_ids]
-    return Scene(
+    info = SceneInfo(
         mj_model=mj_model,
-        static=SceneStatic(tuple(pairs), tuple(body_ids), float(dt)),
-        arrays=SceneArrays(mjx.put_model(mj_model), danos, jnp.asarray(base_mass), jnp.asarray(base_inertia)),
-        dano_names=tuple(names),
         assets=tuple(o.asset for o in objects),
+        dano_names=tuple(names),
         body_names=tuple(mujoco.mj_id2name(mj_model, mujoco.mjtObj.mjOBJ_BODY, b) or "" for b in range(mj_model.nbody)),
         qpos_adr=tuple(int(mj_model.jnt_qposadr[j]) for j in jnt),
         dof_adr=tuple(int(mj_model.jnt_dofadr[j]) for j in jnt),
+        pairs=tuple(pairs),
         name=name,
     )
+    scene = Scene(model=mjx.put_model(mj_model), samples=samples, fields=fields,
+                  base_mass=jnp.asarray(base_mass).reshape(len(objects)),
+                  base_inertia=jnp.asarray(base_inertia).reshape(len(objects), 3),
+                  groups=_pair_groups(pairs, fields), dt=float(dt),
+                  has_constraints=_could_have_constraints(mj_model), info=info)
+    return scene.astype(dtype) if dtype is not None else scene
+
+
+def contact_model_or_error(spec):
+    """:func:`dano.contact.contact_model`, re-raised with the option's name."""
+    try:
+        return contact_model(spec)
+    except DanoError as exc:
+        raise DanoError(f"contact_model: {exc}") from None

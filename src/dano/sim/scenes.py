@@ -19,7 +19,7 @@ import numpy as np
 from ..data import load_builtin
 from ..errors import DanoError
 from .scene import DanoObject, Scene, SimParams, add_ground, compose
-from .step import State
+from .dynamics import State
 
 
 @dataclass(frozen=True)
@@ -79,21 +79,24 @@ def resting_height(asset, quat=(1, 0, 0, 0)) -> float:
 PAPER_DROP_QUAT = _normalize([1.0, 0.3, 0.0, 0.5])
 
 
-def bunny_drop(dt: float | None = None) -> Setup:
+def bunny_drop(dt: float | None = None, contact_model: str = "centroid") -> Setup:
     """The paper's bunny dropped at height 1.1, q ∝ (1, 0.3, 0, 0.5), v = (2, 2, 1),
     ω = (0.5, 1, 1) (body frame), sliding friction 0.1, h = 0.01 s: it tumbles to rest."""
     bunny = load_builtin("bunny")
-    scene = compose([DanoObject("bunny", bunny, (0, 0, 1.1), PAPER_DROP_QUAT)], dt=dt or 0.01, name="bunny-drop")
+    scene = compose([DanoObject("bunny", bunny, (0, 0, 1.1), PAPER_DROP_QUAT)], dt=dt or 0.01, name="bunny-drop",
+                    contact_model=contact_model)
     state = initial_state(scene, {"bunny": ((0, 0, 1.1), PAPER_DROP_QUAT)}, {"bunny": ((2, 2, 1), (0.5, 1, 1))})
     return Setup(scene, state, scene.default_params(sliding_friction=0.1), 5.0, None, bunny_drop.__doc__)
 
 
-def bunny_slide(dt: float | None = None) -> Setup:
-    """The paper bunny, upright on the ground, thrown along +x at 2.5 m/s (paper friction
-    0.2): it slides to a stop after about v²/(2μg) = 1.6 m."""
+def bunny_slide(dt: float | None = None, contact_model: str = "centroid") -> Setup:
+    """The paper bunny, upright on the ground, thrown along +x at 2.5 m/s with the paper's
+    default friction 0.2 and sliding drag 0.1 (Eq. 9): it slides to a stop after
+    (v − (μ/β)·ln(1 + βv/μ))/(gβ) = 0.90 m (1.59 m without the drag)."""
     bunny = load_builtin("bunny")
     z = resting_height(bunny)
-    scene = compose([DanoObject("bunny", bunny, (0, 0, z))], dt=dt or 0.01, name="bunny-slide")
+    scene = compose([DanoObject("bunny", bunny, (0, 0, z))], dt=dt or 0.01, name="bunny-slide",
+                    contact_model=contact_model)
     state = initial_state(scene, {"bunny": ((0, 0, z), (1, 0, 0, 0))}, {"bunny": ((2.5, 0, 0), (0, 0, 0))})
     return Setup(scene, state, scene.default_params(), 2.5, None, bunny_slide.__doc__)
 
@@ -105,7 +108,7 @@ def _add_ball(spec: mujoco.MjSpec, name: str, pos, radius: float = 0.25, mass: f
                   rgba=[0.3, 0.5, 0.9, 1])
 
 
-def sphere_hits_bunny(dt: float | None = None) -> Setup:
+def sphere_hits_bunny(dt: float | None = None, contact_model: str = "centroid") -> Setup:
     """A sphere (radius 0.25, mass 10: the paper's pusher) rolls at 3 m/s into the paper
     bunny resting on the ground. Sphere-ground contact is MuJoCo's own; sphere-bunny and
     bunny-ground are DANO contacts."""
@@ -114,13 +117,14 @@ def sphere_hits_bunny(dt: float | None = None) -> Setup:
     spec = mujoco.MjSpec()
     add_ground(spec)
     _add_ball(spec, "sphere", (-1.2, 0, 0.25))
-    scene = compose([DanoObject("bunny", bunny, (0, 0, z))], spec, dt=dt or 0.01, name="sphere-hits-bunny")
+    scene = compose([DanoObject("bunny", bunny, (0, 0, z))], spec, dt=dt or 0.01, name="sphere-hits-bunny",
+                    contact_model=contact_model)
     state = initial_state(scene, {"bunny": ((0, 0, z), (1, 0, 0, 0)), "sphere": ((-1.2, 0, 0.25), (1, 0, 0, 0))},
                         {"sphere": ((3.0, 0, 0), (0, 12.0, 0))})
     return Setup(scene, state, scene.default_params(), 2.0, None, sphere_hits_bunny.__doc__)
 
 
-def two_bunnies_sphere(dt: float | None = None) -> Setup:
+def two_bunnies_sphere(dt: float | None = None, contact_model: str = "centroid") -> Setup:
     """The paper's Fig. 5: a sphere hits a bunny, which then hits a second bunny. The
     bunnies are queryable DANOs (signed-distance fields of the low-poly Stanford bunny),
     so their contact queries each other's field in both directions."""
@@ -130,14 +134,14 @@ def two_bunnies_sphere(dt: float | None = None) -> Setup:
     add_ground(spec)
     _add_ball(spec, "sphere", (-1.0, 0, 0.25))
     objs = [DanoObject("bunny_a", bunny, (0, 0, z)), DanoObject("bunny_b", bunny, (0.75, 0.05, z), rgba=(0.6, 0.75, 0.5, 1))]
-    scene = compose(objs, spec, dt=dt or 0.01, name="two-bunnies-sphere")
+    scene = compose(objs, spec, dt=dt or 0.01, name="two-bunnies-sphere", contact_model=contact_model)
     state = initial_state(scene, {"bunny_a": ((0, 0, z), (1, 0, 0, 0)), "bunny_b": ((0.75, 0.05, z), (1, 0, 0, 0)),
                                 "sphere": ((-1.0, 0, 0.25), (1, 0, 0, 0))},
                         {"sphere": ((4.0, 0, 0), (0, 16.0, 0))})
     return Setup(scene, state, scene.default_params(), 2.5, None, two_bunnies_sphere.__doc__)
 
 
-# Joint targets of the Panda (panda_nohand.xml) putting a 3 cm pusher sphere, 6 cm beyond
+# Joint targets of the Panda (panda_nohand.xml) putting the pusher centre, 6 cm beyond
 # the flange with the flange pointing down, at (0.30, 0, 0.30) and then at x = 0.30 ... 0.75
 # (6 points) on the line y = 0, z = 0.075; solved offline with damped least-squares IK
 # on MuJoCo's site Jacobian.
@@ -170,8 +174,8 @@ def menagerie_panda() -> Path:
     return path
 
 
-def panda_push_bunny(dt: float | None = None) -> Setup:
-    """The Menagerie Panda with a 3 cm spherical pusher at its flange pushes the paper
+def panda_push_bunny(dt: float | None = None, contact_model: str = "centroid") -> Setup:
+    """The Menagerie Panda with a pusher bar (capsule) at its flange pushes the paper
     bunny, scaled to 15 cm and 0.25 kg, along the ground by following scripted joint
     targets. The Panda's own collisions are off; the pusher and the ground touch the
     bunny through DANO contact."""
@@ -181,13 +185,24 @@ def panda_push_bunny(dt: float | None = None) -> Setup:
     for b in spec.bodies:  # gravity compensation, as the real arm's controller does
         if b.name != "world":
             b.gravcomp = 1.0
-    spec.body("link7").add_geom(name="pusher", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.03, 0, 0],
-                                pos=[0, 0, 0.107 + 0.06], contype=2, conaffinity=2, mass=0.1, rgba=[0.9, 0.2, 0.2, 1])
+    # a pusher bar (capsule, radius 3 cm, 12 cm long) across the push direction: a bar
+    # carries the bunny ahead where a point pusher lets it slip off sideways
+    probe = spec.copy().compile()
+    probe_data = mujoco.MjData(probe)
+    probe_data.qpos[:7] = PANDA_WAYPOINTS[1]
+    mujoco.mj_kinematics(probe, probe_data)
+    axis = probe_data.body("link7").xmat.reshape(3, 3).T @ np.array([0.0, 1.0, 0.0])  # world y in link7's frame
+    quat = np.zeros(4)
+    mujoco.mju_quatZ2Vec(quat, axis)
+    spec.body("link7").add_geom(name="pusher", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.03, 0.06, 0],
+                                pos=[0, 0, 0.107 + 0.06], quat=quat, contype=2, conaffinity=2, mass=0.1,
+                                rgba=[0.9, 0.2, 0.2, 1])
     add_ground(spec)
     bunny = load_builtin("bunny").scaled(0.15).with_mass(0.25)
     z = resting_height(bunny) + 0.001
     pos = (0.45, 0.0, z)
-    scene = compose([DanoObject("bunny", bunny, pos)], spec, dt=dt or 0.005, name="panda-push-bunny")
+    scene = compose([DanoObject("bunny", bunny, pos)], spec, dt=dt or 0.005, name="panda-push-bunny",
+                    contact_model=contact_model)
     free = initial_state(scene, {"bunny": (pos, (1, 0, 0, 0))})
     state = State(free.qpos.at[:7].set(PANDA_WAYPOINTS[0]), free.qvel)
 
@@ -197,12 +212,13 @@ def panda_push_bunny(dt: float | None = None) -> Setup:
     return Setup(scene, state, scene.default_params(sliding_friction=0.3), 3.2, controls, panda_push_bunny.__doc__)
 
 
-def mjcf_setup(path: str | Path, objects: list[DanoObject], dt: float = 0.01, duration: float = 2.0) -> Setup:
+def mjcf_setup(path: str | Path, objects: list[DanoObject], dt: float = 0.01, duration: float = 2.0,
+               contact_model: str = "centroid") -> Setup:
     """A runnable :class:`Setup` from a user's MJCF/URDF file and DANOs placed at their
     ``pos``/``quat`` at rest (paper default contact parameters, zero controls).
     Raises DanoError if the file is missing or does not compile."""
     path = Path(path)
-    scene = compose(objects, path, dt=dt, name=path.stem)
+    scene = compose(objects, path, dt=dt, name=path.stem, contact_model=contact_model)
     state = initial_state(scene, {o.name: (o.pos, o.quat) for o in objects})
     return Setup(scene, state, scene.default_params(), duration, None, f"MJCF {path}")
 
@@ -216,10 +232,12 @@ BUILTIN_SCENES: dict[str, Callable[..., Setup]] = {
 }
 
 
-def load_scene(name: str, dt: float | None = None) -> Setup:
-    """A built-in scene by name. Raises DanoError (listing the names) for an unknown one."""
+def load_scene(name: str, dt: float | None = None, contact_model: str = "centroid") -> Setup:
+    """A built-in scene by name, with time step ``dt`` [s] (default: the scene's) and
+    ``contact_model`` ("centroid" or "per_sample") for every pair. Raises DanoError
+    (listing the names) for an unknown one."""
     if name not in BUILTIN_SCENES:
         raise DanoError(f"unknown scene {name!r}; built-in scenes: {', '.join(BUILTIN_SCENES)} (or an MJCF path)")
     if dt is not None and (not np.isfinite(dt) or dt <= 0):
         raise DanoError(f"time step dt must be positive, got {dt}")
-    return BUILTIN_SCENES[name](dt)
+    return BUILTIN_SCENES[name](dt, contact_model)

@@ -6,11 +6,15 @@ interactive-perception experiment). A TOML file describes a user problem::
     [scene]
     mjcf = "table.xml"            # optional; default: empty world with a ground plane
     dt = 0.01                     # simulation step [s] = frame interval / substeps
+    contact_model = "centroid"    # or "per_sample"
     [[scene.object]]
     name = "soap"
     asset = "soap.dano"           # or "builtin:bluesoap"
     pos = [0.0, 0.0, 0.4]
     quat = [1.0, 0.0, 0.0, 0.0]
+
+    [contact]                     # fixed contact parameters (all pairs); the rest: paper defaults
+    sliding_drag = 0.0
 
     [[trajectory]]
     file = "run1.csv"             # CSV columns t,x,y,z,qw,qx,qy,qz (header line), or a dano .npz
@@ -65,7 +69,7 @@ def _read_trajectory(path: Path, obj: str | None, scene) -> Observation:
             raise DanoError(f"{path}: say which object the CSV tracks (object = \"name\")")
         poses = np.stack([data[c] for c in cols[1:]], axis=1)
         return Observation(time=np.asarray(data["t"]), poses={obj: poses}, name=path.name)
-    from ..sim.step import load_trajectory
+    from ..trajectory import load_trajectory
 
     traj = load_trajectory(path)
     names = [obj] if obj else list(traj.dano_names)
@@ -101,13 +105,22 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
             objects.append(DanoObject(o["name"], asset, tuple(o.get("pos", (0, 0, 0))),
                                       tuple(o.get("quat", (1, 0, 0, 0)))))
         mjcf = base / sc["mjcf"] if "mjcf" in sc else None
-        scene = compose(objects, mjcf, dt=float(sc["dt"]), ground=None if mjcf else True, name=path.stem)
+        scene = compose(objects, mjcf, dt=float(sc["dt"]), ground=None if mjcf else True, name=path.stem,
+                        contact_model=sc.get("contact_model", "centroid"))
+        contact = cfg.get("contact", {})
+        if not isinstance(contact, dict):
+            raise DanoError("[contact] must be a table of contact parameter = value")
+        try:
+            base_params = scene.default_params(**{k: float(v) for k, v in contact.items()})
+        except (TypeError, ValueError) as exc:
+            raise DanoError(f"[contact]: values must be numbers ({exc})") from None
         obs = [_read_trajectory(base / t["file"], t.get("object"), scene) for t in cfg["trajectory"]]
         params = [FitParameter(p["name"], float(p["initial"]), float(p.get("lower", 0.0)),
                                float(p.get("upper", np.inf)), p.get("target")) for p in cfg.get("parameter", [])]
         opt = cfg.get("options", {})
         weights = Weights(tuple(opt.get("position_weights", (1.0, 1.0, 1.0))), float(opt.get("rotation_weight", 1.0)))
-        problem = SysIdProblem(scene, obs, params, weights, substeps=int(opt.get("substeps", 1)),
+        problem = SysIdProblem(scene, obs, params, weights, base_params=base_params,
+                               substeps=int(opt.get("substeps", 1)),
                                fit_velocity=opt.get("fit_velocity", ""), window=opt.get("window") or None)
     except KeyError as exc:
         raise FileFormatError(f"{path}: missing entry {exc}") from exc

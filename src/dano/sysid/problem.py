@@ -22,7 +22,8 @@ from scipy.spatial.transform import Rotation
 from ..contact.params import ContactParams
 from ..errors import DanoError
 from ..sim.scene import Scene, SimParams
-from ..sim.step import State, rollout_arrays
+from ..sim.rollout import rollout_arrays
+from ..sim.dynamics import State
 
 
 @dataclass(frozen=True)

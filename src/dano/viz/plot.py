@@ -1,4 +1,5 @@
-"""Static plots with matplotlib (Agg backend: works without a display)."""
+"""Static plots with matplotlib :class:`~matplotlib.figure.Figure` objects: no pyplot, no
+global backend switch (a notebook's own plots are untouched), no display needed."""
 
 from __future__ import annotations
 
@@ -16,15 +17,11 @@ def plot_samples(asset, path: str | Path, max_arrows: int = 600, seed: int = 0) 
     Samples are shown in the object frame [m]; arrows (a random subset of at most
     ``max_arrows``) have length 5 % of the object's size. Written atomically.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from matplotlib.figure import Figure
 
     pts = asset.points + asset.center_of_mass
     size = float(np.ptp(pts, axis=0).max())
-    fig = plt.figure(figsize=(7, 6))
+    fig = Figure(figsize=(7, 6))
     ax = fig.add_subplot(projection="3d")
     ax.scatter(*pts.T, s=2, c=asset.densities, cmap="viridis", alpha=0.6)
     rng = np.random.default_rng(seed)
@@ -43,7 +40,6 @@ def plot_samples(asset, path: str | Path, max_arrows: int = 600, seed: int = 0) 
     path = Path(path)
     fmt = path.suffix.lstrip(".") or "png"
     atomic_write(path, lambda f: fig.savefig(f, format=fmt, dpi=120))
-    plt.close(fig)
     return path
 
 
@@ -51,14 +47,12 @@ def plot_sysid(problem, result, path, max_trajectories: int = 4) -> Path:
     """Observed vs fitted trajectories (top-down x–y paths of the tracked DANOs and their
     positions over time) and the cost per iteration, to an image file. Written atomically."""
     import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from matplotlib.figure import Figure
 
     segs = problem.segments[:max_trajectories]
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig = Figure(figsize=(15, 4.5))
+    axes = fig.subplots(1, 3)
+    colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, seg in enumerate(segs):
         obs = problem.observations[seg.obs]
         fitted = result.fitted[i] if i < len(result.fitted) else None
@@ -86,5 +80,4 @@ def plot_sysid(problem, result, path, max_trajectories: int = 4) -> Path:
     fig.tight_layout()
     path = Path(path)
     atomic_write(path, lambda f: fig.savefig(f, format=path.suffix.lstrip(".") or "png", dpi=110))
-    plt.close(fig)
     return path

@@ -1,0 +1,199 @@
+"""What every contact pair kind and contact model shares: the frozen contact geometry of
+one pair, the occupancy of a sample, and the registries that let a new pair kind or
+model be one new module.
+
+A **pair kind** (``plane``, ``sphere``, ``capsule``, ``box``, ``dano``) turns the poses of
+a DANO and of another body into a :class:`PairGeometry`, evaluated once per step at the
+configuration q (as Dojo did). A **contact model** (``centroid``, ``per_sample``) turns a
+pair's geometry, its :class:`~dano.contact.params.ContactParams` and the relative velocity at
+the centroid into a wrench; the step solves the implicit velocity equation with it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Protocol
+
+import jax
+import jax.numpy as jnp
+
+from ..errors import DanoError
+from ..fields.base import safe_norm
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class PairGeometry:
+    """Contact geometry of one DANO pair at the step's configuration (paper Eqs. 5–7).
+
+    psi: overlap ψ = Σ α·w_i·o_i (mass units, ≥ 0); chi: (3,) centroid χ, world [m];
+    normal: (3,) unit normal from B into A (the direction A is pushed), world;
+    psi_rate: (6,) dψ/du and moment_rate: (3, 6) dM/du, the rates of the overlap and of its
+    first moment M = Σ α·w_i·o_i·(x_i − χ) (zero at χ) along the relative twist u = (v, ω)
+    of A w.r.t. B at χ (:func:`centroid_rates` computes them from the per-sample data; a kind
+    may compute them faster). Per sample (S of them): weight (S,) α·w_i [kg] (halved for DANO–DANO pairs, where both
+    objects' samples count); depth (S,) the depth coordinate z_i, whose occupancy is
+    o_i = :func:`occupancy` (z_i) (0 outside B, 1 deep inside); depth_grad (3, S) ∂z_i/∂x
+    [1/m], world: how z_i changes when the sample point moves by x relative to the other
+    object; moves (S,) 1 where the sample belongs to A (it moves with A relative to B), 0
+    where it belongs to B; points (3, S) positions, world [m]; sample_normal (3, S) unit
+    normal from B into A at each sample, world. Vectors of samples are columns (the (3, S)
+    layout keeps XLA from transposing them every step).
+    A contact model prepares this once per step (:meth:`ContactModel.prepare`).
+    """
+
+    psi: jax.Array
+    chi: jax.Array
+    normal: jax.Array
+    psi_rate: jax.Array
+    moment_rate: jax.Array
+    weight: jax.Array
+    depth: jax.Array
+    depth_grad: jax.Array
+    moves: jax.Array
+    points: jax.Array
+    sample_normal: jax.Array
+
+
+def occupancy(depth: jax.Array) -> jax.Array:
+    """Occupancy o = smoothstep(z) = 3z² − 2z³ of a depth coordinate z clipped to [0, 1]:
+    0 for z ≤ 0 (outside B, or on its surface), 1 for z ≥ 1; C¹ everywhere."""
+    t = jnp.clip(depth, 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def occupancy_slope(depth: jax.Array) -> jax.Array:
+    """do/dz = 6z(1 − z) on [0, 1], 0 outside."""
+    t = jnp.clip(depth, 0.0, 1.0)
+    return 6.0 * t * (1.0 - t)
+
+
+def sample_rates(g: PairGeometry):
+    """(6, S) columns c_i with ż_i = c_i·u for the relative twist u = (v, ω) of A w.r.t. B at
+    χ: a sample of A moves by v + ω × (x_i − χ) relative to B (c_i = [∇z_i; (x_i − χ) × ∇z_i]);
+    a sample of B sees A's field move the opposite way (c_i negated)."""
+    arm = g.points - g.chi[:, None]
+    sign = 2.0 * g.moves - 1.0
+    return sign * jnp.concatenate([g.depth_grad, cross_columns(arm, g.depth_grad)], axis=0)
+
+
+def surface_occupancy(depth_outside: jax.Array, radius) -> jax.Array:
+    """Occupancy o ∈ [0, 1] of a sample at signed distance d from B's surface [m]
+    (negative inside): o = smoothstep(−d/r), 0 outside and on the surface, 1 deeper than r.
+
+    Contact thus begins exactly when a sample reaches B's surface (a flat face at rest sinks
+    only until ψ = m·g/k, a small fraction of r); o is C¹, so ψ and χ are continuous in the
+    pose with continuous gradients. r is the DANO's ``sample_radius``.
+    """
+    return occupancy(-depth_outside / radius)
+
+
+def unit(v: jax.Array, fallback: jax.Array, axis: int = -1) -> jax.Array:
+    """v/|v| along ``axis``, or ``fallback`` where |v| is (near) zero; finite gradients."""
+    n = jnp.expand_dims(safe_norm(v, axis=axis), axis)
+    ok = n > 1e-12
+    return jnp.where(ok, v / jnp.where(ok, n, 1.0), fallback)
+
+
+def cross_columns(a: jax.Array, b: jax.Array) -> jax.Array:
+    """Column-wise cross product of (3, S) arrays (either may be (3, 1))."""
+    return jnp.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def weighted_centroid(wp: jax.Array, occ: jax.Array, alpha, x, R):
+    """ψ and χ of one side as one matrix–vector product: wp = [w·p; w; ...] (≥ 4, N) body
+    frame, occ (N,). Returns (ψ, lever (3,) body frame, χ (3,) world); the lever is 0 when
+    ψ = 0."""
+    s = wp[:4] @ occ
+    psi0 = s[3]
+    lever = s[:3] / jnp.where(psi0 > 0, psi0, 1.0)
+    return alpha * psi0, lever, x + R @ lever
+
+
+def skew(w: jax.Array) -> jax.Array:
+    """[w]× (3, 3), the matrix of w × ·."""
+    z = jnp.zeros((), w.dtype)
+    return jnp.array([[z, -w[2], w[1]], [w[2], z, -w[0]], [-w[1], w[0], z]])
+
+
+def centroid_rates(weight, depth, depth_grad, moves, points, chi):
+    """(dψ/du (6,), dM/du (3, 6)) from per-sample data (see :class:`PairGeometry`): the
+    occupancies change with the depths (ż_i = c_i·u, :func:`sample_rates`), and A's samples
+    carry their share of the first moment along with A."""
+    arm = points - chi[:, None]
+    sign = 2.0 * moves - 1.0
+    c = sign * jnp.concatenate([depth_grad, cross_columns(arm, depth_grad)], axis=0)  # (6, S)
+    wo1 = weight * occupancy_slope(depth)
+    wom = weight * occupancy(depth) * moves
+    moment_rate = (arm * wo1) @ c.T
+    moment_rate = moment_rate.at[:, :3].add(jnp.sum(wom) * jnp.eye(3, dtype=arm.dtype))
+    moment_rate = moment_rate.at[:, 3:].add(-skew(arm @ wom))
+    return c @ wo1, moment_rate
+
+
+class PairKind(Protocol):
+    """A kind of DANO contact pair. ``inputs`` gathers, for a group of G pairs of this kind,
+    everything :meth:`geometry` needs as a dict of arrays with leading axis G (from the
+    scene, the MJX model ``m`` and data ``d`` after ``fwd_position``, and the mass scales α
+    (D,)); it must hold the world poses of the two frames the geometry depends on:
+    ``xa`` (3,) [m] and ``Ra`` (3, 3) of DANO A's body, ``xb`` and ``Rb`` of B's frame (a
+    geom's or a body's). ``geometry`` maps one pair's inputs to its :class:`PairGeometry`
+    (it is vmapped, and differentiated in forward mode with respect to the four poses to
+    integrate the contact spring implicitly)."""
+
+    name: str
+
+    def inputs(self, scene, group, m, d, alpha) -> Any: ...
+
+    def geometry(self, inputs) -> PairGeometry: ...
+
+
+class ContactModel(Protocol):
+    """A contact model (hashable: it is static data).
+
+    ``prepare(geometry, h)`` runs once per step on one pair's :class:`PairGeometry` and
+    returns a pytree ``state``; ``wrench(p, state, u)`` then gives the force and torque (6,)
+    on A, world frame, torque about χ (the point where the step evaluates the Jacobians),
+    for the pair's scalar parameters p and the velocity u = (v, ω) (6,) of A relative to B
+    at χ, *at the end of the step*: the contact geometry advanced by the step of length h
+    with that velocity (to first order), so that the step is implicit in the contact force.
+    The step solves for the velocity with Newton's method and differentiates ``wrench``
+    with respect to u in forward mode."""
+
+    name: str
+
+    def prepare(self, geometry: PairGeometry, h) -> Any: ...
+
+    def wrench(self, p, state, u: jax.Array) -> jax.Array: ...
+
+
+PAIR_KINDS: dict[str, PairKind] = {}
+CONTACT_MODELS: dict[str, Callable[..., ContactModel]] = {}
+
+
+def register_pair_kind(kind: PairKind) -> PairKind:
+    """Make a pair kind known to :func:`dano.sim.compose` under ``kind.name``."""
+    PAIR_KINDS[kind.name] = kind
+    return kind
+
+
+def register_contact_model(name: str):
+    """Class decorator: make a contact model selectable by ``name`` in
+    ``compose(..., contact_model=name)``."""
+
+    def deco(cls):
+        CONTACT_MODELS[name] = cls
+        return cls
+
+    return deco
+
+
+def contact_model(spec) -> ContactModel:
+    """A contact model from its name or an instance. Raises DanoError for unknown names."""
+    if isinstance(spec, str):
+        if spec not in CONTACT_MODELS:
+            raise DanoError(f"unknown contact model {spec!r}; known: {', '.join(sorted(CONTACT_MODELS))}")
+        return CONTACT_MODELS[spec]()
+    if not (callable(getattr(spec, "wrench", None)) and callable(getattr(spec, "prepare", None))):
+        raise DanoError(f"a contact model needs prepare(geometry, h) and wrench(p, state, u) methods, got {spec!r}")
+    return spec

@@ -1,0 +1,60 @@
+"""Device-side contact data of a scene's DANOs, stacked over DANOs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Samples:
+    """Contact samples of D DANOs, padded to a common count N with zero weights.
+
+    points: (D, 3, N) contact points, body frame (object axes, origin at the centre of
+    mass) [m]; normals: (D, 3, N) outward unit normals, body frame; weights: (D, N) w_i per
+    unit mass scale [kg/α] (paper: φ_i/Σφ·m); wp: (D, 10, N) [w·p; w; w·p_x², w·p_y², w·p_z²,
+    w·p_x·p_y, w·p_x·p_z, w·p_y·p_z], the weighted moments whose sums give the overlap, its
+    centroid and their rates in one product; radius: (D,) sample radius r [m], the depth over which a sample's
+    occupancy rises from 0 to 1; com: (D, 3) centre of mass, object frame [m];
+    rho_ref: (D,) interior (full-occupancy) density of each DANO's field, 1 without one.
+    """
+
+    points: jax.Array
+    normals: jax.Array
+    weights: jax.Array
+    wp: jax.Array
+    radius: jax.Array
+    com: jax.Array
+    rho_ref: jax.Array
+
+    def take(self, idx) -> "Samples":
+        """The samples of DANOs ``idx`` (a static sequence of indices), leading axis len(idx)."""
+        idx = np.asarray(idx, dtype=np.int32)
+        if np.array_equal(idx, np.arange(self.radius.shape[0])):
+            return self  # every DANO in order: no gather
+        return jax.tree_util.tree_map(lambda x: x[idx], self)
+
+    @staticmethod
+    def stack(points, normals, weights, radius, com, rho_ref) -> "Samples":
+        """From per-DANO lists of (N_k, 3) points and normals and (N_k,) weights (NumPy),
+        padded to the largest N_k."""
+        n = max((len(p) for p in points), default=0)
+
+        def pad(a, width):
+            out = np.zeros((n,) + a.shape[1:])
+            out[: len(a)] = a
+            return out
+
+        P = np.stack([pad(p, 3).T for p in points]) if points else np.zeros((0, 3, 0))
+        Nn = np.stack([pad(v, 3).T for v in normals]) if normals else np.zeros((0, 3, 0))
+        W = np.stack([pad(w, 1) for w in weights]) if weights else np.zeros((0, 0))
+        x, y, z = P[:, 0], P[:, 1], P[:, 2]
+        WP = np.concatenate([P * W[:, None, :], W[:, None, :],
+                             np.stack([x * x, y * y, z * z, x * y, x * z, y * z], axis=1) * W[:, None, :]], axis=1)
+        f = jnp.asarray
+        return Samples(f(P), f(Nn), f(W), f(WP), f(np.asarray(radius, dtype=np.float64)),
+                       f(np.asarray(com, dtype=np.float64).reshape(-1, 3)), f(np.asarray(rho_ref, dtype=np.float64)))

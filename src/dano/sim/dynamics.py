@@ -1,0 +1,195 @@
+"""The public step: ``step(scene, params, data) -> data`` on MuJoCo MJX with DANO contact.
+
+One step of length h = ``scene.dt`` from MJX ``Data`` ``d`` (its qpos, qvel, act, time,
+ctrl, qfrc_applied, xfrc_applied and solver warm start):
+
+1. ``mjx.fwd_position`` at q (kinematics, mass matrix, MuJoCo's own collisions and
+   constraints), with the DANOs' masses and inertias scaled by α;
+2. each pair group's contact geometry (ψ, χ, n and per-sample data, paper Eqs. 5–7)
+   and the relative point Jacobians at χ, frozen for the step (as in Dojo);
+3. MJX's velocity, actuation and acceleration stages and, when the model has
+   constraints, its solver, with the contact force at the current velocity applied;
+4. the implicit velocity equation (M + h·B)(v' − v) = h·(f + Q(v')) solved by Newton's
+   method to a tolerance (:mod:`dano.sim.implicit`), damping and friction evaluated at v';
+5. ``mjx.euler`` (EULERDAMP disabled) advances qvel to v', positions (quaternions
+   included) with v', activations and time.
+
+The returned ``Data`` keeps the caller's ``qfrc_applied`` (the contact force is not left
+in it) and carries act, time and the constraint solver's warm start to the next step.
+Everything is pure JAX: ``jax.jit``, ``jax.vmap``, ``jax.jacfwd`` and ``jax.grad`` apply.
+Only public MJX functions and fields are used.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._mjx import mjx
+from ..contact import PAIR_KINDS
+from .implicit import ImplicitProblem, NewtonOptions, contact_force, solve_velocity
+from .scene import Scene, SimParams
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class State:
+    """A configuration and velocity, the part of MJX ``Data`` most users set.
+
+    qpos: (nq,) MuJoCo generalized positions (free joints: CoM position [m], wxyz
+    quaternion); qvel: (nv,) generalized velocities (free joints: linear velocity, world
+    frame [m/s], then angular velocity, body frame [rad/s])."""
+
+    qpos: jax.Array
+    qvel: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class StepInfo:
+    """Diagnostics of one step: psi (P,) overlap of each contact pair at the step's start
+    (mass units, ``scene.pair_names`` order); newton_iterations (); newton_residual ():
+    final residual of the velocity equation relative to the step's impulses."""
+
+    psi: jax.Array
+    newton_iterations: jax.Array
+    newton_residual: jax.Array
+
+
+def make_data(scene: Scene, qpos=None, qvel=None, *, act=None, ctrl=None, time: float = 0.0):
+    """MJX ``Data`` for ``scene`` at (qpos (nq,), qvel (nv,)) (default: the model's qpos0, at
+    rest), with optional activations act (na,) and controls ctrl (nu,), in the scene's dtype.
+    Jittable; shapes are checked by MJX."""
+    d = mjx.make_data(scene.model)
+    dt = scene.dtype
+    repl = {"time": jnp.asarray(time, dt)}
+    if qpos is not None:
+        repl["qpos"] = jnp.asarray(qpos, dt)
+    if qvel is not None:
+        repl["qvel"] = jnp.asarray(qvel, dt)
+    if act is not None:
+        repl["act"] = jnp.asarray(act, dt)
+    if ctrl is not None:
+        repl["ctrl"] = jnp.asarray(ctrl, dt)
+    return d.replace(**repl)
+
+
+def as_data(scene: Scene, state):
+    """``state`` as MJX Data: a :class:`State` (qpos/qvel, the rest at rest) or Data itself."""
+    if isinstance(state, State):
+        return make_data(scene, state.qpos, state.qvel)
+    return state
+
+
+def model_with_alpha(scene: Scene, alpha):
+    """The MJX model with each DANO's mass and inertia scaled by its α (D,)."""
+    m = scene.model
+    if not scene.dano_names:
+        return m
+    ids = np.asarray(_dano_bodies(scene), dtype=np.int32)
+    mass = scene.base_mass * alpha
+    return m.replace(
+        body_mass=m.body_mass.at[ids].set(mass),
+        body_subtreemass=m.body_subtreemass.at[ids].set(mass),
+        body_inertia=m.body_inertia.at[ids].set(scene.base_inertia * alpha[:, None]),
+    )
+
+
+def _dano_bodies(scene: Scene) -> tuple[int, ...]:
+    names = scene.body_names
+    return tuple(names.index(n) for n in scene.dano_names)
+
+
+def _group_params(params: SimParams, group):
+    idx = np.asarray(group.index, dtype=np.int32)
+    return jax.tree_util.tree_map(lambda x: jnp.asarray(x)[idx], params.contact)
+
+
+def contact_geometry(scene: Scene, params: SimParams, m, d):
+    """Per pair group: the batched :class:`~dano.contact.PairGeometry` and the relative point
+    Jacobians (G, nv, 6) [Jp | Jr] of A minus B at each centroid, for Data ``d`` after
+    ``fwd_position`` on model ``m``."""
+    geos, jacs = [], []
+    for group in scene.groups:
+        kind = PAIR_KINDS[group.kind]
+        g = jax.vmap(kind.geometry)(kind.inputs(scene, group, m, d, params.alpha))
+        world_b = all(b == 0 for b in group.body_b)  # fixed geoms: B does not move
+
+        def rel_jac(chi, ba, bb):
+            jpa, jra = mjx.jac(m, d, chi, ba)
+            if not world_b:
+                jpb, jrb = mjx.jac(m, d, chi, bb)
+                jpa, jra = jpa - jpb, jra - jrb
+            return jnp.concatenate([jpa, jra], axis=1)
+
+        geos.append(g)
+        jacs.append(jax.vmap(rel_jac)(g.chi, jnp.asarray(group.body_a), jnp.asarray(group.body_b)))
+    return tuple(geos), tuple(jacs)
+
+
+def _psi(scene: Scene, geos, dtype):
+    psi = jnp.zeros((len(scene.pairs),), dtype)
+    for group, g in zip(scene.groups, geos):
+        psi = psi.at[np.asarray(group.index, dtype=np.int32)].set(g.psi)
+    return psi
+
+
+def overlaps(scene: Scene, params: SimParams, data) -> jax.Array:
+    """ψ (P,) of every contact pair at ``data``'s configuration (mass units)."""
+    m = model_with_alpha(scene, params.alpha)
+    d = mjx.fwd_position(m, data)
+    geos, _ = contact_geometry(scene, params, m, d)
+    return _psi(scene, geos, d.qpos.dtype)
+
+
+def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonOptions = NewtonOptions()):
+    """:func:`step`, also returning its :class:`StepInfo`."""
+    m = model_with_alpha(scene, params.alpha)
+    h = scene.dt
+    user_qfrc = data.qfrc_applied
+    d = mjx.fwd_position(m, data)
+    geos, jacs = contact_geometry(scene, params, m, d)
+    models = tuple(g.model for g in scene.groups)
+    gparams = tuple(_group_params(params, g) for g in scene.groups)
+    states = tuple(jax.vmap(lambda g_, model=model: model.prepare(g_, h))(g) for model, g in zip(models, geos))
+    nv = d.qvel.shape[0]
+    pr = ImplicitProblem(jnp.zeros((nv, nv), d.qvel.dtype), d.qvel, jnp.zeros_like(d.qvel), jacs, states, gparams)
+    if scene.has_constraints and scene.groups:
+        # MuJoCo's constraint solver sees the contact force at the current velocity
+        Q0 = contact_force(models, pr, d.qvel)
+        d = d.replace(qfrc_applied=user_qfrc + Q0)
+    else:
+        Q0 = jnp.zeros_like(d.qvel)
+    d = mjx.fwd_velocity(m, d)
+    d = mjx.fwd_actuation(m, d)
+    d = mjx.fwd_acceleration(m, d)
+    if scene.has_constraints:
+        d = mjx.solve(m, d)
+        f = d.qfrc_smooth + d.qfrc_constraint - Q0
+    else:
+        f = d.qfrc_smooth
+    Mh = mjx.full_m(m, d) + h * jnp.diag(m.dof_damping)
+    if scene.groups:
+        v_next, diag = solve_velocity(models, newton, h, ImplicitProblem(Mh, d.qvel, f, jacs, states, gparams))
+    else:
+        v_next = d.qvel + jnp.linalg.solve(Mh, h * f)
+        diag = jnp.asarray([1.0, 0.0], d.qvel.dtype)
+    qacc = (v_next - d.qvel) / h
+    d = mjx.euler(m, d.replace(qacc=qacc))
+    d = d.replace(qfrc_applied=user_qfrc)
+    # same structure and dtypes as the input (MJX makes some integer fields int32 in
+    # make_data but int64 in its stages under 64-bit mode), so that steps chain in a scan
+    d = jax.tree_util.tree_map(lambda new, old: new.astype(old.dtype), d, data)
+    return d, StepInfo(_psi(scene, geos, d.qpos.dtype), diag[0], diag[1])
+
+
+def step(scene: Scene, params: SimParams, data, newton: NewtonOptions = NewtonOptions()):
+    """Advance MJX ``data`` by one time step ``scene.dt`` with DANO contact (paper §IV on
+    MuJoCo MJX; see the module documentation). Pure and jittable; ``jax.vmap`` over data,
+    params or scene arrays; differentiable (forward and reverse mode) in data, params and
+    scene arrays. Controls and applied forces for the step are ``data.ctrl``,
+    ``data.qfrc_applied`` and ``data.xfrc_applied``. newton: options of the implicit solve."""
+    return step_with_info(scene, params, data, newton)[0]

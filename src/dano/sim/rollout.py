@@ -1,0 +1,194 @@
+"""Rollouts: :func:`~dano.sim.dynamics.step` inside one jitted ``jax.lax.scan``."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import DanoError
+from ..trajectory import Trajectory
+from .implicit import NewtonOptions
+from .scene import Scene, SimParams
+from .dynamics import State, as_data, overlaps, step_with_info
+
+
+class SimulationDiverged(DanoError):
+    """The state became non-finite, too fast or too deeply interpenetrating; ``step`` and
+    ``time`` [s] tell when."""
+
+    def __init__(self, step: int, time: float, reason: str):
+        self.step, self.time = step, time
+        super().__init__(f"simulation diverged at step {step} (t = {time:.4g} s): {reason}; "
+                         "reduce the time step or check the parameters")
+
+
+@functools.partial(jax.jit, static_argnames=("newton",))
+def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonOptions = NewtonOptions()):
+    """T steps from MJX ``data`` with controls (T, nu) and applied generalized forces
+    (T, nv) per step. Returns (final Data, qpos (T+1, nq), qvel (T+1, nv), psi (T+1, P),
+    Newton iterations (T,)). Jitted; one compilation per scene structure and T."""
+
+    def body(d, inputs):
+        ctrl, f = inputs
+        d_next, info = step_with_info(scene, params, d.replace(ctrl=ctrl, qfrc_applied=f), newton)
+        return d_next, (d_next.qpos, d_next.qvel, info.psi, info.newton_iterations)
+
+    d_last, (qpos, qvel, psi, iters) = jax.lax.scan(body, data, (controls, qfrc))
+    psi_last = overlaps(scene, params, d_last)  # each step reported ψ at its start
+    return (d_last, jnp.concatenate([data.qpos[None], qpos]), jnp.concatenate([data.qvel[None], qvel]),
+            jnp.concatenate([psi, psi_last[None]]), iters)
+
+
+def _inputs(scene: Scene, data, controls, qfrc, steps: int):
+    ctrl = jnp.broadcast_to(data.ctrl, (steps, scene.nu)) if controls is None else controls
+    f = jnp.broadcast_to(data.qfrc_applied, (steps, scene.nv)) if qfrc is None else qfrc
+    return ctrl, f
+
+
+def rollout_arrays(scene: Scene, state0, controls, params: SimParams, steps: int, qfrc=None):
+    """The jitted, differentiable core of :func:`rollout`: returns (qpos (T+1, nq),
+    qvel (T+1, nv), psi (T+1, P)) as JAX arrays. state0: a :class:`State` or MJX Data;
+    controls (T, nu) or None (hold the data's ctrl: zeros for a State); qfrc (T, nv) or None
+    (hold its qfrc_applied). Use it inside ``jax.jacfwd``."""
+    data = as_data(scene, state0)
+    ctrl, f = _inputs(scene, data, controls, qfrc, steps)
+    _, qpos, qvel, psi, _ = scan_steps(scene, params, data, ctrl, f)
+    return qpos, qvel, psi
+
+
+def _as_array(x, shape, what, dtype):
+    arr = np.asarray(x, dtype=np.float64)
+    if arr.shape != shape:
+        raise DanoError(f"{what} must have shape {shape}, got {tuple(arr.shape)}")
+    if not np.all(np.isfinite(arr)):
+        raise DanoError(f"{what} contains NaN or infinite values")
+    return jnp.asarray(arr, dtype=dtype)
+
+
+def check_params(scene: Scene, params: SimParams) -> None:
+    """Raises DanoError for non-finite or invalid parameters (concrete values only)."""
+    leaves = jax.tree_util.tree_leaves(params)
+    if any(isinstance(x, jax.core.Tracer) for x in leaves):
+        return
+    params.contact.validate()
+    alpha = np.asarray(params.alpha)
+    if alpha.shape != (len(scene.dano_names),) or not np.all(np.isfinite(alpha)) or np.any(alpha <= 0):
+        raise DanoError(f"alpha must be {len(scene.dano_names)} finite positive mass scales, got {alpha.tolist()}")
+
+
+def rollout(
+    scene: Scene,
+    state0,
+    controls=None,
+    params: SimParams | None = None,
+    steps: int | None = None,
+    *,
+    qfrc=None,
+    max_speed: float = 1e3,
+    progress=None,
+    newton: NewtonOptions = NewtonOptions(),
+) -> Trajectory:
+    """Simulate ``steps`` steps of ``scene.dt`` from ``state0`` inside ``jax.lax.scan``.
+
+    state0: a :class:`State` (qpos, qvel) or MJX Data (its act, time, ctrl and warm start
+    carry on); controls: (T, nu) actuator controls per step (default: hold state0's); qfrc:
+    optional (T, nv) generalized forces per step [N, N·m]; params: :class:`SimParams`
+    (default :meth:`Scene.default_params`); steps: T (default len(controls)).
+    Returns a :class:`~dano.trajectory.Trajectory` (its ``final_data`` continues the run).
+    Raises DanoError for bad shapes or parameters and :class:`SimulationDiverged` (with the
+    step number) if the state becomes non-finite, a speed exceeds ``max_speed`` [m/s or
+    rad/s] or an overlap exceeds half the DANO's mass (bodies passed through each other).
+    For gradients use :func:`rollout_arrays` (or :func:`~dano.sim.dynamics.step`) under JAX.
+    progress: optional ``progress(done, total, description)``; the rollout then runs
+    in 20 equal chunks (one compilation), each continuing from the last one's Data.
+    """
+    params = scene.default_params() if params is None else params
+    check_params(scene, params)
+    if steps is None:
+        if controls is None:
+            raise DanoError("give the number of steps or a (T, nu) control sequence")
+        steps = len(controls)
+    if int(steps) < 1:
+        raise DanoError(f"steps must be positive, got {steps}")
+    steps = int(steps)
+    dt = scene.dtype
+    if isinstance(state0, State):
+        data = as_data(scene, State(_as_array(state0.qpos, (scene.nq,), "initial qpos", dt),
+                                    _as_array(state0.qvel, (scene.nv,), "initial qvel", dt)))
+    else:
+        _as_array(state0.qpos, (scene.nq,), "initial qpos", dt)
+        _as_array(state0.qvel, (scene.nv,), "initial qvel", dt)
+        data = state0
+    ctrl = None if controls is None else _as_array(controls, (steps, scene.nu), "controls", dt)
+    f = None if qfrc is None else _as_array(qfrc, (steps, scene.nv), "qfrc", dt)
+    ctrl, f = _inputs(scene, data, ctrl, f, steps)
+    n_chunks = 1 if progress is None else min(20, steps)
+    size = -(-steps // n_chunks)
+    pad = size * n_chunks - steps
+    ctrl = jnp.concatenate([ctrl, jnp.repeat(ctrl[-1:], pad, axis=0)])
+    f = jnp.concatenate([f, jnp.zeros((pad, scene.nv), dt)])
+    parts, iters = [], []
+    for k in range(n_chunks):
+        sl = slice(k * size, (k + 1) * size)
+        data, qpos, qvel, psi, it = scan_steps(scene, params, data, ctrl[sl], f[sl], newton)
+        arrs = [np.asarray(x) for x in (qpos, qvel, psi)]
+        parts.append(arrs if k == 0 else [x[1:] for x in arrs])
+        iters.append(np.asarray(it))
+        if progress is not None:
+            progress(min((k + 1) * size, steps), steps, "simulating")
+        if not (np.all(np.isfinite(arrs[0])) and np.all(np.isfinite(arrs[1]))):
+            break  # diverged: the check below finds the step
+    qpos, qvel, psi = (np.concatenate([p[i] for p in parts])[: steps + 1] for i in range(3))
+    if len(qpos) < steps + 1:  # stopped early; pad with NaN so that the check finds the step
+        fill = lambda a: np.concatenate([a, np.full((steps + 1 - len(a),) + a.shape[1:], np.nan)])  # noqa: E731
+        qpos, qvel, psi = fill(qpos), fill(qvel), fill(psi)
+    time = np.arange(steps + 1) * scene.dt
+    _check_divergence(scene, params, time, qpos, qvel, psi, max_speed)
+    it = np.concatenate(iters)[:steps]
+    return Trajectory(
+        time=time, qpos=qpos, qvel=qvel, psi=psi, body_names=scene.body_names, dano_names=scene.dano_names,
+        qpos_adr=scene.qpos_adr, dof_adr=scene.dof_adr, pair_names=scene.pair_names,
+        metadata={"scene": scene.name, "dt": scene.dt, "params": params_to_dict(scene, params),
+                  "contact_models": {p.name: p.model.name for p in scene.pairs},
+                  "newton_iterations": {"max": int(it.max()), "mean": float(it.mean())}},
+        final_data=data if len(parts) == n_chunks else None,
+    )
+
+
+def _check_divergence(scene, params, time, qpos, qvel, psi, max_speed):
+    """Raise SimulationDiverged at the first step with a non-finite state, a speed above
+    ``max_speed``, or an overlap above half the DANO's mass (bodies passed through each
+    other: the time step is too large for the contact stiffness)."""
+    k, reason = first_divergence(scene, params, qpos, qvel, psi, max_speed)
+    if k is not None:
+        raise SimulationDiverged(k, float(time[k]), reason)
+
+
+def first_divergence(scene, params, qpos, qvel, psi, max_speed: float = 1e3):
+    """(step, reason) of the first diverged state of (T+1, ...) arrays, or (None, "")."""
+    bad = ~np.all(np.isfinite(qpos), axis=1) | ~np.all(np.isfinite(qvel), axis=1)
+    fast = np.max(np.abs(np.nan_to_num(qvel, nan=np.inf)), axis=1) > max_speed
+    dano_of_pair = [p.a for p in scene.pairs]
+    limit = 0.5 * np.asarray(scene.base_mass)[dano_of_pair] * np.asarray(params.alpha)[dano_of_pair]
+    deep = np.any(np.nan_to_num(psi, nan=np.inf) > limit, axis=1) if psi.shape[1] else np.zeros(len(qpos), bool)
+    if not (bad.any() or fast.any() or deep.any()):
+        return None, ""
+    k = int(np.argmax(bad | fast | deep))
+    if bad[k]:
+        return k, "non-finite state"
+    if fast[k]:
+        return k, f"speed {np.max(np.abs(qvel[k])):.3g} above {max_speed:g}"
+    j = int(np.argmax(psi[k] / limit))
+    return k, f"overlap of pair {scene.pair_names[j]} is {psi[k, j]:.3g}, more than half the object's mass"
+
+
+def params_to_dict(scene: Scene, params: SimParams) -> dict:
+    """JSON-able {"contact": {name: [per pair]}, "alpha": {dano: α}, "pairs": [...]}."""
+    return {
+        "pairs": list(scene.pair_names),
+        "contact": {n: np.asarray(getattr(params.contact, n)).tolist() for n in params.contact.names()},
+        "alpha": dict(zip(scene.dano_names, np.asarray(params.alpha).tolist())),
+    }

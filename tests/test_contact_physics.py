@@ -1,0 +1,126 @@
+"""Contact physics of the simulation core v2 (issue 7, "Must show"): energy, rest on the
+true surface, per-sample torsion, a non-convex object against MuJoCo C."""
+
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from dano.asset import build
+from dano.bench import bench_energy
+from dano.fields import BoxField, mesh_field
+from dano.sim import DanoObject, State, compose, rollout
+
+G = 9.81
+MODELS = ("centroid", "per_sample")
+
+
+def test_random_drops_never_gain_energy():
+    # 30 of the benchmark's random bunny drops across the paper's Table I ranges
+    r = bench_energy(drops=30, batch=30, seed=0)
+    assert (r["nonfinite"], r["diverged"], r["energy_rises"]) == (0, 0, 0), r
+    assert r["max_energy_ratio"] <= 1.01
+
+
+@pytest.fixture(scope="module")
+def cube():
+    h = 0.1048 / 2
+    return build(BoxField((h, h, h)), mass=0.37, num_samples=5000, mesh_resolution=0, name="cube")
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_flat_face_rests_on_its_true_surface(cube, model):
+    h = 0.1048 / 2
+    scene = compose([DanoObject("cube", cube, (0, 0, h + 0.002))], dt=0.01, contact_model=model)
+    traj = rollout(scene, State(jnp.asarray([0, 0, h + 0.002, 1, 0, 0, 0.0]), jnp.zeros(6)), None,
+                   scene.default_params(), 300)
+    last = slice(-50, None)
+    assert traj.qpos[-1, 2] == pytest.approx(h, abs=2e-4)
+    k = float(scene.default_params().contact.impact_spring[0])
+    assert traj.psi[-1, 0] * k == pytest.approx(cube.mass * G, rel=1e-3)  # the normal force at rest is m·g
+    assert np.ptp(traj.qpos[last, 2]) < 1e-5  # no rocking
+    assert np.abs(traj.qvel[last]).max() < 1e-4
+
+
+def test_per_sample_torsion_emerges_from_sliding_friction():
+    # a flat 20 x 20 x 5 cm box spinning about z on the ground, torsional friction 0: the
+    # uniform square patch (side s) under Coulomb friction mu decelerates it at
+    # mu·m·g·c·s / I_z with c = (sqrt(2) + ln(1 + sqrt(2)))/6 = 0.3826 (the mean distance
+    # from a square's centre in side lengths) and I_z = m·s²/6: 6·c·mu·g/s
+    s, mu, w0 = 0.2, 0.3, 10.0
+    box = build(BoxField((s / 2, s / 2, 0.025)), mass=1.0, num_samples=4000, mesh_resolution=0, name="plate")
+    expected = (np.sqrt(2) + np.log(1 + np.sqrt(2))) * mu * G / s  # 6·c·mu·g/s
+    rates = {}
+    for model in MODELS:
+        scene = compose([DanoObject("plate", box, (0, 0, 0.025))], dt=0.002, contact_model=model)
+        params = scene.default_params(sliding_friction=mu, sliding_drag=0.0, torsional_friction=0.0,
+                                      torsional_drag=0.0, rolling_friction=0.0, rolling_drag=0.0)
+        # settle on the ground first, then spin
+        settle = rollout(scene, State(jnp.asarray([0, 0, 0.0255, 1, 0, 0, 0.0]), jnp.zeros(6)), None, params, 200)
+        q0 = settle.qpos[-1]
+        traj = rollout(scene, State(jnp.asarray(q0), jnp.asarray([0, 0, 0, 0, 0, w0])), None, params, 100)
+        w = traj.qvel[:, 5]
+        fast = (w < 0.9 * w0) & (w > 0.4 * w0)  # well above the smoothed-friction speed scale
+        rates[model] = -np.polyfit(traj.time[fast], w[fast], 1)[0] if fast.sum() > 5 else 0.0
+    assert rates["per_sample"] == pytest.approx(expected, rel=0.05), (rates, expected)
+    assert rates["centroid"] < 0.05 * expected  # one wrench at the centroid has no lever arm
+
+
+# a U-shaped block (12 x 6 x 8 cm, legs 2 cm thick, opening down) as an extruded mesh
+U_OUTLINE = np.array([(-.06, 0), (-.04, 0), (-.04, .06), (.04, .06), (.04, 0), (.06, 0), (.06, .06), (.06, .08),
+                      (-.06, .08), (-.06, .06)])
+U_TRIANGLES = np.array([(0, 1, 2), (0, 2, 9), (9, 2, 8), (2, 3, 7), (2, 7, 8), (3, 6, 7), (4, 5, 6), (4, 6, 3)])
+U_BOXES = [((0.12, 0.06, 0.02), (0, 0, 0.07)), ((0.02, 0.06, 0.06), (-0.05, 0, 0.03)),
+           ((0.02, 0.06, 0.06), (0.05, 0, 0.03))]  # its exact convex decomposition
+
+
+def u_block_mesh() -> trimesh.Trimesh:
+    mesh = trimesh.creation.extrude_triangulation(U_OUTLINE, U_TRIANGLES, 0.06)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+    mesh.apply_translation([0, 0.03, 0])
+    trimesh.repair.fix_normals(mesh)
+    assert mesh.is_watertight
+    return mesh
+
+
+@pytest.fixture(scope="module")
+def u_block():
+    mesh = u_block_mesh()
+    asset = build(mesh_field(mesh), mass=0.3, num_samples=3000, mesh_resolution=0, name="u")
+    com = np.asarray(asset.center_of_mass)
+    tilt = Rotation.from_euler("y", 15, degrees=True)
+    z = -tilt.apply(mesh.vertices - com)[:, 2].min() + 0.01  # lowest point 1 cm up, tilted 15°
+    pos, quat = np.array([0.0, 0.0, z]), tilt.as_quat(scalar_first=True)
+
+    # MuJoCo C with the three boxes, same mass, same start, no slip (friction 1)
+    spec = mujoco.MjSpec()
+    spec.option.timestep = 0.002
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1])
+    body = spec.worldbody.add_body(name="u")
+    body.add_freejoint()
+    volume = sum(np.prod(e) for e, _ in U_BOXES)
+    for extent, centre in U_BOXES:
+        body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=list(np.array(extent) / 2),
+                      pos=list(np.array(centre) - com), density=0.3 / volume, friction=[1.0, 0.005, 0.0001])
+    m = spec.compile()
+    d = mujoco.MjData(m)
+    d.qpos[:3], d.qpos[3:7] = pos, quat
+    for _ in range(1500):
+        mujoco.mj_step(m, d)
+    assert np.abs(d.qvel).max() < 1e-6
+    return asset, pos, quat, d.xipos[1].copy(), d.xquat[1].copy()
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_non_convex_block_rests_where_mujoco_c_puts_its_convex_decomposition(u_block, model):
+    asset, pos, quat, c_com, c_quat = u_block
+    scene = compose([DanoObject("u", asset, tuple(pos), tuple(quat))], dt=0.005, contact_model=model)
+    traj = rollout(scene, State(jnp.asarray(np.r_[pos, quat]), jnp.zeros(6)), None,
+                   scene.default_params(sliding_friction=1.0), 600)
+    q = traj.qpos[-1]
+    assert np.abs(traj.qvel[-1]).max() < 1e-4
+    angle = (Rotation.from_quat(q[3:7], scalar_first=True).inv() * Rotation.from_quat(c_quat, scalar_first=True))
+    assert np.degrees(angle.magnitude()) < 1.0
+    assert np.linalg.norm(q[:3] - c_com) < 1e-3

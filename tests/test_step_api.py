@@ -1,0 +1,164 @@
+"""The public step and its pytrees (issue 7, "What to build" 1 and 6)."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import dano
+from dano.asset import build
+from dano.contact import ContactParams
+from dano.fields import BoxField
+from dano.sim import DanoObject, Scene, SimParams, compose, make_data, rollout, rollout_arrays, step
+
+SRC = Path(dano.__file__).parent
+
+# A hinge arm whose actuator has activation dynamics (a first-order filter) beside a box
+# DANO resting on the ground: act, time and ctrl must carry through step and chunks.
+ARM = """
+<mujoco>
+  <option timestep="0.005"/>
+  <worldbody>
+    <geom name="ground" type="plane" size="0 0 1"/>
+    <body name="arm" pos="0 1 0.5">
+      <joint name="hinge" type="hinge" axis="0 1 0" damping="0.1"/>
+      <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.02" mass="0.5" contype="0" conaffinity="0"/>
+    </body>
+  </worldbody>
+  <actuator>
+    <general joint="hinge" dyntype="filter" dynprm="0.05" gainprm="2"/>
+  </actuator>
+</mujoco>
+"""
+
+
+@pytest.fixture(scope="module")
+def box_scene(tmp_path_factory):
+    path = tmp_path_factory.mktemp("arm") / "arm.xml"
+    path.write_text(ARM)
+    h = 0.05
+    asset = build(BoxField((h, h, h)), mass=0.3, num_samples=1000, mesh_resolution=0, name="box")
+    scene = compose([DanoObject("box", asset, (0, 0, h))], path, dt=0.005)
+    assert scene.pair_names == ("box/ground",)
+    qpos = np.array(scene.qpos0)
+    qpos[scene.qpos_adr[0]:scene.qpos_adr[0] + 7] = [0, 0, h + 0.01, 1, 0, 0, 0]
+    qvel = np.zeros(scene.nv)
+    qvel[scene.dof_adr[0]] = 0.5
+    return scene, qpos, qvel
+
+
+def test_step_is_pure_and_keeps_the_callers_inputs(box_scene):
+    scene, qpos, qvel = box_scene
+    params = scene.default_params()
+    data = make_data(scene, qpos, qvel, ctrl=[1.0]).replace(qfrc_applied=jnp.full(scene.nv, 0.01))
+    jstep = jax.jit(step)
+    a, b = jstep(scene, params, data), jstep(scene, params, data)
+    assert np.array_equal(np.asarray(a.qpos), np.asarray(b.qpos))
+    np.testing.assert_array_equal(np.asarray(data.qpos), qpos)  # the input is untouched
+    np.testing.assert_array_equal(np.asarray(a.qfrc_applied), 0.01)  # the caller's force stays
+    assert float(a.time) == pytest.approx(scene.dt)
+    assert float(a.act[0]) > 0  # the actuator's activation moved towards ctrl
+    assert jax.tree_util.tree_structure(a) == jax.tree_util.tree_structure(data)
+
+
+def test_rollout_in_chunks_continues_act_time_and_ctrl(box_scene):
+    scene, qpos, qvel = box_scene
+    params = scene.default_params()
+    data = make_data(scene, qpos, qvel, ctrl=[1.0])
+    whole = rollout(scene, data, None, params, 40)
+    first = rollout(scene, data, None, params, 20)
+    second = rollout(scene, first.final_data, None, params, 20)
+    np.testing.assert_allclose(second.qpos[-1], whole.qpos[-1], atol=1e-12)
+    np.testing.assert_allclose(np.asarray(second.final_data.act), np.asarray(whole.final_data.act), atol=1e-14)
+    assert float(second.final_data.time) == pytest.approx(40 * scene.dt)
+    # progress reporting runs in chunks too, each continuing from the last one's Data
+    chunked = rollout(scene, data, None, params, 40, progress=lambda *a: None)
+    np.testing.assert_allclose(chunked.qpos, whole.qpos, atol=1e-12)
+
+
+def test_step_vmaps_over_data_and_params(box_scene):
+    scene, qpos, qvel = box_scene
+    params = scene.default_params()
+    speeds = jnp.asarray([0.0, 0.5, 1.0])
+    datas = jax.vmap(lambda s: make_data(scene, qpos, jnp.asarray(qvel).at[scene.dof_adr[0]].set(s)))(speeds)
+    batched = jax.jit(jax.vmap(step, in_axes=(None, None, 0)))(scene, params, datas)
+    for i, s in enumerate(speeds):
+        one = jax.jit(step)(scene, params, make_data(scene, qpos, jnp.asarray(qvel).at[scene.dof_adr[0]].set(s)))
+        np.testing.assert_allclose(np.asarray(batched.qvel[i]), np.asarray(one.qvel), atol=1e-12)
+    mus = jnp.asarray([0.1, 0.5])
+    many = jax.vmap(lambda mu: step(scene, params.replace(contact=params.contact.replace(
+        sliding_friction=jnp.full_like(params.contact.sliding_friction, mu))), datas[1]).qvel)(mus)
+    assert np.all(np.isfinite(np.asarray(many)))
+
+
+def test_jacfwd_of_step_matches_central_differences(box_scene):
+    scene, qpos, qvel = box_scene
+    params = scene.default_params()
+    data = make_data(scene, qpos, qvel)
+
+    def after(theta):  # three steps, as a function of (sliding friction, mass scale)
+        p = params.replace(contact=params.contact.replace(sliding_friction=jnp.full((len(scene.pairs),), theta[0])),
+                           alpha=theta[1:])
+        d = data
+        for _ in range(3):
+            d = step(scene, p, d)
+        return jnp.concatenate([d.qpos, d.qvel])
+
+    # start in contact: settle first
+    q, v, _ = rollout_arrays(scene, data, None, params, 30)
+    data = make_data(scene, q[-1], v[-1])
+    theta = jnp.asarray([0.3, float(params.alpha[0])])
+    J = jax.jit(jax.jacfwd(after))(theta)
+    f = jax.jit(after)
+    eps = 1e-6
+    fd = np.stack([(np.asarray(f(theta.at[i].add(eps))) - np.asarray(f(theta.at[i].add(-eps)))) / (2 * eps)
+                   for i in range(2)], axis=1)
+    assert np.all(np.isfinite(np.asarray(J)))
+    assert np.abs(fd[:, 0]).max() > 1e-6  # friction matters here
+    np.testing.assert_allclose(np.asarray(J), fd, atol=1e-6 * max(1.0, np.abs(fd).max()), rtol=1e-4)
+
+
+def test_scene_and_parameters_are_pytrees_with_replace(box_scene):
+    scene, _, _ = box_scene
+    params = scene.default_params()
+    for tree in (scene, params, params.contact):
+        leaves, treedef = jax.tree_util.tree_flatten(tree)
+        assert type(jax.tree_util.tree_unflatten(treedef, leaves)) is type(tree)
+    assert all(isinstance(x, jax.Array) for x in jax.tree_util.tree_leaves(params))
+    stiffer = params.contact.replace(impact_spring=params.contact.impact_spring * 2)
+    assert float(stiffer.impact_spring[0]) == 2 * float(params.contact.impact_spring[0])
+    assert isinstance(params.replace(contact=stiffer), SimParams)
+    assert isinstance(scene.replace(base_mass=scene.base_mass * 2), Scene)
+    assert isinstance(ContactParams().replace(sliding_friction=0.2), ContactParams)
+    # the convenience setter agrees with replace
+    by_name = scene.set_param(params, "sliding_friction", 0.7)
+    np.testing.assert_array_equal(np.asarray(by_name.contact.sliding_friction), 0.7)
+    # a scene is an ordinary jit argument: same structure, no new compilation
+    f = jax.jit(lambda s: s.base_mass.sum())
+    f(scene)
+    f(scene.replace(base_mass=scene.base_mass * 3))
+    assert f._cache_size() == 1
+
+
+def test_no_mjx_private_fields_in_the_source():
+    offenders = [str(p.relative_to(SRC)) for p in SRC.rglob("*.py") if "_impl" in p.read_text()]
+    assert offenders == []
+
+
+def test_importing_dano_changes_no_process_wide_setting():
+    code = (
+        "import jax, matplotlib\n"
+        "before = (jax.config.jax_enable_x64, matplotlib.get_backend())\n"
+        "import dano, dano.sim, dano.viz.plot, dano.sysid\n"
+        "from dano.viz.plot import plot_samples\n"
+        "after = (jax.config.jax_enable_x64, matplotlib.get_backend())\n"
+        "assert before == after, (before, after)\n"
+        "dano.enable_float64()\n"
+        "assert jax.config.jax_enable_x64\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
