@@ -162,3 +162,28 @@ def test_importing_dano_changes_no_process_wide_setting():
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_float32_drop_settles_with_finite_gradients():
+    from dano.sim.scenes import load_scene
+
+    setup = load_scene("bunny-drop")
+    scene = setup.scene.astype(jnp.float32)
+    params = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), setup.params)
+    q0 = jnp.asarray(setup.state0.qpos, jnp.float32)
+    v0 = jnp.asarray(setup.state0.qvel, jnp.float32)
+    data = make_data(scene, q0, v0)
+    assert data.qpos.dtype == jnp.float32
+    traj = rollout(scene, data, None, params, 400)  # 4 s
+    assert traj.qpos.dtype == np.float32
+    assert np.all(np.isfinite(traj.qpos))
+    assert np.linalg.norm(traj.qvel[-1]) < 1e-2  # settled
+    k = float(params.contact.impact_spring[0])
+    assert traj.psi[-1, 0] * k == pytest.approx(float(scene.assets[0].mass) * 9.81, rel=0.05)
+
+    def final_x(mu):
+        p = params.replace(contact=params.contact.replace(sliding_friction=jnp.full((1,), mu, jnp.float32)))
+        return rollout_arrays(scene, data, None, p, 150)[0][-1, :3]
+
+    J = jax.jit(jax.jacfwd(final_x))(jnp.float32(0.3))
+    assert J.dtype == jnp.float32 and np.all(np.isfinite(np.asarray(J)))

@@ -204,6 +204,7 @@ def simulate(
     out: Path | None = None,
     video: Path | None = None,
     fps: float = 30.0,
+    contact_model: str = "centroid",
     quiet: bool = False,
 ):
     """Simulate a built-in scene or an MJCF file with DANOs and write the trajectory and a video.
@@ -220,6 +221,7 @@ def simulate(
         out: trajectory .npz (time, qpos, qvel, psi, names).
         video: .mp4 (or .gif) video, rendered headless with MuJoCo.
         fps: video frame rate.
+        contact_model: DANO contact model of every pair: centroid (the paper's) or per_sample.
         quiet: no progress bars.
     """
     import time as _time
@@ -227,18 +229,21 @@ def simulate(
     import numpy as np
 
     from .sim import rollout, save_trajectory
+    from .contact import CONTACT_MODELS
     from .sim.scenes import BUILTIN_SCENES, load_scene, mjcf_setup
 
+    if contact_model not in CONTACT_MODELS:
+        raise ValueError(f"unknown --contact-model {contact_model!r}; available: {', '.join(CONTACT_MODELS)}")
     if scene in BUILTIN_SCENES:
         if object:
             raise ValueError("--object applies to MJCF scenes, not to built-in ones")
-        setup = load_scene(scene, dt)
+        setup = load_scene(scene, dt, contact_model=contact_model)
     else:
         path = Path(scene)
         if path.suffix.lower() != ".xml" and not path.exists():
             raise ValueError(f"unknown scene {scene!r}; built-in scenes: {', '.join(BUILTIN_SCENES)} (or an MJCF path)")
         objs = [_parse_object(o) for o in (object or ("builtin:bunny@0,0,1",))]
-        setup = mjcf_setup(path, objs, dt=dt or 0.01)
+        setup = mjcf_setup(path, objs, dt=dt or 0.01, contact_model=contact_model)
     params = _apply_params(setup.scene, setup.params, param)
     T = int(round((duration if duration is not None else setup.duration) / setup.scene.dt))
     if T < 1:

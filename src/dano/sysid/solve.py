@@ -81,8 +81,13 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     e.g. (0.4,): first fit on the first 40 % of every trajectory, then on all of it from
     that estimate (contact-rich cost landscapes are much smoother over short horizons,
     so a distant initial guess still reaches the right basin). Raises DanoError if the
-    rollout produces non-finite residuals at the initial guess.
+    scene is not float64 (identification compares in float64: call
+    :func:`dano.enable_float64` before composing it) or the rollout produces non-finite
+    residuals at the initial guess.
     """
+    if problem.scene.dtype != jnp.float64:
+        raise DanoError(f"identification needs a float64 scene, got {problem.scene.dtype}: call "
+                        "dano.enable_float64() before composing the scene")
     if jacobian not in ("ad", "fd"):
         raise DanoError(f"jacobian must be 'ad' or 'fd', got {jacobian!r}")
     if horizons:
