@@ -123,7 +123,8 @@ def contact_geometry(scene: Scene, params: SimParams, m, d):
             if not world_b:
                 jpb, jrb = mjx.jac(m, d, chi, bb)
                 jpa, jra = jpa - jpb, jra - jrb
-            return jnp.concatenate([jpa, jra], axis=1)
+            # (mjx.jac builds its result in the default float type: 64-bit under x64 mode)
+            return jnp.concatenate([jpa, jra], axis=1).astype(d.qpos.dtype)
 
         geos.append(g)
         jacs.append(jax.vmap(rel_jac)(g.chi, jnp.asarray(group.body_a), jnp.asarray(group.body_b)))
@@ -171,7 +172,11 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonOptions 
         f = d.qfrc_smooth + d.qfrc_constraint - Q0
     else:
         f = d.qfrc_smooth
-    Mh = mjx.full_m(m, d) + h * jnp.diag(m.dof_damping)
+    # some MJX stages compute in the default float type (64-bit under x64 mode): keep the
+    # scene's dtype, so a float32 scene runs in float32 whatever JAX's mode
+    dtype = data.qvel.dtype
+    f = f.astype(dtype)
+    Mh = (mjx.full_m(m, d) + h * jnp.diag(m.dof_damping)).astype(dtype)
     if scene.groups:
         v_next, diag = solve_velocity(models, newton, h, ImplicitProblem(Mh, d.qvel, f, jacs, states, gparams))
     else:
