@@ -131,6 +131,20 @@ def centroid_rates(weight, depth, depth_grad, moves, points, chi):
     return c @ wo1, moment_rate
 
 
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Compacted:
+    """A contact model's prepared state in two sizes: ``active``, over the samples that can
+    act in this step (gathered once per step, padded to a fixed count), and ``full``, over
+    all samples; ``overflow`` () is True where ``active`` could not hold them all. The step
+    evaluates a group's wrenches on ``active`` unless a pair of the group overflows (then on
+    ``full``; the same result at full cost)."""
+
+    active: Any
+    full: Any
+    overflow: jax.Array
+
+
 class PairKind(Protocol):
     """A kind of DANO contact pair. ``inputs`` gathers, for a group of G pairs of this kind,
     everything :meth:`geometry` needs as a dict of arrays with leading axis G (from the
@@ -152,7 +166,7 @@ class ContactModel(Protocol):
     """A contact model (hashable: it is static data).
 
     ``prepare(geometry, h)`` runs once per step on one pair's :class:`PairGeometry` and
-    returns a pytree ``state``; ``wrench(p, state, u)`` then gives the force and torque (6,)
+    returns a pytree ``state`` (or a :class:`Compacted` pair of them); ``wrench(p, state, u)`` then gives the force and torque (6,)
     on A, world frame, torque about χ (the point where the step evaluates the Jacobians),
     for the pair's scalar parameters p and the velocity u = (v, ω) (6,) of A relative to B
     at χ, *at the end of the step*: the contact geometry advanced by the step of length h

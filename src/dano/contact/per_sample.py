@@ -9,15 +9,15 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 
-from .base import PairGeometry, cross_columns, occupancy, register_contact_model, sample_rates
+from .base import Compacted, PairGeometry, cross_columns, occupancy, register_contact_model, sample_rates
 from .law import check_drag, sample_forces
 
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
 class PerSampleState:
-    """A pair prepared for the step: weight (S,), depth (S,), rate (6, S) dz/du, arm (3, S)
-    x_i − χ, moves (S,), normal (3, S), h ()."""
+    """A pair prepared for the step: weight (K,), depth (K,), rate (6, K) dz/du, arm (3, K)
+    x_i − χ, moves (K,), normal (3, K) of the K samples taken into account; h ()."""
 
     weight: jax.Array
     depth: jax.Array
@@ -26,6 +26,13 @@ class PerSampleState:
     moves: jax.Array
     normal: jax.Array
     h: jax.Array
+
+
+def _state(g: PairGeometry, h, idx=None, valid=None) -> PerSampleState:
+    take = (lambda a: a) if idx is None else (lambda a: jnp.take(a, idx, axis=-1))
+    weight = take(g.weight) if valid is None else jnp.where(valid, take(g.weight), 0.0)
+    return PerSampleState(weight, take(g.depth), take(sample_rates(g)), take(g.points) - g.chi[:, None],
+                          take(g.moves), take(g.sample_normal), jnp.asarray(h, g.psi.dtype))
 
 
 @register_contact_model("per_sample")
@@ -38,20 +45,36 @@ class PerSample:
     resistance emerge from the distribution of the forces: the torsional and rolling
     parameters are not used. Over a step each sample's depth advances to first order
     (z_i + h·ż_i, its occupancy following), so samples entering contact during the step
-    push back within it. drag: as for the centroid model."""
+    push back within it. drag: as for the centroid model.
+
+    Only samples within one sample radius of contact at the step's start can act in it (as
+    in the centroid model, a pair acts once it overlaps at the start of a step). The step
+    then works on the first ``max_active`` of them, gathered once per step, instead of all
+    samples; if more are within reach, it uses all samples (same result, full cost).
+    Measured on the paper bunny resting on the ground (2926 distinct samples): 104 within
+    reach, 30 in contact; a flat face of a finely sampled box can hold more than 128 and then
+    runs at full cost."""
 
     name: ClassVar[str] = "per_sample"
     drag: str = "normal_force"
+    max_active: int = 128
 
     def __post_init__(self):
         check_drag(self.drag)
 
-    def prepare(self, g: PairGeometry, h) -> PerSampleState:
-        return PerSampleState(g.weight, g.depth, sample_rates(g), g.points - g.chi[:, None], g.moves,
-                              g.sample_normal, jnp.asarray(h, g.psi.dtype))
+    def prepare(self, g: PairGeometry, h):
+        reach = g.depth > -1.0
+        if g.depth.shape[-1] <= self.max_active:
+            return _state(g, h, valid=reach)
+        count = jnp.sum(reach)
+        idx = jnp.nonzero(reach, size=self.max_active, fill_value=0)[0]
+        valid = jnp.arange(self.max_active) < count
+        return Compacted(_state(g, h, idx, valid), _state(g, h, valid=reach), count > self.max_active)
 
-    def wrench(self, p, st: PerSampleState, u):
-        motion = u[:3, None] + cross_columns(u[3:, None], st.arm)  # (3, S) relative velocity at each sample
+    def wrench(self, p, st: PerSampleState | Compacted, u):
+        if isinstance(st, Compacted):  # one pair evaluated on its own (the step does this per group)
+            return jax.lax.cond(st.overflow, lambda: self.wrench(p, st.full, u), lambda: self.wrench(p, st.active, u))
+        motion = u[:3, None] + cross_columns(u[3:, None], st.arm)  # (3, K) relative velocity at each sample
         arm = st.arm + st.h * st.moves * motion
         share = st.weight * occupancy(st.depth + st.h * (u @ st.rate))
         forces = sample_forces(p, share, st.normal, motion, self.drag)

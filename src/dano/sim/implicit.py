@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
+from ..contact.base import Compacted
 
 
 @dataclass(frozen=True)
@@ -66,12 +67,20 @@ class ImplicitProblem:
     params: tuple
 
 
+def _on_state(fn, st):
+    """fn(state) on a group's prepared state; for a :class:`~dano.contact.base.Compacted`
+    one, on its active part unless a pair overflows."""
+    if isinstance(st, Compacted):
+        return jax.lax.cond(jnp.any(st.overflow), lambda: fn(st.full), lambda: fn(st.active))
+    return fn(st)
+
+
 def contact_force(models, pr: ImplicitProblem, v):
     """Generalized DANO contact force Q(v) (nv,) at the end of the step."""
     Q = jnp.zeros_like(v)
     for model, J, st, p in zip(models, pr.jac, pr.state, pr.params):
         u = jnp.einsum("gvk,v->gk", J, v)
-        W = jax.vmap(model.wrench)(p, st, u)
+        W = _on_state(lambda s, model=model, p=p, u=u: jax.vmap(model.wrench)(p, s, u), st)
         Q = Q + jnp.einsum("gvk,gk->v", J, W)
     return Q
 
@@ -91,7 +100,7 @@ def contact_force_and_jacobian(models, pr: ImplicitProblem, v):
             K, W = jax.jacfwd(w, has_aux=True)(u_)
             return W, K
 
-        W, K = jax.vmap(value_and_jac)(p, st, u)
+        W, K = _on_state(lambda s, p=p, u=u, f=value_and_jac: jax.vmap(f)(p, s, u), st)
         Q = Q + jnp.einsum("gvk,gk->v", J, W)
         D = D + jnp.einsum("gvi,gij,gwj->vw", J, K, J)
     return Q, D
