@@ -10,7 +10,7 @@ import trimesh
 
 from dano.asset import mass_properties
 from dano.errors import DanoError
-from dano.fields import BoxField, SphereField, VoxelField, mesh_field
+from dano.fields import BoxField, SphereField, mesh_field
 
 
 def rel(a, b):
