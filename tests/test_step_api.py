@@ -75,9 +75,12 @@ def test_rollout_in_chunks_continues_act_time_and_ctrl(box_scene):
     np.testing.assert_allclose(second.qpos[-1], whole.qpos[-1], atol=1e-12)
     np.testing.assert_allclose(np.asarray(second.final_data.act), np.asarray(whole.final_data.act), atol=1e-14)
     assert float(second.final_data.time) == pytest.approx(40 * scene.dt)
-    # progress reporting runs in chunks too, each continuing from the last one's Data
-    chunked = rollout(scene, data, None, params, 40, progress=lambda *a: None)
-    np.testing.assert_allclose(chunked.qpos, whole.qpos, atol=1e-12)
+    # progress reporting runs in chunks too, each continuing from the last one's Data; 41
+    # steps do not divide into 20 equal chunks: no extra steps, the right final time
+    chunked = rollout(scene, data, None, params, 41, progress=lambda *a: None)
+    np.testing.assert_allclose(chunked.qpos[:41], whole.qpos, atol=1e-12)
+    assert chunked.qpos.shape[0] == 42
+    assert float(chunked.final_data.time) == pytest.approx(41 * scene.dt)
 
 
 def test_step_vmaps_over_data_and_params(box_scene):
@@ -134,6 +137,11 @@ def test_scene_and_parameters_are_pytrees_with_replace(box_scene):
     assert isinstance(params.replace(contact=stiffer), SimParams)
     assert isinstance(scene.replace(base_mass=scene.base_mass * 2), Scene)
     assert isinstance(ContactParams().replace(sliding_friction=0.2), ContactParams)
+    # a scalar parameter applies to every pair
+    scalar = params.replace(contact=params.contact.replace(sliding_friction=0.7))
+    d = make_data(scene, *box_scene[1:])
+    np.testing.assert_allclose(np.asarray(jax.jit(step)(scene, scalar, d).qvel),
+                               np.asarray(jax.jit(step)(scene, scene.set_param(params, "sliding_friction", 0.7), d).qvel))
     # the convenience setter agrees with replace
     by_name = scene.set_param(params, "sliding_friction", 0.7)
     np.testing.assert_array_equal(np.asarray(by_name.contact.sliding_friction), 0.7)
@@ -173,7 +181,8 @@ def test_float32_drop_settles_with_finite_gradients():
     q0 = jnp.asarray(setup.state0.qpos, jnp.float32)
     v0 = jnp.asarray(setup.state0.qvel, jnp.float32)
     data = make_data(scene, q0, v0)
-    assert data.qpos.dtype == jnp.float32
+    assert {x.dtype for x in jax.tree_util.tree_leaves(data) if jnp.issubdtype(x.dtype, jnp.floating)} \
+        == {jnp.dtype(jnp.float32)}
     traj = rollout(scene, data, None, params, 400)  # 4 s
     assert traj.qpos.dtype == np.float32
     assert np.all(np.isfinite(traj.qpos))

@@ -14,8 +14,9 @@ only when the user has not set it and only when it can still take effect:
 Explicit switches (the ``dano`` command line turns both on):
 
 * :func:`enable_float64` — JAX's 64-bit mode, for the whole process. dano computes in
-  JAX's default float type: float32 unless 64-bit mode is on. Mass-property integration
-  and identification always run in float64 locally (``with jax.enable_x64(True)``).
+  JAX's default float type: float32 unless 64-bit mode is on. Asset building (mass
+  properties, samples, normals) always runs in float64 locally (``with
+  jax.enable_x64(True)``); identification needs a float64 scene and says so otherwise.
 * :func:`enable_compilation_cache` — JAX's persistent compilation cache in
   ``~/.cache/dano/jax`` (or ``$DANO_CACHE_DIR``), so the 5–20 s compiles of MJX functions
   are paid once per machine.
@@ -84,3 +85,18 @@ def enable_compilation_cache(path: str | None = None) -> str:
     jax.config.update("jax_compilation_cache_dir", path)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
     return path
+
+
+def in_float64(fn):
+    """Decorator: run ``fn`` with JAX's 64-bit mode on (``jax.enable_x64(True)``), whatever
+    the process-wide setting; for computations that must be float64 (asset building)."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapped(*args, **kwargs):
+        import jax
+
+        with jax.enable_x64(True):
+            return fn(*args, **kwargs)
+
+    return wrapped

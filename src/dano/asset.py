@@ -28,6 +28,7 @@ from scipy.stats import qmc
 
 from ._version import __version__
 from ._files import atomic_write
+from ._jax_setup import in_float64
 from .errors import DanoError, FileFormatError
 from .fields import DensityField, from_arrays, to_arrays
 from .fields.base import check_bounds, evaluate
@@ -113,6 +114,7 @@ def _derive(m0: np.ndarray, m1: np.ndarray, m2: np.ndarray, origin: np.ndarray):
     return mass, c + origin, 0.5 * (J + J.T)
 
 
+@in_float64
 def mass_properties(
     field: DensityField,
     *,
@@ -518,6 +520,7 @@ def validate(asset: DanoAsset) -> None:
         raise DanoError("inertia is not symmetric")
 
 
+@in_float64
 def build(
     field: DensityField,
     *,

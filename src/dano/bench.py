@@ -76,7 +76,6 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
       (sliding friction, mass scale α).
     """
     import dataclasses
-    import os
 
     import jax.numpy as jnp
     import mujoco

@@ -82,7 +82,7 @@ def surface_occupancy(depth_outside: jax.Array, radius) -> jax.Array:
     (negative inside): o = smoothstep(−d/r), 0 outside and on the surface, 1 deeper than r.
 
     Contact thus begins exactly when a sample reaches B's surface (a flat face at rest sinks
-    only until ψ = m·g/k, a small fraction of r); o is C¹, so ψ and χ are continuous in the
+    only until ψ = m·g/k, i.e. its samples sit a small fraction of r deep); o is C¹, so ψ and χ are continuous in the
     pose with continuous gradients. r is the DANO's ``sample_radius``.
     """
     return occupancy(-depth_outside / radius)
@@ -151,9 +151,9 @@ class PairKind(Protocol):
     scene, the MJX model ``m`` and data ``d`` after ``fwd_position``, and the mass scales α
     (D,)); it must hold the world poses of the two frames the geometry depends on:
     ``xa`` (3,) [m] and ``Ra`` (3, 3) of DANO A's body, ``xb`` and ``Rb`` of B's frame (a
-    geom's or a body's). ``geometry`` maps one pair's inputs to its :class:`PairGeometry`
-    (it is vmapped, and differentiated in forward mode with respect to the four poses to
-    integrate the contact spring implicitly)."""
+    geom's or a body's). ``geometry`` maps one pair's inputs to its :class:`PairGeometry`,
+    including the rates of ψ and of its first moment along the relative twist (the step
+    advances the geometry with them); it is vmapped over the group."""
 
     name: str
 

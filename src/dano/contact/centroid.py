@@ -50,7 +50,9 @@ class Centroid:
 
     def wrench(self, p, st: CentroidState, u):
         touching = st.psi > 0
-        ref = jnp.where(touching, st.psi, 1.0)
+        # the smooth clamps' widths scale with ψ, floored so that a vanishing overlap cannot
+        # overflow them (1e-9 kg: far below any resting overlap)
+        ref = jnp.where(touching, jnp.maximum(st.psi, 1e-9), 1.0)
         psi_lin = st.psi + st.h * (st.psi_rate @ u)
         psi = jnp.where(touching, smooth_max0(psi_lin, 0.05 * ref), 0.0)
         denom = 0.5 * ref + smooth_max0(psi_lin - 0.5 * ref, 0.05 * ref)

@@ -63,7 +63,7 @@ class PerSample:
         check_drag(self.drag)
 
     def prepare(self, g: PairGeometry, h):
-        reach = g.depth > -1.0
+        reach = (g.depth > -1.0) & (g.weight > 0)  # padded samples have weight 0
         if g.depth.shape[-1] <= self.max_active:
             return _state(g, h, valid=reach)
         count = jnp.sum(reach)

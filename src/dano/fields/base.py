@@ -21,6 +21,10 @@ class DensityField(Protocol):
 
     ``bounds()``: (2, 3) float, object frame [m]: an axis-aligned box (rows: lower,
     upper corner) outside of which φ is (numerically) zero.
+
+    Optional ``interior_density()`` -> float: the density of full occupancy (the surface
+    is the level at half of it; contact begins there). Without it dano takes the largest
+    density on a grid over the bounds.
     """
 
     def density(self, points: jax.Array) -> jax.Array: ...

@@ -61,10 +61,12 @@ class StepInfo:
 
 def make_data(scene: Scene, qpos=None, qvel=None, *, act=None, ctrl=None, time: float = 0.0):
     """MJX ``Data`` for ``scene`` at (qpos (nq,), qvel (nv,)) (default: the model's qpos0, at
-    rest), with optional activations act (na,) and controls ctrl (nu,), in the scene's dtype.
-    Jittable; shapes are checked by MJX."""
-    d = mjx.make_data(scene.model)
+    rest), with optional activations act (na,) and controls ctrl (nu,); every floating-point
+    field in the scene's dtype. Jittable. Shapes are not checked here (:func:`rollout`
+    checks them and raises DanoError)."""
     dt = scene.dtype
+    d = mjx.make_data(scene.model)  # (MJX makes its float fields in JAX's default float type)
+    d = jax.tree_util.tree_map(lambda x: x.astype(dt) if jnp.issubdtype(x.dtype, jnp.floating) else x, d)
     repl = {"time": jnp.asarray(time, dt)}
     if qpos is not None:
         repl["qpos"] = jnp.asarray(qpos, dt)
@@ -103,9 +105,9 @@ def _dano_bodies(scene: Scene) -> tuple[int, ...]:
     return tuple(names.index(n) for n in scene.dano_names)
 
 
-def _group_params(params: SimParams, group):
+def _group_params(params: SimParams, group, num_pairs: int):
     idx = np.asarray(group.index, dtype=np.int32)
-    return jax.tree_util.tree_map(lambda x: jnp.asarray(x)[idx], params.contact)
+    return jax.tree_util.tree_map(lambda x: jnp.broadcast_to(jnp.asarray(x), (num_pairs,))[idx], params.contact)
 
 
 def contact_geometry(scene: Scene, params: SimParams, m, d):
@@ -154,7 +156,7 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonOptions 
     d = mjx.fwd_position(m, data)
     geos, jacs = contact_geometry(scene, params, m, d)
     models = tuple(g.model for g in scene.groups)
-    gparams = tuple(_group_params(params, g) for g in scene.groups)
+    gparams = tuple(_group_params(params, g, len(scene.pairs)) for g in scene.groups)
     states = tuple(jax.vmap(lambda g_, model=model: model.prepare(g_, h))(g) for model, g in zip(models, geos))
     nv = d.qvel.shape[0]
     pr = ImplicitProblem(jnp.zeros((nv, nv), d.qvel.dtype), d.qvel, jnp.zeros_like(d.qvel), jacs, states, gparams)

@@ -146,7 +146,8 @@ def _newton(models, opts: NewtonOptions, h: float, pr: ImplicitProblem):
         def backtrack(_):
             def cond(ls):
                 a, j, Gn = ls
-                return (jnp.sum(Gn * Gn) > (1.0 - 1e-4 * a) * phi0) & (j < opts.max_backtracks)
+                # "not decreased enough" (a non-finite residual counts as not decreased)
+                return ~(jnp.sum(Gn * Gn) <= (1.0 - 1e-4 * a) * phi0) & (j < opts.max_backtracks)
 
             def halve(ls):
                 a, j, _ = ls
@@ -158,7 +159,9 @@ def _newton(models, opts: NewtonOptions, h: float, pr: ImplicitProblem):
         accept = (jnp.sum(G1 * G1) <= (1.0 - 1e-4) * phi0) | ~jnp.isfinite(phi0)
         a, Gn = jax.lax.cond(accept, lambda _: (jnp.ones((), v.dtype), G1), backtrack, None)
         v_new = v + a * dv
-        done = (jnp.max(jnp.abs(a * dv)) <= tol * (1.0 + jnp.max(jnp.abs(v_new)))) | small(Gn, G_first)
+        # converged when the full Newton step is small (not a step shortened by the line
+        # search) or the residual is at roundoff level
+        done = (jnp.max(jnp.abs(dv)) <= tol * (1.0 + jnp.max(jnp.abs(v_new)))) | small(Gn, G_first)
         A_new = jax.lax.cond(done | (k + 1 >= opts.max_iterations), lambda _: A, lambda _: matrix(v_new), None)
         return k + 1, v_new, Gn, A_new, done, G_first
 

@@ -33,7 +33,8 @@ def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: Ne
 
     def body(d, inputs):
         ctrl, f = inputs
-        d_next, info = step_with_info(scene, params, d.replace(ctrl=ctrl, qfrc_applied=f), newton)
+        d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype), qfrc_applied=f.astype(d.qfrc_applied.dtype))
+        d_next, info = step_with_info(scene, params, d, newton)
         return d_next, (d_next.qpos, d_next.qvel, info.psi, info.newton_iterations)
 
     d_last, (qpos, qvel, psi, iters) = jax.lax.scan(body, data, (controls, qfrc))
@@ -103,7 +104,8 @@ def rollout(
     rad/s] or an overlap exceeds half the DANO's mass (bodies passed through each other).
     For gradients use :func:`rollout_arrays` (or :func:`~dano.sim.dynamics.step`) under JAX.
     progress: optional ``progress(done, total, description)``; the rollout then runs
-    in 20 equal chunks (one compilation), each continuing from the last one's Data.
+    in up to 20 chunks, each continuing from the last one's Data (equal chunks share one
+    compilation; a shorter last chunk needs its own).
     """
     params = scene.default_params() if params is None else params
     check_params(scene, params)
@@ -125,20 +127,18 @@ def rollout(
     ctrl = None if controls is None else _as_array(controls, (steps, scene.nu), "controls", dt)
     f = None if qfrc is None else _as_array(qfrc, (steps, scene.nv), "qfrc", dt)
     ctrl, f = _inputs(scene, data, ctrl, f, steps)
-    n_chunks = 1 if progress is None else min(20, steps)
-    size = -(-steps // n_chunks)
-    pad = size * n_chunks - steps
-    ctrl = jnp.concatenate([ctrl, jnp.repeat(ctrl[-1:], pad, axis=0)])
-    f = jnp.concatenate([f, jnp.zeros((pad, scene.nv), dt)])
+    # with progress: chunks of equal size (one compilation) and a shorter last one if the
+    # steps do not divide (a second compilation); without: one chunk
+    size = steps if progress is None else -(-steps // min(20, steps))
+    bounds = [(start, min(start + size, steps)) for start in range(0, steps, size)]
     parts, iters = [], []
-    for k in range(n_chunks):
-        sl = slice(k * size, (k + 1) * size)
-        data, qpos, qvel, psi, it = scan_steps(scene, params, data, ctrl[sl], f[sl], newton)
+    for k, (start, stop) in enumerate(bounds):
+        data, qpos, qvel, psi, it = scan_steps(scene, params, data, ctrl[start:stop], f[start:stop], newton)
         arrs = [np.asarray(x) for x in (qpos, qvel, psi)]
         parts.append(arrs if k == 0 else [x[1:] for x in arrs])
         iters.append(np.asarray(it))
         if progress is not None:
-            progress(min((k + 1) * size, steps), steps, "simulating")
+            progress(stop, steps, "simulating")
         if not (np.all(np.isfinite(arrs[0])) and np.all(np.isfinite(arrs[1]))):
             break  # diverged: the check below finds the step
     qpos, qvel, psi = (np.concatenate([p[i] for p in parts])[: steps + 1] for i in range(3))
@@ -154,7 +154,7 @@ def rollout(
         metadata={"scene": scene.name, "dt": scene.dt, "params": params_to_dict(scene, params),
                   "contact_models": {p.name: p.model.name for p in scene.pairs},
                   "newton_iterations": {"max": int(it.max()), "mean": float(it.mean())}},
-        final_data=data if len(parts) == n_chunks else None,
+        final_data=data if len(parts) == len(bounds) else None,
     )
 
 

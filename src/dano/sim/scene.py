@@ -236,7 +236,7 @@ class Scene:
         ``jax.jacfwd``); concrete values are validated. Raises DanoError for unknown names
         or targets and invalid values."""
         concrete = not isinstance(value, jax.core.Tracer)
-        if concrete and not np.isfinite(value):
+        if concrete and not np.all(np.isfinite(np.asarray(value, dtype=np.float64))):
             raise DanoError(f"parameter {name} must be finite, got {value}")
         if name == "alpha":
             idx = slice(None) if target is None else self.dano_index(target)
@@ -278,13 +278,20 @@ def _check_dtype(dtype) -> None:
 
 
 def interior_density(field) -> float:
-    """Density of full occupancy of a field (its interior value; the surface is half of it).
-    Fields provide it as ``interior_density()``. Raises DanoError otherwise."""
+    """Density of full occupancy of a field (its interior value; the surface is half of it):
+    the field's optional ``interior_density()``, else the largest density on a 33³ grid over
+    its bounds. Raises DanoError if that is not positive and finite."""
     fn = getattr(field, "interior_density", None)
-    if fn is None:
-        raise DanoError(f"cannot tell the interior density of a {type(field).__name__}: give the field an "
-                        "interior_density() method")
-    return float(fn())
+    if fn is not None:
+        rho = float(fn())
+    else:
+        b = np.asarray(field.bounds(), dtype=np.float64)
+        axes = [np.linspace(b[0, k], b[1, k], 33) for k in range(3)]
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        rho = float(np.max(np.asarray(field.density(jnp.asarray(grid)))))
+    if not np.isfinite(rho) or rho <= 0:
+        raise DanoError(f"the {type(field).__name__}'s interior density must be positive and finite, got {rho}")
+    return rho
 
 
 def default_sample_radius(asset: DanoAsset) -> float:
