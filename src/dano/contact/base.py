@@ -208,6 +208,13 @@ def contact_model(spec) -> ContactModel:
         if spec not in CONTACT_MODELS:
             raise DanoError(f"unknown contact model {spec!r}; known: {', '.join(sorted(CONTACT_MODELS))}")
         return CONTACT_MODELS[spec]()
-    if not (callable(getattr(spec, "wrench", None)) and callable(getattr(spec, "prepare", None))):
-        raise DanoError(f"a contact model needs prepare(geometry, h) and wrench(p, state, u) methods, got {spec!r}")
+    if isinstance(spec, type) or not (callable(getattr(spec, "wrench", None))
+                                       and callable(getattr(spec, "prepare", None))
+                                       and isinstance(getattr(spec, "name", None), str)):
+        raise DanoError("a contact model is an instance with a name and prepare(geometry, h) and "
+                        f"wrench(p, state, u) methods, got {spec!r}")
+    try:
+        hash(spec)
+    except TypeError:
+        raise DanoError(f"a contact model must be hashable (static data, e.g. a frozen dataclass), got {spec!r}") from None
     return spec

@@ -33,6 +33,7 @@ DRAG_SCALINGS = ("normal_force", "overlap")
 
 
 def check_drag(drag: str) -> str:
+    """``drag`` if it is one of :data:`DRAG_SCALINGS`; raises DanoError otherwise."""
     if drag not in DRAG_SCALINGS:
         raise DanoError(f"drag must be one of {DRAG_SCALINGS}, got {drag!r}")
     return drag

@@ -40,6 +40,7 @@ class ContactParams:
 
     @staticmethod
     def names() -> tuple[str, ...]:
+        """The 8 parameter names, in the paper's order."""
         return tuple(f.name for f in fields(ContactParams))
 
     def replace(self, **changes) -> "ContactParams":

@@ -259,6 +259,8 @@ class Scene:
         return new
 
     def dano_index(self, name: str) -> int:
+        """Index of DANO ``name`` in ``dano_names`` (and in ``params.alpha``). Raises
+        DanoError for an unknown name."""
         try:
             return self.dano_names.index(name)
         except ValueError:
