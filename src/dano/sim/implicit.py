@@ -123,7 +123,8 @@ def _newton(models, opts: NewtonOptions, h: float, pr: ImplicitProblem):
     stops there when it is at roundoff level; otherwise it accepts the point if ‖G‖²
     decreased enough (Armijo) or halves Δ until it does, and evaluates the Jacobian for the
     next iteration. Near the solution an iteration thus costs one solve, one force and one
-    Jacobian evaluation; the last one skips the Jacobian."""
+    Jacobian evaluation; the last one skips the Jacobian. If it has not converged after
+    ``max_iterations``, it returns the iterate with the smallest residual."""
     tol = _tolerance(opts, pr.v0.dtype)
     eps = jnp.finfo(pr.v0.dtype).eps
     impulse = h * jnp.max(jnp.abs(pr.f)) + jnp.max(jnp.abs(pr.Mh)) * (jnp.max(jnp.abs(pr.v0)) + 1.0) * eps
@@ -138,7 +139,7 @@ def _newton(models, opts: NewtonOptions, h: float, pr: ImplicitProblem):
         return jnp.max(jnp.abs(G)) <= 64 * eps * (impulse + jnp.max(jnp.abs(G_ref)))
 
     def body(state):
-        k, v, G, A, _, G_first = state
+        k, v, G, A, _, G_first, v_best, G_best = state
         dv = -jnp.linalg.solve(A, G)
         phi0 = jnp.sum(G * G)
         G1 = residual(v + dv)
@@ -163,16 +164,21 @@ def _newton(models, opts: NewtonOptions, h: float, pr: ImplicitProblem):
         # search) or the residual is at roundoff level
         done = (jnp.max(jnp.abs(dv)) <= tol * (1.0 + jnp.max(jnp.abs(v_new)))) | small(Gn, G_first)
         A_new = jax.lax.cond(done | (k + 1 >= opts.max_iterations), lambda _: A, lambda _: matrix(v_new), None)
-        return k + 1, v_new, Gn, A_new, done, G_first
+        better = jnp.sum(Gn * Gn) < jnp.sum(G_best * G_best)  # (False for a non-finite residual)
+        v_best, G_best = jnp.where(better, v_new, v_best), jnp.where(better, Gn, G_best)
+        return k + 1, v_new, Gn, A_new, done, G_first, v_best, G_best
 
     def cond(state):
-        k, _, _, _, done, _ = state
+        k, _, _, _, done, *_ = state
         return (k < opts.max_iterations) & ~done
 
     Q0, D0 = contact_force_and_jacobian(models, pr, pr.v0)
     G0 = -h * (pr.f + Q0)
-    init = (0, pr.v0, G0, pr.Mh - h * D0, jnp.zeros((), bool), G0)
-    k, v, G, _, _, G_first = jax.lax.while_loop(cond, body, init)
+    init = (0, pr.v0, G0, pr.Mh - h * D0, jnp.zeros((), bool), G0, pr.v0, G0)
+    k, v, G, _, done, G_first, v_best, G_best = jax.lax.while_loop(cond, body, init)
+    # not converged within max_iterations: the iterate with the smallest residual (never
+    # worse than the step's start), not wherever the last iteration ended
+    v, G = jnp.where(done, v, v_best), jnp.where(done, G, G_best)
     rel = jnp.max(jnp.abs(G)) / (impulse + jnp.max(jnp.abs(G_first)) + jnp.finfo(v.dtype).tiny)
     return v, jnp.stack([jnp.asarray(k, v.dtype), rel])
 
