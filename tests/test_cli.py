@@ -129,3 +129,16 @@ def test_demo_and_console_script(tmp_path):
     assert np.load(tmp_path / "bunny-drop.npz")["qpos"].shape == (501, 7)
     res = subprocess.run([sys.executable, "-m", "dano.cli", "--version"], capture_output=True, text=True)
     assert res.returncode == 0 and res.stdout.startswith("dano ")
+
+
+def test_energy_benchmark_json_contract(capsys, tmp_path):
+    # `dano bench --suite energy --json --drops N` prints the keys others script against
+    out = tmp_path / "energy.json"
+    assert main(["bench", "--suite", "energy", "--json", "--drops", "3", "--seed", "2", "--out", str(out)]) == 0
+    report = json.loads(capsys.readouterr().out)["energy"]
+    assert {"drops", "nonfinite", "diverged", "energy_rises", "max_energy_ratio", "seed"} <= set(report)
+    assert report["drops"] == 3 and report["seed"] == 2
+    assert (report["nonfinite"], report["diverged"], report["energy_rises"]) == (0, 0, 0)
+    assert json.loads(out.read_text())["energy"]["drops"] == 3
+    assert main(["bench", "--suite", "energy", "--drops", "0"]) != 0  # a clear error, not a traceback
+    assert "drops" in capsys.readouterr().err
