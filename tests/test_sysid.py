@@ -96,9 +96,10 @@ def test_quaternion_residual_is_sign_invariant():
 
 
 def test_real_soap_video():
-    """The paper's soap: a physically plausible friction, a tight fit, faster than the paper's
-    2.0 s. The band [0.3, 0.9] is what a bar of soap on a table can have; the references
-    (video fit 0.61, tilted plane 0.75) are reported next to the result, not asserted."""
+    """The paper's soap: a physically plausible friction and a tight fit. The band [0.3, 0.9]
+    is what a bar of soap on a table can have; the references (video fit 0.61, tilted plane
+    0.75) are reported next to the result, not asserted. Its wall time is a benchmark
+    (``dano bench --suite sysid``), not a test assert."""
     from dano.sysid.config import run
 
     problem, result, report = run("soap")
@@ -107,7 +108,6 @@ def test_real_soap_video():
     assert r["sliding_friction_std"] < 0.03
     assert r["rms_residual"] < 0.06  # scene units, over the x and y residuals; the soap travels 3.5
     assert r["num_residuals"] == 2 * 32  # zero-weight components (z, orientation) are left out
-    assert r["wall_time_s"] < 2.0
     sens = r["length_scale_sensitivity"]["sliding_friction_at_length_scale"]
     assert sens["0.9"] < sens["1.0"] < sens["1.1"]  # friction grows with the assumed length scale
 
