@@ -229,11 +229,9 @@ def simulate(
     import numpy as np
 
     from .sim import rollout, save_trajectory
-    from .contact import CONTACT_MODELS
     from .sim.scenes import BUILTIN_SCENES, load_scene, mjcf_setup
 
-    if contact_model not in CONTACT_MODELS:
-        raise ValueError(f"unknown --contact-model {contact_model!r}; available: {', '.join(CONTACT_MODELS)}")
+    _check_contact_model(contact_model)
     if scene in BUILTIN_SCENES:
         if object:
             raise ValueError("--object applies to MJCF scenes, not to built-in ones")
@@ -370,21 +368,27 @@ def bench(
         out: also write the JSON here.
     """
     from .bench import SUITES, run
-    from .contact import CONTACT_MODELS
 
     unknown = set(suite) - set(SUITES)
     if unknown:
         raise ValueError(f"unknown benchmark suite(s) {sorted(unknown)}; available: {', '.join(SUITES)}")
     if drops < 1:
         raise ValueError(f"--drops must be at least 1, got {drops}")
-    if contact_model not in CONTACT_MODELS:
-        raise ValueError(f"unknown --contact-model {contact_model!r}; available: {', '.join(CONTACT_MODELS)}")
+    _check_contact_model(contact_model)
     result = run(list(suite) or None, repeats=repeats,
                  options={"energy": {"drops": drops, "seed": seed, "contact_model": contact_model}})
     text = json.dumps(result, indent=None if json_ else 2)
     if out is not None:
         atomic_write(out, lambda f: f.write(text.encode()))
     print(text)
+
+
+def _check_contact_model(name: str) -> None:
+    """--contact-model: raises ValueError (a clean CLI error) for an unknown model name."""
+    from .contact import CONTACT_MODELS
+
+    if name not in CONTACT_MODELS:
+        raise ValueError(f"unknown --contact-model {name!r}; available: {', '.join(CONTACT_MODELS)}")
 
 
 COMMANDS = {"build": build, "inspect": inspect, "simulate": simulate, "sysid": sysid, "demo": demo, "bench": bench}

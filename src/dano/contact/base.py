@@ -72,9 +72,12 @@ def sample_rates(g: PairGeometry):
     """(6, S) columns c_i with ż_i = c_i·u for the relative twist u = (v, ω) of A w.r.t. B at
     χ: a sample of A moves by v + ω × (x_i − χ) relative to B (c_i = [∇z_i; (x_i − χ) × ∇z_i]);
     a sample of B sees A's field move the opposite way (c_i negated)."""
-    arm = g.points - g.chi[:, None]
-    sign = 2.0 * g.moves - 1.0
-    return sign * jnp.concatenate([g.depth_grad, cross_columns(arm, g.depth_grad)], axis=0)
+    return _rate_columns(g.depth_grad, g.moves, g.points - g.chi[:, None])
+
+
+def _rate_columns(depth_grad, moves, arm):
+    sign = 2.0 * moves - 1.0
+    return sign * jnp.concatenate([depth_grad, cross_columns(arm, depth_grad)], axis=0)
 
 
 def surface_occupancy(depth_outside: jax.Array, radius) -> jax.Array:
@@ -121,8 +124,7 @@ def centroid_rates(weight, depth, depth_grad, moves, points, chi):
     occupancies change with the depths (ż_i = c_i·u, :func:`sample_rates`), and A's samples
     carry their share of the first moment along with A."""
     arm = points - chi[:, None]
-    sign = 2.0 * moves - 1.0
-    c = sign * jnp.concatenate([depth_grad, cross_columns(arm, depth_grad)], axis=0)  # (6, S)
+    c = _rate_columns(depth_grad, moves, arm)  # (6, S)
     wo1 = weight * occupancy_slope(depth)
     wom = weight * occupancy(depth) * moves
     moment_rate = (arm * wo1) @ c.T

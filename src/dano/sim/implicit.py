@@ -129,8 +129,7 @@ def _newton(models, opts: NewtonOptions, h: float, pr: ImplicitProblem):
     eps = jnp.finfo(pr.v0.dtype).eps
     impulse = h * jnp.max(jnp.abs(pr.f)) + jnp.max(jnp.abs(pr.Mh)) * (jnp.max(jnp.abs(pr.v0)) + 1.0) * eps
 
-    def residual(v):
-        return pr.Mh @ (v - pr.v0) - h * (pr.f + contact_force(models, pr, v))
+    residual = functools.partial(_residual, models, h, pr)
 
     def matrix(v):
         return pr.Mh - h * contact_force_and_jacobian(models, pr, v)[1]
