@@ -7,7 +7,7 @@ import json
 import sys
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import tyro
 from rich.console import Console
@@ -143,14 +143,20 @@ def inspect(
         err.print(f"wrote {plot}")
 
 
-def _parse_object(text: str):
-    """'FILE.dano[@x,y,z]' or 'builtin:NAME[@x,y,z]' -> DanoObject."""
+def _load_asset(src: str):
+    """'FILE.dano' or 'builtin:NAME' -> DanoAsset."""
     from .asset import load
     from .data import load_builtin
+
+    return load_builtin(src.split(":", 1)[1]) if src.startswith("builtin:") else load(src)
+
+
+def _parse_object(text: str):
+    """'FILE.dano[@x,y,z]' or 'builtin:NAME[@x,y,z]' -> DanoObject."""
     from .sim import DanoObject
 
     src, _, at = text.partition("@")
-    asset = load_builtin(src.split(":", 1)[1]) if src.startswith("builtin:") else load(src)
+    asset = _load_asset(src)
     pos = (0.0, 0.0, 1.0)
     if at:
         try:
@@ -383,6 +389,174 @@ def bench(
     print(text)
 
 
+Collision = Literal["hull", "decomposition", "none"]
+
+
+def _level_meshes(paths):
+    """--mesh FILE (object frame) -> Level list (mesh files may be open, noisy level sets)."""
+    from .io import load_mesh
+    from .meshroute import Level
+
+    levels = []
+    for p in paths:
+        label, eq, file = str(p).rpartition("=")
+        path = Path(file)
+        levels.append(Level(label if eq else path.stem, load_mesh(path, require_watertight=False), file=path.name))
+    return levels
+
+
+def export(
+    file: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="FILE.dano")],
+    out: Annotated[Path, tyro.conf.arg(aliases=("-o",))],
+    collision: Collision = "hull",
+    level: float | None = None,
+    mesh: Path | None = None,
+    resolution: int = 96,
+    threshold: float = 0.1,
+    max_pieces: int = -1,
+    name: str | None = None,
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False,
+) -> None:
+    """Export a DANO as a MuJoCo MJCF (.xml) or URDF (.urdf) body: its mass, centre of mass and full inertia,
+    its visual mesh and collision geometry.
+
+    Args:
+        file: the .dano file (or builtin:NAME).
+        out: OUT.xml (MJCF, one file, meshes inline) or OUT.urdf (plus OUT_meshes/ with OBJ files).
+            The body frame is the DANO's (object axes, origin at the centre of mass).
+        collision: 'hull' (convex hull of a level set), 'decomposition' (CoACD approximate convex
+            decomposition of it) or 'none'.
+        level: density of the level set to make collision geometry from (needs a stored field); default the
+            asset's visual mesh.
+        mesh: a level-set mesh (object frame) to use instead, e.g. the paper's bluesoap_level_70.stl.
+        resolution: marching-cubes nodes along the longest axis for --level.
+        threshold: CoACD concavity threshold (smaller: more, tighter pieces; slower).
+        max_pieces: CoACD: merge down to at most this many pieces (-1: no limit).
+        name: body/link name (default the asset's).
+        json_: print a JSON summary (path, collision, pieces, mass, inertia) to stdout.
+    """
+    from .io import load_mesh
+    from .io.export import Decomposition, body_meshes
+    from .io.export import export as export_asset
+
+    if threshold <= 0 or not threshold < float("inf"):
+        raise ValueError(f"--threshold must be a positive number, got {threshold}")
+    if resolution < 8:
+        raise ValueError(f"--resolution must be at least 8, got {resolution}")
+    asset = _load_asset(file)
+    given = load_mesh(mesh, require_watertight=False) if mesh is not None else None
+    if given is not None and level is not None:
+        raise ValueError("give either --level or --mesh, not both")
+    meshes = body_meshes(asset, collision, level=level, mesh=given, resolution=resolution,
+                         decomposition=Decomposition(threshold=threshold, max_pieces=max_pieces))
+    export_asset(asset, out, meshes=meshes, name=name)
+    summary = {"path": str(out), "format": "mjcf" if out.suffix.lower() == ".xml" else "urdf",
+               "collision": collision, "collision_source": meshes.source, "pieces": len(meshes.collision),
+               "mass": asset.mass, "inertia": asset.inertia.tolist()}
+    if json_:
+        print(json.dumps(summary))
+    err.print(f"wrote {out} ({meshes.source if collision != 'none' else 'no collision geometry'})")
+
+
+def _compare_table(report) -> Table:
+    t = Table(title=f"mesh route vs DANO: {report['source']} (DANO rest height {report['dano']['rest_height']:.4f}, "
+                    f"slide {report['dano']['slide_distance']:.4f})")
+    for col in ("level", "collider", "comp.", "pieces", "CoM err", "inertia err", "rest Δz", "tilt [deg]",
+                "slide diverg."):
+        t.add_column(col)
+    for e in report["levels"]:
+        for c, r in e["collision"].items():
+            t.add_row(e["label"], c, str(e["components"]), str(r["pieces"]), f"{r['com_error']:.4f}",
+                      f"{100 * r['inertia_error']:.1f} %", f"{r['rest_height_error']:+.4f}",
+                      f"{r['rest_tilt_deg']:.2f}", f"{r['slide_divergence']:.4f}")
+    return t
+
+
+def compare_mesh(
+    source: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="SOURCE")],
+    levels: tuple[float, ...] = (),
+    mesh: Annotated[tuple[str, ...], tyro.conf.UseAppendAction, tyro.conf.arg(metavar="[LABEL=]FILE")] = (),
+    quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0),
+    collision: tuple[Literal["hull", "decomposition"], ...] = ("hull", "decomposition"),
+    friction: float = 0.2,
+    slide_speed: float = 1.0,
+    rest_time: float = 3.0,
+    slide_time: float = 2.0,
+    resolution: int = 96,
+    threshold: float = 0.1,
+    max_pieces: int = -1,
+    contact_model: str = "centroid",
+    figure: Path | None = None,
+    out: Path | None = None,
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False,
+    quiet: bool = False,
+) -> None:
+    """Level-set meshes of a density field as MuJoCo colliders (convex hull, CoACD decomposition) against the
+    DANO: mesh pieces, mass-property errors, rest height and tilt, slide divergence (docs/mesh-route.md).
+
+    Args:
+        source: a .dano file (or builtin:NAME, e.g. builtin:bluesoap for the paper's real soap).
+        levels: densities whose level sets are extracted from the stored field (marching cubes).
+        mesh: a level-set mesh file in the object frame, FILE or LABEL=FILE (e.g. the paper's
+            bluesoap_level_70.stl); repeat the option for several; default, when neither --levels nor --mesh is given: 0.1, 0.5 and 0.9
+            of the field's interior density, or the asset's visual mesh if it has no field.
+        quat: orientation w x y z of the drop (object axes in the world).
+        collision: collider kinds to build.
+        friction: sliding friction in both engines (Coulomb only).
+        slide_speed: initial speed of the slide [m/s].
+        rest_time: settling time of the drop [s].
+        slide_time: duration of the slide [s].
+        resolution: marching-cubes nodes along the longest axis.
+        threshold: CoACD concavity threshold.
+        max_pieces: CoACD: merge down to at most this many pieces (-1: no limit).
+        contact_model: dano's contact model for the DANO.
+        figure: write renders of every collider at rest (like the paper's Fig. 8) to this image.
+        out: also write the JSON report to this file.
+        json_: print the report as one JSON object instead of a table.
+        quiet: no progress bar.
+    """
+    import trimesh
+
+    from .io.export import Decomposition
+    from .meshroute import Level, Scenario, compare_mesh as run, extract_levels, render_rest_figure
+    from .sim.scene import interior_density
+
+    _check_contact_model(contact_model)
+    for opt, v in (("friction", friction), ("slide-speed", slide_speed), ("rest-time", rest_time),
+                   ("slide-time", slide_time), ("threshold", threshold)):
+        if not (v >= 0 and v < float("inf")) or (opt != "friction" and opt != "slide-speed" and v == 0):
+            raise ValueError(f"--{opt} must be a finite {'non-negative' if opt in ('friction', 'slide-speed') else 'positive'} "
+                             f"number, got {v}")
+    asset = _load_asset(source)
+    lv = _level_meshes(mesh)
+    if levels:
+        lv += extract_levels(asset, levels, resolution)
+    if not lv:
+        if asset.field is not None:
+            rho = interior_density(asset.field)
+            lv = extract_levels(asset, [f * rho for f in (0.1, 0.5, 0.9)], resolution)
+        elif len(asset.mesh_faces):
+            lv = [Level("visual mesh", trimesh.Trimesh(asset.mesh_vertices + asset.center_of_mass, asset.mesh_faces,
+                                                       process=False), file="(stored in the .dano)")]
+        else:
+            raise ValueError(f"{source}: no field, no visual mesh and no --mesh given: nothing to compare")
+    scenario = Scenario(quat=quat, friction=friction, rest_time=rest_time, slide_time=slide_time, slide_speed=slide_speed)
+    with _progress(not quiet) as progress:
+        report = run(asset, lv, collisions=collision, scenario=scenario, contact_model=contact_model,
+                     decomposition=Decomposition(threshold=threshold, max_pieces=max_pieces), progress=progress)
+    if figure is not None:
+        render_rest_figure(asset, report, figure, levels=lv)
+        err.print(f"wrote {figure}")
+    report.pop("_models")
+    text = json.dumps(report)
+    if out is not None:
+        atomic_write(out, lambda f: f.write(json.dumps(report, indent=1).encode()))
+    if json_:
+        print(text)
+    else:
+        Console().print(_compare_table(report))  # (the console `out` is shadowed by the option)
+
+
 def _check_contact_model(name: str) -> None:
     """--contact-model: raises ValueError (a clean CLI error) for an unknown model name."""
     from .contact import CONTACT_MODELS
@@ -391,7 +565,8 @@ def _check_contact_model(name: str) -> None:
         raise ValueError(f"unknown --contact-model {name!r}; available: {', '.join(CONTACT_MODELS)}")
 
 
-COMMANDS = {"build": build, "inspect": inspect, "simulate": simulate, "sysid": sysid, "demo": demo, "bench": bench}
+COMMANDS = {"build": build, "inspect": inspect, "simulate": simulate, "sysid": sysid, "export": export,
+            "compare-mesh": compare_mesh, "demo": demo, "bench": bench}
 
 
 def _configure_process() -> None:

@@ -336,28 +336,9 @@ def _load_spec(base) -> mujoco.MjSpec:
 
 
 def _add_dano(spec: mujoco.MjSpec, obj: DanoObject) -> None:
-    a = obj.asset
-    q = np.asarray(obj.quat, dtype=np.float64)
-    if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-12:
-        raise DanoError(f"{obj.name}: quat must be a non-zero wxyz quaternion, got {list(obj.quat)}")
-    body = spec.worldbody.add_body(name=obj.name, pos=list(map(float, obj.pos)), quat=list(q / np.linalg.norm(q)))
-    body.add_freejoint(name=f"{obj.name}_free")
-    J = a.inertia
-    body.mass = a.mass
-    body.ipos = [0.0, 0.0, 0.0]
-    body.fullinertia = [J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2]]
-    body.explicitinertial = True
-    if len(a.mesh_faces):
-        mesh_name = f"{obj.name}_visual"
-        spec.add_mesh(name=mesh_name, uservert=a.mesh_vertices.ravel().tolist(),
-                      userface=a.mesh_faces.ravel().tolist())
-        body.add_geom(name=mesh_name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name, contype=0,
-                      conaffinity=0, group=1, density=0, rgba=list(obj.rgba))
-    else:  # no mesh: draw the samples' extent as a translucent ellipsoid
-        half = 0.5 * np.ptp(a.points, axis=0)
-        body.add_geom(name=f"{obj.name}_visual", type=mujoco.mjtGeom.mjGEOM_ELLIPSOID, size=list(half),
-                      pos=list(0.5 * (a.points.min(0) + a.points.max(0))), contype=0, conaffinity=0, group=1,
-                      density=0, rgba=list(obj.rgba))
+    from ..io.export import add_to_spec
+
+    add_to_spec(spec, obj.asset, obj.name, pos=obj.pos, quat=obj.quat, rgba=obj.rgba)
 
 
 def merge_duplicate_samples(points: np.ndarray, normals: np.ndarray, weights: np.ndarray):

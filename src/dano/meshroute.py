@@ -1,0 +1,358 @@
+"""The mesh route, measured (paper §VII, Fig. 8): level-set meshes of a density field as
+MuJoCo colliders against the DANO itself.
+
+For each level-set mesh (extracted with marching cubes from a queryable field, or given,
+e.g. the paper's soap level sets) and each collision mode (convex hull, CoACD
+decomposition), :func:`compare_mesh` builds the body a mesh-route user would simulate
+in MuJoCo C: the collision pieces with uniform density, mass properties computed by
+MuJoCo from them; then simulates it at rest on the plane z = 0 and sliding, and the DANO
+in dano on the same scenes. All lengths are in the asset's units [m], body frame (object
+axes, origin at the DANO's centre of mass).
+
+Metrics per level and mode (keys of the JSON report):
+
+* mesh: ``vertices``, ``faces``, ``components`` (connected pieces: floaters), ``watertight``,
+  ``volume`` (of the level mesh, |signed volume|); ``pieces`` (convex collision pieces);
+* mass properties, with the collision solid given the DANO's mass: ``com_error`` (distance
+  of its centre of mass from the DANO's [m]), ``inertia_error`` (‖J_mesh − J‖_F / ‖J‖_F);
+  ``mass_error`` ((ρ·V − m)/m with ρ = α × the field's interior density; ``None`` when the
+  asset has no field, as for the paper colliders);
+* rest: the DANO first settles from ``Scenario.quat``; from that stable orientation
+  (``start_quat``), a little above the ground, the DANO and each mesh body are dropped and
+  settle for ``rest_time`` s: ``rest_height`` (body-frame origin z [m]),
+  ``rest_height_error`` (minus the DANO's), ``rest_tilt_deg`` (angle between the rest
+  orientations of the mesh body and the DANO);
+* slide (from each one's rest pose with velocity (``slide_speed``, 0, 0), ``slide_time`` s):
+  ``slide_distance`` (displacement [m]) and ``slide_divergence`` (‖d_mesh − d_DANO‖ [m]).
+
+Physics in both engines: Coulomb sliding friction ``friction`` only (MuJoCo: default soft
+constraints, condim 3, the same friction on both geoms, timestep ``mujoco_dt``, implicitfast
+integrator; dano: the paper's spring and damper, no drags, no torsional or rolling friction).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import mujoco
+import numpy as np
+import trimesh
+
+from .errors import DanoError
+from .io.export import Decomposition, body_meshes
+
+COLLISIONS = ("hull", "decomposition")
+
+
+@dataclass(frozen=True)
+class Level:
+    """A level-set mesh to compare: label (e.g. "φ = 0.70"), the mesh (object frame [m]),
+    level: its density (None if unknown), file: where it came from (or "")."""
+
+    label: str
+    mesh: trimesh.Trimesh
+    level: float | None = None
+    file: str = ""
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """The two scenes: drop from ``clearance`` [m] above the lowest point and settle for
+    ``rest_time`` [s]; then slide at ``slide_speed`` [m/s] along +x for ``slide_time`` [s].
+    quat: (4,) wxyz orientation of the drop (object axes in the world); friction: sliding
+    friction (both engines); dt: dano's step [s]; mujoco_dt: MuJoCo's."""
+
+    quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    friction: float = 0.2
+    rest_time: float = 3.0
+    slide_time: float = 2.0
+    slide_speed: float = 1.0
+    clearance: float = 0.02
+    dt: float = 0.01
+    mujoco_dt: float = 0.002
+
+
+def extract_levels(asset, levels: Sequence[float], resolution: int = 96) -> list[Level]:
+    """Marching-cubes meshes (object frame) of the asset's field at ``levels`` (densities).
+    Raises DanoError if the asset has no field or a level is outside its range."""
+    from .asset import visual_mesh
+
+    if asset.field is None:
+        raise DanoError(f"{asset.name}: no density field stored, so no level set can be extracted; give level-set "
+                        "meshes instead (--mesh)")
+    out = []
+    for lv in levels:
+        v, f = visual_mesh(asset.field, float(lv), resolution)
+        out.append(Level(f"φ = {lv:g}", trimesh.Trimesh(v, f, process=False), float(lv)))
+    return out
+
+
+def _quat_angle_deg(q1: np.ndarray, q2: np.ndarray) -> float:
+    d = abs(float(np.dot(q1 / np.linalg.norm(q1), q2 / np.linalg.norm(q2))))
+    return float(np.degrees(2.0 * np.arccos(min(1.0, d))))
+
+
+def _full_inertia(m: mujoco.MjModel, b: int) -> np.ndarray:
+    R = np.zeros(9)
+    mujoco.mju_quat2Mat(R, m.body_iquat[b])
+    R = R.reshape(3, 3)
+    return R @ np.diag(m.body_inertia[b]) @ R.T
+
+
+def mesh_body_model(pieces: Sequence[trimesh.Trimesh], mass: float, friction: float, dt: float,
+                    pos=(0.0, 0.0, 0.0)) -> mujoco.MjModel:
+    """A MuJoCo model: ground plane z = 0 and a free body ``mesh`` made of the convex
+    ``pieces`` (body frame) with uniform density scaled so that its mass is ``mass``; MuJoCo
+    computes centre of mass and inertia from the pieces."""
+
+    def build(density: float) -> mujoco.MjModel:
+        spec = mujoco.MjSpec()
+        spec.option.timestep = dt
+        spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+        # MuJoCo takes the larger friction of the two geoms: the ground gets the same
+        spec.worldbody.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1],
+                                friction=[friction, 0.005, 0.0001])
+        spec.worldbody.add_light(pos=[0, 0, 6], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+        body = spec.worldbody.add_body(name="mesh", pos=list(pos))
+        body.add_freejoint(name="mesh_free")
+        for k, p in enumerate(pieces):
+            spec.add_mesh(name=f"piece_{k}", uservert=np.asarray(p.vertices).ravel().tolist(),
+                          userface=np.asarray(p.faces).ravel().tolist())
+            body.add_geom(name=f"piece_{k}", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"piece_{k}", density=density,
+                          friction=[friction, 0.005, 0.0001], rgba=[0.45, 0.6, 0.85, 1.0])
+        return spec.compile()
+
+    try:
+        m1 = build(1.0)
+        return build(mass / float(m1.body_mass[1]))
+    except Exception as exc:
+        raise DanoError(f"MuJoCo cannot compile the mesh collider ({exc})") from exc
+
+
+def _simulate_mujoco(m: mujoco.MjModel, qpos0: np.ndarray, sc: Scenario):
+    """Rest then slide in MuJoCo C; returns (rest qpos (7,), slide displacement (3,) [m])."""
+    d = mujoco.MjData(m)
+    d.qpos[:] = qpos0
+    mujoco.mj_forward(m, d)
+    for _ in range(int(round(sc.rest_time / m.opt.timestep))):
+        mujoco.mj_step(m, d)
+    rest = d.qpos.copy()
+    d.qvel[:] = 0.0
+    d.qvel[0] = sc.slide_speed
+    for _ in range(int(round(sc.slide_time / m.opt.timestep))):
+        mujoco.mj_step(m, d)
+    if not np.all(np.isfinite(d.qpos)):
+        raise DanoError("the MuJoCo mesh simulation became non-finite")
+    return rest, d.qpos[:3] - rest[:3]
+
+
+class _DanoRuns:
+    """The DANO in dano on the plane: one scene (one compilation) for every run."""
+
+    def __init__(self, asset, sc: Scenario, contact_model: str):
+        from .sim import DanoObject, compose
+
+        self.sc = sc
+        self.scene = compose([DanoObject("dano", asset)], dt=sc.dt, name="mesh-route-dano", contact_model=contact_model)
+        # the physics of MuJoCo's condim-3 contact: Coulomb sliding friction, no drags, no
+        # torsional or rolling friction; the paper's spring and damper
+        self.params = self.scene.default_params(sliding_friction=sc.friction, sliding_drag=0.0,
+                                                torsional_friction=0.0, rolling_friction=0.0)
+
+    def _run(self, pos, quat, v, seconds: float) -> np.ndarray:
+        from .sim import rollout
+        from .sim.scenes import initial_state
+
+        state = initial_state(self.scene, {"dano": (pos, quat)}, {"dano": (v, (0.0, 0.0, 0.0))})
+        return rollout(self.scene, state, params=self.params, steps=int(round(seconds / self.sc.dt))).qpos[-1, :7]
+
+    def rest(self, z0: float, quat) -> np.ndarray:
+        """qpos (7,) after settling from (0, 0, z0), ``quat`` at rest."""
+        return self._run((0.0, 0.0, z0), quat, (0.0, 0.0, 0.0), self.sc.rest_time)
+
+    def slide(self, rest: np.ndarray) -> np.ndarray:
+        """Displacement (3,) [m] of the slide from the rest pose ``rest``."""
+        return self._run(rest[:3], rest[3:7], (self.sc.slide_speed, 0.0, 0.0), self.sc.slide_time)[:3] - rest[:3]
+
+
+def _start_height(asset, pieces, quat: np.ndarray, clearance: float) -> float:
+    """Body-origin height at which the DANO's lowest sample and every collider's lowest
+    vertex are at least ``clearance`` × the object's size above z = 0."""
+    from scipy.spatial.transform import Rotation
+
+    from .sim.scenes import resting_height
+
+    up = Rotation.from_quat(quat, scalar_first=True).as_matrix()[2]
+    lowest = max([resting_height(asset, quat)] + [-float(np.min(p.vertices @ up)) for ps in pieces for p in ps])
+    return lowest + clearance * float(np.ptp(asset.points, axis=0).max())
+
+
+def _mesh_stats(level: Level) -> dict:
+    m = level.mesh.copy()
+    m.merge_vertices()
+    return {
+        "label": level.label,
+        "level": level.level,
+        "file": level.file,
+        "vertices": int(len(m.vertices)),
+        "faces": int(len(m.faces)),
+        "components": int(len(m.split(only_watertight=False))),
+        "watertight": bool(m.is_watertight),
+        "volume": float(abs(m.volume)),
+    }
+
+
+def compare_mesh(
+    asset,
+    levels: Sequence[Level],
+    *,
+    collisions: Sequence[str] = COLLISIONS,
+    scenario: Scenario = Scenario(),
+    decomposition: Decomposition = Decomposition(),
+    contact_model: str = "centroid",
+    progress: Callable[[int, int, str], None] | None = None,
+) -> dict:
+    """Compare level-set mesh colliders in MuJoCo C against the DANO in dano (module doc).
+
+    asset: the :class:`~dano.asset.DanoAsset`; levels: meshes in the object frame; collisions:
+    subset of ("hull", "decomposition"). Returns a JSON-able report {"source", "scenario",
+    "dano": {...}, "levels": [{mesh stats, "collision": {mode: {metrics}}}]} plus, under the
+    private key "_models", what :func:`render_rest_figure` needs. Raises DanoError for an
+    unknown mode, an empty level list or a collider MuJoCo cannot compile.
+    """
+    from scipy.spatial.transform import Rotation
+
+    from .sim.scenes import resting_height
+
+    if not levels:
+        raise DanoError("no level-set meshes to compare")
+    for c in collisions:
+        if c not in COLLISIONS:
+            raise DanoError(f"unknown collision mode {c!r}; choose from {', '.join(COLLISIONS)}")
+    sc = scenario
+    quat = np.asarray(sc.quat, dtype=np.float64)
+    if quat.shape != (4,) or not np.all(np.isfinite(quat)) or np.linalg.norm(quat) < 1e-12:
+        raise DanoError(f"the drop orientation must be a non-zero wxyz quaternion, got {list(sc.quat)}")
+    quat = quat / np.linalg.norm(quat)
+    total = len(levels) * len(collisions) + 2
+    pieces_by = {}
+    for i, lv in enumerate(levels):
+        for c in collisions:
+            pieces_by[i, c] = body_meshes(asset, c, mesh=lv.mesh, decomposition=decomposition).collision
+            if progress:
+                progress(len(pieces_by), total, "colliders, DANO runs")
+    # the DANO first settles from `quat`; every body is then dropped from that stable pose
+    runs = _DanoRuns(asset, sc, contact_model)
+    settled = runs.rest(_start_height(asset, [], quat, sc.clearance), quat)[3:7]
+    settled = settled / np.linalg.norm(settled)
+    z0 = _start_height(asset, pieces_by.values(), settled, sc.clearance)
+    qpos0 = np.r_[0.0, 0.0, z0, settled]
+    d_rest = runs.rest(z0, settled)
+    d_disp = runs.slide(d_rest)
+    if progress:
+        progress(total, total, "colliders, DANO runs")
+    rho = None
+    if asset.field is not None:
+        from .sim.scene import interior_density
+
+        rho = asset.alpha * interior_density(asset.field)
+    report_levels, models = [], {}
+    for i, lv in enumerate(levels):
+        entry = _mesh_stats(lv)
+        entry["collision"] = {}
+        for c in collisions:
+            pieces = pieces_by[i, c]
+            m = mesh_body_model(pieces, asset.mass, sc.friction, sc.mujoco_dt)
+            volume = float(sum(p.volume for p in pieces))
+            J = _full_inertia(m, 1)
+            rest, disp = _simulate_mujoco(m, qpos0, sc)
+            entry["collision"][c] = {
+                "pieces": len(pieces),
+                "collider_volume": volume,
+                "mass_error": None if rho is None else float((rho * volume - asset.mass) / asset.mass),
+                "com_error": float(np.linalg.norm(m.body_ipos[1])),
+                "inertia_error": float(np.linalg.norm(J - asset.inertia) / np.linalg.norm(asset.inertia)),
+                "rest_height": float(rest[2]),
+                "rest_height_error": float(rest[2] - d_rest[2]),
+                "rest_tilt_deg": _quat_angle_deg(rest[3:7], d_rest[3:7]),
+                "slide_distance": float(np.linalg.norm(disp)),
+                "slide_divergence": float(np.linalg.norm(disp - d_disp)),
+            }
+            models[(lv.label, c)] = (m, rest)
+        report_levels.append(entry)
+    return {
+        "source": asset.name,
+        "scenario": {k: getattr(sc, k) for k in sc.__dataclass_fields__},
+        "contact_model": contact_model,
+        "decomposition": {k: getattr(decomposition, k) for k in decomposition.__dataclass_fields__},
+        "dano": {
+            "mass": asset.mass,
+            "num_samples": asset.num_samples,
+            "start_height": z0,
+            "start_quat": settled.tolist(),
+            "rest_height": float(d_rest[2]),
+            "rest_rotation_deg": _quat_angle_deg(d_rest[3:7], settled),
+            "slide_distance": float(np.linalg.norm(d_disp)),
+        },
+        "levels": report_levels,
+        "_models": {"mesh": models, "dano_rest": d_rest},
+    }
+
+
+def render_rest_figure(asset, report: dict, path, width: int = 320, height: int = 240, levels=None) -> None:
+    """A figure like the paper's Fig. 8: each collider at rest (MuJoCo's renderer,
+    collision geometry shown) and the DANO at its rest pose (its visual mesh, else the
+    first level mesh, drawn at the DANO's pose). Written atomically (PNG/PDF by suffix).
+    Raises DanoError if no OpenGL context can be created (set MUJOCO_GL=egl or osmesa)."""
+    from matplotlib.figure import Figure
+
+    from ._files import atomic_path
+    from .io.export import BodyMeshes, add_to_spec
+
+    models = report["_models"]["mesh"]
+    panels = []
+
+    def shot(m, qpos, title):
+        d = mujoco.MjData(m)
+        d.qpos[:7] = qpos
+        mujoco.mj_forward(m, d)
+        try:
+            r = mujoco.Renderer(m, height, width)
+        except Exception as exc:
+            raise DanoError(f"cannot create an OpenGL context for rendering: {exc}") from exc
+        cam = mujoco.MjvCamera()
+        cam.lookat[:] = d.qpos[:3]
+        cam.lookat[2] = 0.25 * d.qpos[2]
+        extent = float(np.ptp(asset.points, axis=0).max())
+        cam.distance, cam.azimuth, cam.elevation = 2.2 * extent, 90.0, -8.0
+        opt = mujoco.MjvOption()
+        opt.geomgroup[:] = 1
+        r.update_scene(d, cam, opt)
+        panels.append((r.render().copy(), title))
+        r.close()
+
+    spec = mujoco.MjSpec()
+    spec.worldbody.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1], rgba=[0.8, 0.8, 0.82, 1])
+    spec.worldbody.add_light(pos=[0, 0, 6], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+    vis = None
+    if not len(asset.mesh_faces) and levels:
+        vis = BodyMeshes(trimesh.Trimesh(np.asarray(levels[0].mesh.vertices) - asset.center_of_mass,
+                                         levels[0].mesh.faces, process=False), (), "first level mesh")
+    add_to_spec(spec, asset, "dano", meshes=vis)
+    shot(spec.compile(), report["_models"]["dano_rest"], f"DANO (rest {report['dano']['rest_height']:.3f})")
+    for entry in report["levels"]:
+        for c, res in entry["collision"].items():
+            m, rest = models[(entry["label"], c)]
+            shot(m, rest, f"{entry['label']} {c}\nrest {res['rest_height']:.3f}, tilt {res['rest_tilt_deg']:.1f}°")
+    cols = min(len(panels), 4)
+    rows = -(-len(panels) // cols)
+    fig = Figure(figsize=(3.2 * cols, 2.8 * rows))
+    for k, (img, title) in enumerate(panels):
+        ax = fig.add_subplot(rows, cols, k + 1)
+        ax.axis("off")
+        ax.imshow(img)
+        ax.set_title(title, fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120)
