@@ -436,8 +436,8 @@ def export(
         json_: print a JSON summary (path, collision, pieces, mass, inertia) to stdout.
     """
     from .io import load_mesh
-    from .io.export import Decomposition, body_meshes
-    from .io.export import export as export_asset
+    from .io.exporters import Decomposition, body_meshes
+    from .io.exporters import export as export_asset
 
     if threshold <= 0 or not threshold < float("inf"):
         raise ValueError(f"--threshold must be a positive number, got {threshold}")
@@ -497,9 +497,11 @@ def compare_mesh(
     Args:
         source: a .dano file (or builtin:NAME, e.g. builtin:bluesoap for the paper's real soap).
         levels: densities whose level sets are extracted from the stored field (marching cubes).
+            With --mesh, both are compared.
         mesh: a level-set mesh file in the object frame, FILE or LABEL=FILE (e.g. the paper's
-            bluesoap_level_70.stl); repeat the option for several; default, when neither --levels nor --mesh is given: 0.1, 0.5 and 0.9
-            of the field's interior density, or the asset's visual mesh if it has no field.
+            bluesoap_level_70.stl); repeat the option for several. Default, when neither --levels nor --mesh
+            is given: 0.1, 0.5 and 0.9 of the field's interior density, or the asset's visual mesh if it has
+            no field.
         quat: orientation w x y z of the drop (object axes in the world).
         collision: collider kinds to build.
         friction: sliding friction in both engines (Coulomb only).
@@ -517,16 +519,16 @@ def compare_mesh(
     """
     import trimesh
 
-    from .io.export import Decomposition
+    from .io.exporters import Decomposition
     from .meshroute import Level, Scenario, compare_mesh as run, extract_levels, render_rest_figure
     from .sim.scene import interior_density
 
     _check_contact_model(contact_model)
-    for opt, v in (("friction", friction), ("slide-speed", slide_speed), ("rest-time", rest_time),
-                   ("slide-time", slide_time), ("threshold", threshold)):
-        if not (v >= 0 and v < float("inf")) or (opt != "friction" and opt != "slide-speed" and v == 0):
-            raise ValueError(f"--{opt} must be a finite {'non-negative' if opt in ('friction', 'slide-speed') else 'positive'} "
-                             f"number, got {v}")
+    for opt, v, least in (("friction", friction, "non-negative"), ("slide-speed", slide_speed, "non-negative"),
+                          ("rest-time", rest_time, "positive"), ("slide-time", slide_time, "positive"),
+                          ("threshold", threshold, "positive")):
+        if not (0 <= v < float("inf")) or (least == "positive" and v == 0):
+            raise ValueError(f"--{opt} must be a finite {least} number, got {v}")
     asset = _load_asset(source)
     lv = _level_meshes(mesh)
     if levels:
@@ -536,11 +538,12 @@ def compare_mesh(
             rho = interior_density(asset.field)
             lv = extract_levels(asset, [f * rho for f in (0.1, 0.5, 0.9)], resolution)
         elif len(asset.mesh_faces):
-            lv = [Level("visual mesh", trimesh.Trimesh(asset.mesh_vertices + asset.center_of_mass, asset.mesh_faces,
-                                                       process=False), file="(stored in the .dano)")]
+            visual = trimesh.Trimesh(asset.mesh_vertices + asset.center_of_mass, asset.mesh_faces, process=False)
+            lv = [Level("visual mesh", visual, file="(stored in the .dano)")]
         else:
             raise ValueError(f"{source}: no field, no visual mesh and no --mesh given: nothing to compare")
-    scenario = Scenario(quat=quat, friction=friction, rest_time=rest_time, slide_time=slide_time, slide_speed=slide_speed)
+    scenario = Scenario(quat=quat, friction=friction, rest_time=rest_time, slide_time=slide_time,
+                        slide_speed=slide_speed)
     with _progress(not quiet) as progress:
         report = run(asset, lv, collisions=collision, scenario=scenario, contact_model=contact_model,
                      decomposition=Decomposition(threshold=threshold, max_pieces=max_pieces), progress=progress)

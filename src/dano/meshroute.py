@@ -20,14 +20,16 @@ Metrics per level and mode (keys of the JSON report):
 * rest: the DANO first settles from ``Scenario.quat``; from that stable orientation
   (``start_quat``), a little above the ground, the DANO and each mesh body are dropped and
   settle for ``rest_time`` s: ``rest_height`` (body-frame origin z [m]),
-  ``rest_height_error`` (minus the DANO's), ``rest_tilt_deg`` (angle between the rest
-  orientations of the mesh body and the DANO);
+  ``rest_height_error`` (minus the DANO's), ``rest_tilt_deg`` (how differently the mesh body
+  and the DANO lean at rest: the angle between the up direction seen in their body frames,
+  heading ignored), ``rest_rotation_deg`` (the whole rotation between them, heading included);
 * slide (from each one's rest pose with velocity (``slide_speed``, 0, 0), ``slide_time`` s):
   ``slide_distance`` (displacement [m]) and ``slide_divergence`` (‖d_mesh − d_DANO‖ [m]).
 
-Physics in both engines: Coulomb sliding friction ``friction`` only (MuJoCo: default soft
+Physics in both engines: Coulomb sliding friction ``friction`` (MuJoCo: default soft
 constraints, condim 3, the same friction on both geoms, timestep ``mujoco_dt``, implicitfast
-integrator; dano: the paper's spring and damper, no drags, no torsional or rolling friction).
+integrator; dano: the paper's spring, damper and torsional friction, no drags, no rolling
+friction).
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ import numpy as np
 import trimesh
 
 from .errors import DanoError
-from .io.export import Decomposition, body_meshes
+from .io.exporters import Decomposition, body_meshes
 
 COLLISIONS = ("hull", "decomposition")
 
@@ -89,8 +91,18 @@ def extract_levels(asset, levels: Sequence[float], resolution: int = 96) -> list
 
 
 def _quat_angle_deg(q1: np.ndarray, q2: np.ndarray) -> float:
+    """Angle of the rotation between two orientations [deg]."""
     d = abs(float(np.dot(q1 / np.linalg.norm(q1), q2 / np.linalg.norm(q2))))
     return float(np.degrees(2.0 * np.arccos(min(1.0, d))))
+
+
+def _tilt_deg(q1: np.ndarray, q2: np.ndarray) -> float:
+    """Angle between the world's up direction seen in two orientations' body frames [deg]:
+    how differently the body leans, whatever its heading (yaw)."""
+    from scipy.spatial.transform import Rotation
+
+    up = [Rotation.from_quat(q, scalar_first=True).inv().apply([0.0, 0.0, 1.0]) for q in (q1, q2)]
+    return float(np.degrees(np.arccos(np.clip(np.dot(up[0], up[1]), -1.0, 1.0))))
 
 
 def _full_inertia(m: mujoco.MjModel, b: int) -> np.ndarray:
@@ -155,10 +167,12 @@ class _DanoRuns:
 
         self.sc = sc
         self.scene = compose([DanoObject("dano", asset)], dt=sc.dt, name="mesh-route-dano", contact_model=contact_model)
-        # the physics of MuJoCo's condim-3 contact: Coulomb sliding friction, no drags, no
-        # torsional or rolling friction; the paper's spring and damper
+        # MuJoCo's condim-3 contact: Coulomb sliding friction, no drags, no rolling friction.
+        # The paper's torsional friction (0.01) stays: the centroid model's single contact
+        # point has no other resistance to spinning about the normal (MuJoCo's several contact
+        # points have); without it the resting bunny creeps in yaw at ~0.1 deg/s.
         self.params = self.scene.default_params(sliding_friction=sc.friction, sliding_drag=0.0,
-                                                torsional_friction=0.0, rolling_friction=0.0)
+                                                rolling_friction=0.0)
 
     def _run(self, pos, quat, v, seconds: float) -> np.ndarray:
         from .sim import rollout
@@ -221,10 +235,6 @@ def compare_mesh(
     private key "_models", what :func:`render_rest_figure` needs. Raises DanoError for an
     unknown mode, an empty level list or a collider MuJoCo cannot compile.
     """
-    from scipy.spatial.transform import Rotation
-
-    from .sim.scenes import resting_height
-
     if not levels:
         raise DanoError("no level-set meshes to compare")
     for c in collisions:
@@ -275,7 +285,8 @@ def compare_mesh(
                 "inertia_error": float(np.linalg.norm(J - asset.inertia) / np.linalg.norm(asset.inertia)),
                 "rest_height": float(rest[2]),
                 "rest_height_error": float(rest[2] - d_rest[2]),
-                "rest_tilt_deg": _quat_angle_deg(rest[3:7], d_rest[3:7]),
+                "rest_tilt_deg": _tilt_deg(rest[3:7], d_rest[3:7]),
+                "rest_rotation_deg": _quat_angle_deg(rest[3:7], d_rest[3:7]),
                 "slide_distance": float(np.linalg.norm(disp)),
                 "slide_divergence": float(np.linalg.norm(disp - d_disp)),
             }
@@ -292,6 +303,7 @@ def compare_mesh(
             "start_height": z0,
             "start_quat": settled.tolist(),
             "rest_height": float(d_rest[2]),
+            "rest_tilt_deg": _tilt_deg(d_rest[3:7], settled),
             "rest_rotation_deg": _quat_angle_deg(d_rest[3:7], settled),
             "slide_distance": float(np.linalg.norm(d_disp)),
         },
@@ -308,7 +320,7 @@ def render_rest_figure(asset, report: dict, path, width: int = 320, height: int 
     from matplotlib.figure import Figure
 
     from ._files import atomic_path
-    from .io.export import BodyMeshes, add_to_spec
+    from .io.exporters import BodyMeshes, add_to_spec
 
     models = report["_models"]["mesh"]
     panels = []
@@ -323,9 +335,9 @@ def render_rest_figure(asset, report: dict, path, width: int = 320, height: int 
             raise DanoError(f"cannot create an OpenGL context for rendering: {exc}") from exc
         cam = mujoco.MjvCamera()
         cam.lookat[:] = d.qpos[:3]
-        cam.lookat[2] = 0.25 * d.qpos[2]
+        cam.lookat[2] = 0.6 * d.qpos[2]
         extent = float(np.ptp(asset.points, axis=0).max())
-        cam.distance, cam.azimuth, cam.elevation = 2.2 * extent, 90.0, -8.0
+        cam.distance, cam.azimuth, cam.elevation = 2.6 * extent, 90.0, -10.0
         opt = mujoco.MjvOption()
         opt.geomgroup[:] = 1
         r.update_scene(d, cam, opt)
@@ -340,7 +352,8 @@ def render_rest_figure(asset, report: dict, path, width: int = 320, height: int 
         vis = BodyMeshes(trimesh.Trimesh(np.asarray(levels[0].mesh.vertices) - asset.center_of_mass,
                                          levels[0].mesh.faces, process=False), (), "first level mesh")
     add_to_spec(spec, asset, "dano", meshes=vis)
-    shot(spec.compile(), report["_models"]["dano_rest"], f"DANO (rest {report['dano']['rest_height']:.3f})")
+    drawn = f", drawn with the {levels[0].label} mesh" if vis is not None else ""
+    shot(spec.compile(), report["_models"]["dano_rest"], f"DANO{drawn}\nrest {report['dano']['rest_height']:.3f}")
     for entry in report["levels"]:
         for c, res in entry["collision"].items():
             m, rest = models[(entry["label"], c)]

@@ -1,4 +1,5 @@
-"""Importers: the paper's ``.jld2`` colliders, meshes, voxel grids; :func:`load_source`."""
+"""Importers (the paper's ``.jld2`` colliders, meshes, voxel grids) and exporters (MJCF,
+URDF, MjSpec bodies: :mod:`dano.io.exporters`)."""
 
 from __future__ import annotations
 
@@ -6,9 +7,11 @@ from pathlib import Path
 
 from ..errors import FileFormatError
 from .jld2 import PAPER_ALPHA, load_paper_collider, normals_from_mesh
+from .exporters import Decomposition, add_to_spec, body_meshes, export
 from .mesh import MESH_SUFFIXES, load_mesh
 
-__all__ = ["PAPER_ALPHA", "MESH_SUFFIXES", "load_mesh", "load_paper_collider", "normals_from_mesh", "source_kind"]
+__all__ = ["PAPER_ALPHA", "MESH_SUFFIXES", "Decomposition", "add_to_spec", "body_meshes", "export", "load_mesh",
+           "load_paper_collider", "normals_from_mesh", "source_kind"]
 
 
 def source_kind(path: str | Path) -> str:

@@ -336,7 +336,7 @@ def _load_spec(base) -> mujoco.MjSpec:
 
 
 def _add_dano(spec: mujoco.MjSpec, obj: DanoObject) -> None:
-    from ..io.export import add_to_spec
+    from ..io.exporters import add_to_spec
 
     add_to_spec(spec, obj.asset, obj.name, pos=obj.pos, quat=obj.quat, rgba=obj.rgba)
 
