@@ -109,3 +109,54 @@ def test_failed_save_leaves_no_file(tmp_path, sphere_asset, monkeypatch):
 def test_file_is_a_plain_npz(tmp_path, sphere_asset):
     path = save(sphere_asset, tmp_path / "z.dano")
     assert zipfile.is_zipfile(path)
+
+
+def _meta(**changes):
+    def change(arrays):
+        meta = json.loads(str(arrays["metadata"]))
+        meta.update(changes)
+        arrays["metadata"] = np.asarray(json.dumps(meta))
+    return change
+
+
+def _set(name, fn):
+    return lambda arrays: arrays.update({name: fn(arrays[name].copy())})
+
+
+def _at(a, index, value):
+    a[index] = value
+    return a
+
+
+_CORRUPTIONS = {
+    "band reversed": (_set("band", lambda b: b[::-1].copy()), "band must be two densities"),
+    "face out of range": (_set("mesh_faces", lambda f: _at(f, (0, 0), 10**6)), "mesh_faces index vertices outside"),
+    "negative face": (_set("mesh_faces", lambda f: _at(f, (0, 0), -1)), "mesh_faces index vertices outside"),
+    "non-integer faces": (_set("mesh_faces", lambda f: f.astype(float) + 0.5), "integer vertex indices"),
+    "inertia not positive definite": (_set("inertia", lambda J: -J), "not positive definite"),
+    "triangle inequality": (_set("inertia", lambda J: np.diag([1.0, 1.0, 3.0]) * J.trace()), "triangle inequality"),
+    "NaN normal": (_set("normals", lambda n: _at(n, 3, np.nan)), "normals contains NaN"),
+    "zero normal": (_set("normals", lambda n: _at(n, 3, 0.0)), "not unit vectors"),
+    "all-zero weights": (_set("weights", np.zeros_like), "weights sum to 0"),
+    "weights disagree with the mass": (_set("weights", lambda w: 2 * w), "not to the mass"),
+    "NaN alpha": (_meta(alpha=float("nan")), "alpha must be finite and positive"),
+    "negative alpha": (_meta(alpha=-1.0), "alpha must be finite and positive"),
+    "mass disagrees with the weights": (_meta(mass=123.0), "not to the mass"),
+    "metadata a list": (lambda a: a.update(metadata=np.asarray("[1, 2]")), "expected an object"),
+    "field spec a list": (lambda a: a.update({"field/spec": np.asarray("[1]")}), "field spec is a JSON list"),
+    "field spec not JSON": (lambda a: a.update({"field/spec": np.asarray("{kind")}), "not valid JSON"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(_CORRUPTIONS))
+def test_physically_invalid_files_are_refused(case, tmp_path, sphere_asset):
+    from dano.cli import main
+
+    change, message = _CORRUPTIONS[case]
+    bad = _rewrite(save(sphere_asset, tmp_path / "a.dano"), tmp_path / "bad.dano", change)
+    with pytest.raises(FileFormatError, match=message) as info:
+        load(bad)
+    assert str(info.value).startswith(str(bad))
+    assert main(["inspect", str(bad)]) == 1
+    assert main(["export", str(bad), "-o", str(tmp_path / "out.xml")]) == 1
+    assert not (tmp_path / "out.xml").exists()

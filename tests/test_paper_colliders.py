@@ -86,3 +86,30 @@ def test_missing_datasets_and_wrong_shapes_are_refused(tmp_path, shared):
         del f["mass"]
     with pytest.raises(FileFormatError, match=r"partial.jld2: not a paper DANO collider \(missing datasets \['mass'\]\)"):
         load_paper_collider(path)
+
+
+def _corrupt_copy(shared, tmp_path, change):
+    import h5py
+
+    path = tmp_path / "bunny.jld2"
+    shutil.copy(shared / "dano" / "bunny.jld2", path)
+    with h5py.File(path, "r+") as f:
+        change(f)
+    return path
+
+
+def _far_particle(f):
+    p = f["particles"][()]
+    p[7]["data"]["2"] = 13000.0  # what a flipped exponent byte does
+    f["particles"][...] = p
+
+
+@pytest.mark.parametrize("change, message", [
+    (_far_particle, "outside the paper's sampling box"),
+    (lambda f: f["inertia"].write_direct(-np.abs(f["inertia"][()]) - np.eye(3)), "not positive definite"),
+    (lambda f: f["densities"].write_direct(-f["densities"][()]), "densities are negative"),
+])
+def test_physically_absurd_colliders_are_refused(shared, tmp_path, change, message):
+    bad = _corrupt_copy(shared, tmp_path, change)
+    with pytest.raises(FileFormatError, match=message):
+        load_paper_collider(bad)

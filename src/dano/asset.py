@@ -424,6 +424,10 @@ class DanoAsset(_PrincipalInertia):
     metadata: dict = dc_field(default_factory=dict)
 
     def __post_init__(self):
+        faces = np.asarray(self.mesh_faces)
+        if faces.size and not np.issubdtype(faces.dtype, np.integer):
+            if not (np.all(np.isfinite(faces)) and np.all(faces == np.round(faces))):
+                raise DanoError("mesh_faces must be integer vertex indices")
         for name in ("center_of_mass", "inertia", "points", "normals", "densities", "weights", "band", "mesh_vertices"):
             object.__setattr__(self, name, _frozen(getattr(self, name)))
         object.__setattr__(self, "mesh_faces", _frozen(self.mesh_faces, np.int64))
@@ -489,8 +493,26 @@ class DanoAsset(_PrincipalInertia):
         }
 
 
+def _check_inertia(J: np.ndarray) -> None:
+    scale = max(float(np.abs(J).max()), 1e-300)
+    if not np.allclose(J, J.T, rtol=1e-9, atol=1e-12 * scale):
+        raise DanoError("inertia is not symmetric")
+    moments = np.linalg.eigvalsh(0.5 * (J + J.T))
+    if moments[0] <= 1e-12 * scale:
+        raise DanoError(f"inertia is not positive definite (principal moments {moments.tolist()})")
+    if moments[0] + moments[1] < moments[2] * (1.0 - 1e-6):
+        raise DanoError(f"inertia breaks the triangle inequality I1 + I2 >= I3 of a rigid body (principal moments "
+                        f"{moments.tolist()})")
+
+
 def validate(asset: DanoAsset) -> None:
-    """Check shapes and values; raises DanoError naming the first problem."""
+    """Check shapes and physical validity; raises DanoError naming the first problem.
+
+    Checked: array shapes; finite values; mass > 0 and α > 0 finite; band 0 <= lo < hi;
+    densities >= 0; weights >= 0, not all zero, summing to the mass (relative 1e-6);
+    normals of unit length (1e-6); inertia symmetric positive definite with the triangle
+    inequalities; mesh faces integer indices into the vertices.
+    """
     n = asset.points.shape[0] if asset.points.ndim == 2 else -1
     shapes = {
         "center_of_mass": (asset.center_of_mass, (3,)),
@@ -508,16 +530,30 @@ def validate(asset: DanoAsset) -> None:
         raise DanoError(f"mesh_vertices has shape {asset.mesh_vertices.shape}, expected (V, 3)")
     if asset.mesh_faces.ndim != 2 or asset.mesh_faces.shape[1] != 3:
         raise DanoError(f"mesh_faces has shape {asset.mesh_faces.shape}, expected (F, 3)")
-    for name in ("center_of_mass", "inertia", "points", "densities", "weights"):
+    for name in ("center_of_mass", "inertia", "points", "normals", "densities", "weights", "band", "mesh_vertices"):
         if not np.all(np.isfinite(getattr(asset, name))):
             raise DanoError(f"{name} contains NaN or infinite values")
     if not (np.isfinite(asset.mass) and asset.mass > 0):
         raise DanoError(f"mass must be finite and positive, got {asset.mass}")
+    if not (np.isfinite(asset.alpha) and asset.alpha > 0):
+        raise DanoError(f"mass scale alpha must be finite and positive, got {asset.alpha}")
+    if not 0 <= asset.band[0] < asset.band[1]:
+        raise DanoError(f"band must be two densities 0 <= lo < hi, got {asset.band.tolist()}")
     if np.any(asset.densities < 0) or np.any(asset.weights < 0):
         raise DanoError("sample densities and weights must be non-negative")
-    J = asset.inertia
-    if not np.allclose(J, J.T, rtol=1e-9, atol=1e-12 * max(np.abs(J).max(), 1e-300)):
-        raise DanoError("inertia is not symmetric")
+    total = float(asset.weights.sum())
+    if not abs(total - asset.mass) <= 1e-6 * asset.mass:
+        raise DanoError(f"sample weights sum to {total:.9g}, not to the mass {asset.mass:.9g} (the paper's "
+                        "weighting w_i = φ_i/Σφ·m)")
+    bad = ~asset.normals_valid
+    if bad.any():
+        raise DanoError(f"{int(bad.sum())} of {n} normals are not unit vectors (first: sample {int(np.argmax(bad))}, "
+                        f"{asset.normals[int(np.argmax(bad))].tolist()})")
+    _check_inertia(asset.inertia)
+    if asset.mesh_faces.size:
+        if asset.mesh_faces.min() < 0 or asset.mesh_faces.max() >= len(asset.mesh_vertices):
+            raise DanoError(f"mesh_faces index vertices outside 0..{len(asset.mesh_vertices) - 1} "
+                            f"(range {int(asset.mesh_faces.min())}..{int(asset.mesh_faces.max())})")
 
 
 @in_float64
@@ -654,6 +690,8 @@ def load(path: str | Path) -> DanoAsset:
         meta = json.loads(str(arrays["metadata"]))
     except json.JSONDecodeError as exc:
         raise FileFormatError(f"{path}: corrupt metadata ({exc})") from exc
+    if not isinstance(meta, dict):
+        raise FileFormatError(f"{path}: corrupt metadata (a JSON {type(meta).__name__}, expected an object)")
     if meta.get("format") != FORMAT_NAME:
         raise FileFormatError(f"{path}: not a .dano file (format {meta.get('format')!r})")
     if meta.get("version") != FORMAT_VERSION:

@@ -78,11 +78,16 @@ def from_arrays(arrays, prefix: str = "field/") -> DensityField | None:
     """
     if prefix + "spec" not in arrays:
         return None
-    spec = json.loads(str(arrays[prefix + "spec"]))
+    try:
+        spec = json.loads(str(arrays[prefix + "spec"]))
+    except json.JSONDecodeError as exc:
+        raise FileFormatError(f"stored field spec is not valid JSON ({exc})") from exc
     return _build(spec, arrays, prefix)
 
 
 def _build(spec, arrays, prefix):
+    if not isinstance(spec, dict):
+        raise FileFormatError(f"stored field spec is a JSON {type(spec).__name__}, expected an object")
     kind = spec.get("kind")
     try:
         if kind == "sphere":

@@ -59,6 +59,33 @@ def normals_from_mesh(points: np.ndarray, mesh) -> np.ndarray:
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
+# The paper drew its particles from a jittered 79³ grid over [−1, 1]³ (collider frame).
+PAPER_BOX = 1.0 + 2.0 / 79
+
+
+def _check_physical(path: Path, mass: float, S: np.ndarray, com: np.ndarray, pts: np.ndarray, phi: np.ndarray):
+    """Refuse a collider whose values no paper export can have (corrupt or edited files)."""
+    for name, arr in (("mass", np.asarray(mass)), ("inertia", S), ("center_of_mass", com), ("particles", pts),
+                      ("densities", phi)):
+        if not np.all(np.isfinite(arr)):
+            raise FileFormatError(f"{path}: {name} contains NaN or infinite values")
+    if not mass > 0:
+        raise FileFormatError(f"{path}: mass must be positive, got {mass}")
+    far = np.abs(pts).max(axis=1) > PAPER_BOX
+    if far.any():
+        i = int(np.argmax(far))
+        raise FileFormatError(f"{path}: {int(far.sum())} particles lie outside the paper's sampling box [-1, 1]^3 "
+                              f"(first: particle {i} at {pts[i].tolist()}); the file is corrupt")
+    if np.abs(com).max() > PAPER_BOX:
+        raise FileFormatError(f"{path}: center_of_mass {com.tolist()} lies outside the sampling box [-1, 1]^3")
+    moments = np.linalg.eigvalsh(0.5 * (S + S.T))
+    if moments[0] <= 0:
+        raise FileFormatError(f"{path}: the stored second moment is not positive definite (eigenvalues "
+                              f"{moments.tolist()})")
+    if np.any(phi < 0):
+        raise FileFormatError(f"{path}: {int(np.sum(phi < 0))} densities are negative")
+
+
 def load_paper_collider(
     path: str | Path,
     *,
@@ -106,6 +133,7 @@ def load_paper_collider(
             f"{pts.shape}, densities {phi.shape}, density_gradients {grad.shape}"
         )
     S = S.T  # JLD2 writes column-major; S is symmetric anyway
+    _check_physical(path, mass, S, com, pts, phi)
     J = np.trace(S) * np.eye(3) - S
     gnorm = np.linalg.norm(grad, axis=1)
     valid = np.isfinite(gnorm) & (gnorm > 0)
