@@ -105,3 +105,39 @@ def test_initial_state_refuses_unknown_or_jointed_bodies():
     scene, _ = pusher_scene()
     with pytest.raises(DanoError, match="body 'pusher' has no free joint"):
         initial_state(scene, {"pusher": ((1, 2, 3), (1, 0, 0, 0))})
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--duration", "inf"], "--duration must be a finite positive number"),
+    (["--duration", "nan"], "--duration must be a finite positive number"),
+    (["--dt", "0"], "--dt must be a finite positive number"),
+    (["--fps", "0", "--video", "{tmp}/v.mp4"], "--fps must be a finite positive number"),
+    (["--fps", "inf", "--video", "{tmp}/v.mp4"], "--fps must be a finite positive number"),
+    (["--video", "{tmp}/v.avi"], "must be .mp4 or .gif"),
+    (["--duration", "1e9"], "is more than --max-steps"),
+    (["--dt", "1e-7"], "is more than --max-steps"),
+])
+def test_simulate_options_refused_before_any_work(args, message, tmp_path, capsys):
+    args = [a.replace("{tmp}", str(tmp_path)) for a in args]
+    code, _, err = run(capsys, "simulate", "bunny-drop", *args, "--out", tmp_path / "t.npz", "--quiet")
+    assert code == 1 and message in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_repeated_multi_value_flag_is_a_usage_error(tmp_path, capsys):
+    code, _, err = run(capsys, "simulate", "scene.xml", "--object", "builtin:bunny@0,0,1", "--object",
+                       "builtin:bunny_lowpoly@1,0,1")
+    assert code == 2 and "--object is given more than once" in err
+
+
+def test_a_video_error_leaves_no_trajectory(tmp_path, capsys, monkeypatch):
+    import dano.viz.video as video
+
+    def broken(*args, **kwargs):
+        raise DanoError("no OpenGL")
+
+    monkeypatch.setattr(video, "render_frames", broken)
+    code, _, err = run(capsys, "simulate", "bunny-drop", "--duration", "0.05", "--out", tmp_path / "t.npz",
+                       "--video", tmp_path / "v.mp4", "--quiet")
+    assert code == 1 and "no OpenGL" in err
+    assert list(tmp_path.iterdir()) == []

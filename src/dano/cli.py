@@ -211,6 +211,7 @@ def simulate(
     video: Path | None = None,
     fps: float = 30.0,
     contact_model: str = "centroid",
+    max_steps: int = 2_000_000,
     quiet: bool = False,
 ):
     """Simulate a built-in scene or an MJCF file with DANOs and write the trajectory and a video.
@@ -228,9 +229,14 @@ def simulate(
         video: .mp4 (or .gif) video, rendered headless with MuJoCo.
         fps: video frame rate.
         contact_model: DANO contact model of every pair: centroid (the paper's) or per_sample.
+        max_steps: refuse a run of more steps than this (duration / dt) up front.
         quiet: no progress bars.
     """
+    import math
     import time as _time
+    from contextlib import ExitStack
+
+    from ._files import atomic_path
 
     import numpy as np
 
@@ -238,6 +244,11 @@ def simulate(
     from .sim.scenes import BUILTIN_SCENES, load_scene, mjcf_setup
 
     _check_contact_model(contact_model)
+    for opt, v in (("duration", duration), ("dt", dt), ("fps", fps if video is not None else None)):
+        if v is not None and not (0 < v < math.inf):
+            raise ValueError(f"--{opt} must be a finite positive number, got {v}")
+    if video is not None and video.suffix.lower() not in (".mp4", ".gif"):
+        raise ValueError(f"--video {video}: must be .mp4 or .gif")
     if scene in BUILTIN_SCENES:
         if object:
             raise ValueError("--object applies to MJCF scenes, not to built-in ones")
@@ -252,6 +263,9 @@ def simulate(
     T = int(round((duration if duration is not None else setup.duration) / setup.scene.dt))
     if T < 1:
         raise ValueError(f"--duration must cover at least one step of {setup.scene.dt:g} s")
+    if T > max_steps:
+        raise ValueError(f"--duration / --dt: {T} steps of {setup.scene.dt:g} s is more than --max-steps {max_steps} "
+                         f"(the trajectory alone would take {T * (setup.scene.nq + setup.scene.nv) * 8 / 1e9:.2g} GB)")
     times = np.arange(T) * setup.scene.dt
     controls = setup.controls(times) if setup.controls else None
     t0 = _time.perf_counter()
@@ -260,15 +274,19 @@ def simulate(
     wall = _time.perf_counter() - t0
     out_ = Console()
     out_.print(_simulate_summary(setup, traj, wall))
-    if out is not None:
-        save_trajectory(traj, out)
-        err.print(f"wrote {out}")
-    if video is not None:
-        from .viz.video import write_video
+    # all outputs or none: both are written to temporary files, published together at the end
+    with ExitStack() as stack:
+        if video is not None:
+            from .viz.video import write_video
 
-        with _progress(not quiet) as progress:
-            write_video(setup.scene, traj, video, fps=fps, progress=progress)
-        err.print(f"wrote {video}")
+            tmp_video = stack.enter_context(atomic_path(video))
+            with _progress(not quiet) as progress:
+                write_video(setup.scene, traj, tmp_video, fps=fps, progress=progress)
+        if out is not None:
+            save_trajectory(traj, stack.enter_context(atomic_path(out)))
+    for path in (out, video):
+        if path is not None:
+            err.print(f"wrote {path}")
     return setup, traj, wall
 
 
@@ -572,6 +590,10 @@ COMMANDS = {"build": build, "inspect": inspect, "simulate": simulate, "sysid": s
             "compare-mesh": compare_mesh, "demo": demo, "bench": bench}
 
 
+# options that take several values after one flag; tyro would keep only the last repetition
+_MULTI_VALUE_FLAGS = ("--object", "--param", "--levels", "--collision")
+
+
 def _configure_process() -> None:
     """The command line's own process: one XLA CPU thread unless NPROC is set (dano's
     steps are many small operations; on the 2-core machine XLA's thread pool made single
@@ -597,6 +619,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"dano {__version__}")
         return 0
     _configure_process()
+    for flag in _MULTI_VALUE_FLAGS:
+        if sum(a == flag or a.startswith(flag + "=") for a in args) > 1:
+            err.print(f"[bold red]error:[/] {flag} is given more than once; give all its values after one {flag} "
+                      f"(e.g. {flag} A B)", highlight=False, soft_wrap=True)
+            return 2
     try:
         tyro.extras.subcommand_cli_from_dict(COMMANDS, args=args, prog="dano",
                                              description="Dynamics-augmented neural objects (DANOs).")
