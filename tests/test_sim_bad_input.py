@@ -141,3 +141,33 @@ def test_a_video_error_leaves_no_trajectory(tmp_path, capsys, monkeypatch):
                        "--video", tmp_path / "v.mp4", "--quiet")
     assert code == 1 and "no OpenGL" in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_process_routes_mujoco_warnings_and_unwinds_on_sigterm(tmp_path, monkeypatch, capsys):
+    import os
+    import signal
+
+    import mujoco
+
+    from dano._files import atomic_path
+    from dano.cli import _configure_process
+
+    monkeypatch.chdir(tmp_path)
+    previous = signal.getsignal(signal.SIGTERM)
+    try:
+        _configure_process()
+        m = mujoco.MjModel.from_xml_string("<mujoco><worldbody><body><freejoint/><geom size='.1'/></body>"
+                                           "</worldbody></mujoco>")
+        d = mujoco.MjData(m)
+        d.qpos[0] = np.nan
+        mujoco.mj_step(m, d)
+        assert "warning: MuJoCo: Nan, Inf or huge value in QPOS" in " ".join(capsys.readouterr().err.split())
+        with pytest.raises(SystemExit) as info:
+            with atomic_path(tmp_path / "out.npz") as tmp:
+                tmp.write_bytes(b"partial")
+                os.kill(os.getpid(), signal.SIGTERM)
+        assert info.value.code == 128 + signal.SIGTERM
+        assert list(tmp_path.iterdir()) == []  # neither MUJOCO_LOG.TXT nor a temporary file
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        mujoco.set_mju_user_warning(None)

@@ -4,6 +4,7 @@ prints and saves. Every verb's options are its function's arguments (tyro)."""
 from __future__ import annotations
 
 import json
+import signal
 import sys
 from contextlib import contextmanager
 from pathlib import Path
@@ -590,6 +591,10 @@ COMMANDS = {"build": build, "inspect": inspect, "simulate": simulate, "sysid": s
             "compare-mesh": compare_mesh, "demo": demo, "bench": bench}
 
 
+def _terminate(signum, frame):
+    raise SystemExit(128 + signum)
+
+
 # options that take several values after one flag; tyro would keep only the last repetition
 _MULTI_VALUE_FLAGS = ("--object", "--param", "--levels", "--collision")
 
@@ -598,7 +603,9 @@ def _configure_process() -> None:
     """The command line's own process: one XLA CPU thread unless NPROC is set (dano's
     steps are many small operations; on the 2-core machine XLA's thread pool made single
     and batched rollouts about 2x slower), JAX's 64-bit mode and the persistent compilation
-    cache. A library user chooses these explicitly (see docs/simulation.md)."""
+    cache. A library user chooses these explicitly (see docs/simulation.md). Also: MuJoCo's
+    warnings go to stderr (not to MUJOCO_LOG.TXT in the working folder) and SIGTERM unwinds
+    like an exception, so that temporary files are removed and no partial output is left."""
     import os
 
     from . import _jax_setup
@@ -607,6 +614,14 @@ def _configure_process() -> None:
         os.environ["NPROC"] = "1"
     _jax_setup.enable_float64()
     _jax_setup.enable_compilation_cache()
+    import mujoco
+    from rich.markup import escape
+
+    # MuJoCo's own warnings become dano's messages instead of MUJOCO_LOG.TXT in the working folder
+    mujoco.set_mju_user_warning(lambda msg: err.print(f"[yellow]warning:[/] MuJoCo: {escape(msg)}", highlight=False,
+                                                      soft_wrap=True))
+    # SIGTERM unwinds like Ctrl-C: temporary files are removed, no partial output is left
+    signal.signal(signal.SIGTERM, _terminate)
 
 
 def main(argv: list[str] | None = None) -> int:
