@@ -15,19 +15,32 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     from it still work); on success it is renamed to ``path`` with the usual permissions,
     on any error it is removed and ``path`` is left untouched."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix or ".tmp", dir=path.parent)
-    os.close(fd)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix or ".tmp", dir=path.parent)
+        os.close(fd)
+    except OSError as exc:
+        raise _about_output(exc, path) from exc
     try:
         yield Path(tmp)
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and exc.filename in (tmp, str(tmp)):
+            raise _about_output(exc, path) from exc
         raise
+
+
+def _about_output(exc: OSError, path: Path) -> OSError:
+    """The same error, naming the output the user asked for rather than a temporary file."""
+    other = Path(str(exc.filename)) if exc.filename else None
+    temporary = other is not None and other.parent == path.parent and other.name.startswith(f".{path.stem}.")
+    where = f": {other}" if other is not None and other != path and not temporary else ""
+    return OSError(exc.errno, f"cannot write ({exc.strerror or exc}{where})", str(path))
 
 
 def atomic_write(path: str | Path, writer: Callable[[Any], None]) -> None:

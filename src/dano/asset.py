@@ -426,7 +426,7 @@ class DanoAsset(_PrincipalInertia):
     def __post_init__(self):
         faces = np.asarray(self.mesh_faces)
         if faces.size and not np.issubdtype(faces.dtype, np.integer):
-            if not (np.all(np.isfinite(faces)) and np.all(faces == np.round(faces))):
+            if not (np.all(np.isfinite(faces)) and np.all(faces == np.round(faces)) and np.all(np.abs(faces) < 2**62)):
                 raise DanoError("mesh_faces must be integer vertex indices")
         for name in ("center_of_mass", "inertia", "points", "normals", "densities", "weights", "band", "mesh_vertices"):
             object.__setattr__(self, name, _frozen(getattr(self, name)))
@@ -513,6 +513,10 @@ def validate(asset: DanoAsset) -> None:
     normals of unit length (1e-6); inertia symmetric positive definite with the triangle
     inequalities; mesh faces integer indices into the vertices.
     """
+    if not isinstance(asset.name, str):
+        raise DanoError(f"name must be a string, got {asset.name!r}")
+    if not isinstance(asset.metadata, dict):
+        raise DanoError(f"metadata must be a dict, got {type(asset.metadata).__name__}")
     n = asset.points.shape[0] if asset.points.ndim == 2 else -1
     shapes = {
         "center_of_mass": (asset.center_of_mass, (3,)),

@@ -4,6 +4,7 @@ prints and saves. Every verb's options are its function's arguments (tyro)."""
 from __future__ import annotations
 
 import json
+import math
 import signal
 import sys
 from contextlib import contextmanager
@@ -19,6 +20,57 @@ from ._files import atomic_write
 
 err = Console(stderr=True)
 out = Console()
+
+
+def _names(param: str):
+    """Decorator of a verb: an error whose message does not name the verb's file or scene
+    (argument ``param``) gets it as a prefix, ``<file>: <problem>``."""
+    import functools
+    import inspect as _inspect
+
+    def decorate(fn):
+        @functools.wraps(fn)
+        def verb(*args, **kwargs):
+            from .errors import DanoError
+
+            name = str(_inspect.signature(fn).bind(*args, **kwargs).arguments[param])
+            try:
+                return fn(*args, **kwargs)
+            except (DanoError, ValueError) as exc:
+                if name in str(exc):
+                    raise
+                raise DanoError(f"{name}: {exc}") from exc
+
+        return verb
+
+    return decorate
+
+
+def _json_safe(obj, where: str = ""):
+    """(copy of ``obj`` with non-finite floats as None, the keys where that happened):
+    NaN is not JSON, and a NaN standard error must not pass silently."""
+    found: list[str] = []
+
+    def clean(x, key):
+        if isinstance(x, float) and not math.isfinite(x):
+            found.append(key)
+            return None
+        if isinstance(x, dict):
+            return {k: clean(v, f"{key}.{k}" if key else str(k)) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v, f"{key}[{i}]") for i, v in enumerate(x)]
+        return x
+
+    return clean(obj, where), found
+
+
+def _error_line(exc: BaseException) -> str:
+    """One line naming the file: OSError as '<file>: <reason>', whitespace runs folded."""
+    if isinstance(exc, OSError) and exc.filename and exc.strerror:
+        text = f"{exc.filename}: {exc.strerror}"
+    else:
+        text = str(exc) or type(exc).__name__
+    return " ".join(text.split())
 
 
 @contextmanager
@@ -39,6 +91,11 @@ def _progress(enabled: bool = True):
         yield update
 
 
+MAX_RESOLUTION = 512  # 1.3e8 nodes: about 5 GB while the signed-distance grid is built
+MAX_SAMPLES = 10_000_000
+
+
+@_names("source")
 def build(
     source: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="SOURCE")],
     out: Annotated[Path, tyro.conf.arg(aliases=("-o",))],
@@ -78,6 +135,12 @@ def build(
     kind = source_kind(source)
     if not source.is_file():
         raise FileNotFoundError(f"{source}: no such file")
+    if not 8 <= resolution <= MAX_RESOLUTION:
+        raise ValueError(f"--resolution {resolution}: must be 8 to {MAX_RESOLUTION} (the signed-distance grid has "
+                         f"about resolution^3 nodes at ~40 bytes each while it is built: "
+                         f"{40 * float(resolution) ** 3 / 1e9:.3g} GB)")
+    if not 1 <= samples <= MAX_SAMPLES:
+        raise ValueError(f"--samples {samples}: must be 1 to {MAX_SAMPLES}")
     with _progress(not quiet) as progress:
         if kind == "jld2":
             if band is not None or edge_width is not None:
@@ -117,22 +180,21 @@ def _summary_table(asset) -> Table:
     return t
 
 
+@_names("file")
 def inspect(
-    file: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="FILE.dano")],
+    file: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="FILE.dano")],
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False,
     plot: Path | None = None,
 ) -> None:
     """Show a .dano asset: mass, centre of mass, inertia, principal moments, N, band, valid normals.
 
     Args:
-        file: the .dano file.
+        file: the .dano file (or builtin:NAME).
         json_: print one JSON object (keys include mass, center_of_mass, inertia, num_samples, band,
             normals_valid_fraction) instead of a table.
         plot: also draw the samples, normals and centre of mass to this image (e.g. samples.png).
     """
-    from .asset import load
-
-    asset = load(file)
+    asset = _load_asset(file)
     if json_:
         print(json.dumps(asset.summary()))
     else:
@@ -202,6 +264,7 @@ def _simulate_summary(setup, traj, wall: float) -> Table:
     return t
 
 
+@_names("scene")
 def simulate(
     scene: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="SCENE")],
     duration: float | None = None,
@@ -291,6 +354,7 @@ def simulate(
     return setup, traj, wall
 
 
+@_names("config")
 def sysid(
     config: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="CONFIG")],
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False,
@@ -313,13 +377,23 @@ def sysid(
     from .sysid.config import run
     from .viz import plot_sysid
 
+    from contextlib import ExitStack
+
+    from ._files import atomic_path
+
     problem, result, report = run(config, jacobian=jacobian, noise=not no_noise)
+    report["report"], nonfinite = _json_safe(report["report"])
+    if nonfinite:
+        note = (f"not finite (written as null): {', '.join(nonfinite)}; the data do not determine these (check that "
+                "positions are in metres and that the motion excites the parameters)")
+        report["report"]["warnings"] = [note]
+        err.print(f"[yellow]warning:[/] {config}: {note}", highlight=False, soft_wrap=True)
     out_dir = out_dir or Path(f"sysid-{Path(config).stem}")
-    text = json.dumps(report["report"], indent=2).encode()
-    atomic_write(out_dir / "result.json", lambda f: f.write(text))
-    cfg = json.dumps(report["config"], indent=2, default=str).encode()
-    atomic_write(out_dir / "config.json", lambda f: f.write(cfg))
-    plot_sysid(problem, result, out_dir / "fit.png")
+    with ExitStack() as stack:  # all three files or none
+        paths = {n: stack.enter_context(atomic_path(out_dir / n)) for n in ("result.json", "config.json", "fit.png")}
+        paths["result.json"].write_text(json.dumps(report["report"], indent=2))
+        paths["config.json"].write_text(json.dumps(report["config"], indent=2, default=str))
+        plot_sysid(problem, result, paths["fit.png"])
     if json_:
         print(json.dumps(report["report"]))
         return
@@ -424,6 +498,7 @@ def _level_meshes(paths):
     return levels
 
 
+@_names("file")
 def export(
     file: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="FILE.dano")],
     out: Annotated[Path, tyro.conf.arg(aliases=("-o",))],
@@ -491,6 +566,7 @@ def _compare_table(report) -> Table:
     return t
 
 
+@_names("source")
 def compare_mesh(
     source: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="SOURCE")],
     levels: tuple[float, ...] = (),
@@ -629,7 +705,9 @@ def main(argv: list[str] | None = None) -> int:
     from . import __version__
     from .errors import DanoError
 
-    args = sys.argv[1:] if argv is None else argv
+    args = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in args
+    args = [a for a in args if a != "--debug"]
     if args and args[0] in ("--version", "-V"):
         print(f"dano {__version__}")
         return 0
@@ -644,10 +722,18 @@ def main(argv: list[str] | None = None) -> int:
                                              description="Dynamics-augmented neural objects (DANOs).")
     except SystemExit as exc:  # tyro's own parse errors and --help
         return int(exc.code or 0)
-    except (DanoError, ValueError, OSError) as exc:
+    except KeyboardInterrupt:
+        err.print("[bold red]interrupted[/]", highlight=False)
+        return 130
+    except Exception as exc:
+        if debug:
+            raise
         from rich.markup import escape
 
-        err.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
+        known = isinstance(exc, (DanoError, ValueError, OSError))
+        text = _error_line(exc) if known else (f"internal error ({type(exc).__name__}: {_error_line(exc)}); "
+                                               "please report it, with the output of --debug")
+        err.print(f"[bold red]error:[/] {escape(text)}", highlight=False, soft_wrap=True)
         return 1
     return 0
 

@@ -84,6 +84,8 @@ def _check_physical(path: Path, mass: float, S: np.ndarray, com: np.ndarray, pts
                               f"{moments.tolist()})")
     if np.any(phi < 0):
         raise FileFormatError(f"{path}: {int(np.sum(phi < 0))} densities are negative")
+    if not phi.sum() > 0:
+        raise FileFormatError(f"{path}: all densities are zero (the weights w_i = φ_i/Σφ·m are undefined)")
 
 
 def load_paper_collider(

@@ -12,6 +12,22 @@ from ..errors import DanoError, FileFormatError
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
 
 
+def _check_binary_stl(path: Path) -> None:
+    """A binary STL states its triangle count: refuse a truncated or padded file by size
+    (trimesh would otherwise retry it as ASCII and report an unrelated error)."""
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        head = f.read(84)
+    if head[:5].lower() == b"solid":
+        return  # ASCII STL (or a binary one whose header starts with "solid": trimesh tells them apart)
+    if size < 84:
+        raise FileFormatError(f"{path}: truncated binary STL ({size} bytes, shorter than the 84-byte header)")
+    n = int.from_bytes(head[80:84], "little")
+    if size != 84 + 50 * n:
+        raise FileFormatError(f"{path}: truncated or corrupt binary STL: the header states {n} triangles "
+                              f"({84 + 50 * n} bytes), the file has {size} bytes")
+
+
 def load_mesh(path: str | Path, require_watertight: bool = True) -> trimesh.Trimesh:
     """Load a triangle mesh, merging vertices split at UV/normal seams.
 
@@ -24,6 +40,8 @@ def load_mesh(path: str | Path, require_watertight: bool = True) -> trimesh.Trim
     path = Path(path)
     if not path.is_file():
         raise FileFormatError(f"{path}: no such file")
+    if path.suffix.lower() == ".stl":
+        _check_binary_stl(path)
     try:
         loaded = trimesh.load(path, process=False, force="mesh")
     except Exception as exc:
@@ -47,4 +65,6 @@ def load_mesh(path: str | Path, require_watertight: bool = True) -> trimesh.Trim
             raise DanoError(f"{path}: mesh faces are not consistently wound")
         if mesh.volume < 0:
             mesh.invert()
+        if not mesh.volume > 1e-9 * float(np.max(mesh.extents)) ** 3:
+            raise DanoError(f"{path}: the closed mesh encloses no volume ({mesh.volume:.3g}); a solid needs one")
     return mesh

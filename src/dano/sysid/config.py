@@ -42,7 +42,11 @@ so that it can be saved next to the results.
 
 from __future__ import annotations
 
+import dataclasses
 import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +58,26 @@ from .solve import identify
 EXAMPLES = ("soap", "bunny-pushes")
 
 
+MAX_OBSERVED_SPEED = 100.0  # m/s: faster observed motion means the positions are not in metres
+
+
+def _check_units(path: Path, obs: Observation) -> Observation:
+    t = np.asarray(obs.time, dtype=np.float64)
+    for name, poses in obs.poses.items():
+        p = np.asarray(poses, dtype=np.float64)[:, :3]
+        if len(t) > 1 and np.all(np.diff(t) > 0):
+            speed = float(np.max(np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(t)))
+            if speed > MAX_OBSERVED_SPEED:
+                raise DanoError(f"{path}: {name} moves at up to {speed:.3g} m/s between frames; positions must be in "
+                                "metres and times in seconds")
+    return obs
+
+
 def _read_trajectory(path: Path, obj: str | None, scene) -> Observation:
+    return _check_units(path, _read_observation(path, obj, scene))
+
+
+def _read_observation(path: Path, obj: str | None, scene) -> Observation:
     if not path.is_file():
         raise FileFormatError(f"{path}: no such trajectory file")
     if path.suffix.lower() == ".csv":
@@ -81,53 +104,200 @@ def _read_trajectory(path: Path, obj: str | None, scene) -> Observation:
     return Observation(time=traj.time, poses=poses, name=path.name)
 
 
+# ------------------------------------------------------------------ typed schema
+# Each table of the TOML file is read into a frozen dataclass; unknown keys, missing keys
+# and wrong types are refused naming the key ("[options].substeps: ...").
+
+
+@dataclass(frozen=True)
+class ObjectConfig:
+    name: str
+    asset: str
+    pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    dt: float
+    object: tuple[ObjectConfig, ...]
+    mjcf: str | None = None
+    contact_model: str = "centroid"
+
+
+@dataclass(frozen=True)
+class TrajectoryConfig:
+    file: str
+    object: str | None = None
+
+
+@dataclass(frozen=True)
+class ParameterConfig:
+    name: str
+    initial: float
+    lower: float = 0.0
+    upper: float = float("inf")
+    target: str | None = None
+
+
+@dataclass(frozen=True)
+class OptionsConfig:
+    substeps: int = 1
+    fit_velocity: str = ""
+    window: int = 0
+    horizons: tuple[float, ...] = ()
+    position_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    rotation_weight: float = 1.0
+    jacobian: str = "ad"
+
+
+@dataclass(frozen=True)
+class SysIdConfig:
+    scene: SceneConfig
+    trajectory: tuple[TrajectoryConfig, ...]
+    parameter: tuple[ParameterConfig, ...]
+    contact: dict = field(default_factory=dict)
+    options: OptionsConfig = OptionsConfig()
+
+
+def _typed(value, tp, where: str):
+    """``value`` read as type ``tp`` (float accepts integers; never booleans)."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        if value is None:
+            return None
+        return _typed(value, next(a for a in args if a is not type(None)), where)
+    if origin is tuple:
+        if not isinstance(value, list):
+            raise DanoError(f"{where}: expected an array, got {_kind(value)}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_typed(v, args[0], f"{where}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise DanoError(f"{where}: expected {len(args)} values, got {len(value)}")
+        return tuple(_typed(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args)))
+    if dataclasses.is_dataclass(tp):
+        return _table(value, tp, where)
+    if tp is dict:
+        if not isinstance(value, dict):
+            raise DanoError(f"{where}: expected a table, got {_kind(value)}")
+        return {k: _typed(v, float, f"{where}.{k}") for k, v in value.items()}
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise DanoError(f"{where}: expected a number, got {_kind(value)}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise DanoError(f"{where}: expected an integer, got {_kind(value)}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise DanoError(f"{where}: expected a string, got {_kind(value)}")
+        return value
+    raise TypeError(f"unsupported schema type {tp}")  # a bug in the schema, not in the file
+
+
+def _kind(value) -> str:
+    return {dict: "a table", list: "an array", str: f"the string {value!r}", bool: f"{value!r}".lower()}.get(
+        type(value), repr(value))
+
+
+def _table(value, cls, where: str):
+    if not isinstance(value, dict):
+        raise DanoError(f"{where}: expected a table, got {_kind(value)}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(value) - names)
+    if unknown:
+        raise DanoError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(names))})")
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        key = f"{where}.{f.name}" if where else f"[{f.name}]"
+        if f.name in value:
+            kwargs[f.name] = _typed(value[f.name], hints[f.name], key)
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise DanoError(f"{key}: missing")
+    return cls(**kwargs)
+
+
+def _check_values(c: SysIdConfig) -> None:
+    if not (0 < c.scene.dt < np.inf):
+        raise DanoError(f"[scene].dt: must be a finite positive step [s], got {c.scene.dt}")
+    if not c.scene.object:
+        raise DanoError("[[scene.object]]: at least one object is needed")
+    if not c.trajectory:
+        raise DanoError("[[trajectory]]: at least one trajectory is needed")
+    if not c.parameter:
+        raise DanoError("[[parameter]]: at least one parameter to identify is needed")
+    for i, p in enumerate(c.parameter):
+        where = f"[[parameter]] {i + 1} ({p.name})"
+        if not (np.isfinite(p.initial) and np.isfinite(p.lower)) or np.isnan(p.upper):
+            raise DanoError(f"{where}: initial and lower must be finite, upper finite or inf")
+        if p.lower < 0:
+            raise DanoError(f"{where}: lower bound {p.lower} is negative; contact parameters and alpha are >= 0")
+        if not p.lower <= p.initial <= p.upper:
+            raise DanoError(f"{where}: initial {p.initial} must lie within [lower, upper] = [{p.lower}, {p.upper}]")
+    o = c.options
+    if o.substeps < 1:
+        raise DanoError(f"[options].substeps: must be at least 1, got {o.substeps}")
+    if o.window < 0 or o.window == 1:
+        raise DanoError(f"[options].window: must be 0 (no windows) or at least 2 frame intervals, got {o.window}")
+    if any(not 0 < h <= 1 for h in o.horizons):
+        raise DanoError(f"[options].horizons: fractions of the trajectory in (0, 1], got {list(o.horizons)}")
+    if o.jacobian not in ("ad", "fd"):
+        raise DanoError(f"[options].jacobian: 'ad' or 'fd', got {o.jacobian!r}")
+    if not all(0 <= w < np.inf for w in (*o.position_weights, o.rotation_weight)):
+        raise DanoError("[options]: weights must be finite and non-negative")
+
+
+def read_config(path: str | Path) -> SysIdConfig:
+    """Read and check a sysid TOML file. Raises FileFormatError naming the file and the key."""
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise FileFormatError(f"{path}: no such configuration file") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise FileFormatError(f"{path}: not valid TOML ({exc})") from exc
+    try:
+        cfg = _table(raw, SysIdConfig, "")
+        _check_values(cfg)
+    except DanoError as exc:
+        raise FileFormatError(f"{path}: {exc}") from exc
+    return cfg
+
+
 def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
     """Build the problem described by a TOML file; returns (problem, solver options,
-    resolved configuration). Raises FileFormatError / DanoError naming the file."""
+    resolved configuration: every key with its value or default). Raises FileFormatError /
+    DanoError naming the file."""
     from ..asset import load
     from ..data import load_builtin
     from ..sim.scene import DanoObject, compose
 
     path = Path(path)
-    try:
-        cfg = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise FileFormatError(f"{path}: no such configuration file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise FileFormatError(f"{path}: not valid TOML ({exc})") from exc
+    cfg = read_config(path)
     base = path.parent
+    sc, opt = cfg.scene, cfg.options
     try:
-        sc = cfg["scene"]
         objects = []
-        for o in sc["object"]:
-            src = o["asset"]
-            asset = load_builtin(src.split(":", 1)[1]) if src.startswith("builtin:") else load(base / src)
-            objects.append(DanoObject(o["name"], asset, tuple(o.get("pos", (0, 0, 0))),
-                                      tuple(o.get("quat", (1, 0, 0, 0)))))
-        mjcf = base / sc["mjcf"] if "mjcf" in sc else None
-        scene = compose(objects, mjcf, dt=float(sc["dt"]), ground=None if mjcf else True, name=path.stem,
-                        contact_model=sc.get("contact_model", "centroid"))
-        contact = cfg.get("contact", {})
-        if not isinstance(contact, dict):
-            raise DanoError("[contact] must be a table of contact parameter = value")
-        try:
-            base_params = scene.default_params(**{k: float(v) for k, v in contact.items()})
-        except (TypeError, ValueError) as exc:
-            raise DanoError(f"[contact]: values must be numbers ({exc})") from None
-        obs = [_read_trajectory(base / t["file"], t.get("object"), scene) for t in cfg["trajectory"]]
-        params = [FitParameter(p["name"], float(p["initial"]), float(p.get("lower", 0.0)),
-                               float(p.get("upper", np.inf)), p.get("target")) for p in cfg.get("parameter", [])]
-        opt = cfg.get("options", {})
-        weights = Weights(tuple(opt.get("position_weights", (1.0, 1.0, 1.0))), float(opt.get("rotation_weight", 1.0)))
-        problem = SysIdProblem(scene, obs, params, weights, base_params=base_params,
-                               substeps=int(opt.get("substeps", 1)),
-                               fit_velocity=opt.get("fit_velocity", ""), window=opt.get("window") or None)
-    except KeyError as exc:
-        raise FileFormatError(f"{path}: missing entry {exc}") from exc
-    except DanoError as exc:
+        for o in sc.object:
+            asset = load_builtin(o.asset.split(":", 1)[1]) if o.asset.startswith("builtin:") else load(base / o.asset)
+            objects.append(DanoObject(o.name, asset, o.pos, o.quat))
+        mjcf = base / sc.mjcf if sc.mjcf is not None else None
+        scene = compose(objects, mjcf, dt=sc.dt, ground=None if mjcf else True, name=path.stem,
+                        contact_model=sc.contact_model)
+        base_params = scene.default_params(**cfg.contact)
+        obs = [_read_trajectory(base / t.file, t.object, scene) for t in cfg.trajectory]
+        params = [FitParameter(p.name, p.initial, p.lower, p.upper, p.target) for p in cfg.parameter]
+        weights = Weights(opt.position_weights, opt.rotation_weight)
+        problem = SysIdProblem(scene, obs, params, weights, base_params=base_params, substeps=opt.substeps,
+                               fit_velocity=opt.fit_velocity, window=opt.window or None)
+    except TypeError as exc:  # e.g. an unknown [contact] parameter name
         raise DanoError(f"{path}: {exc}") from exc
-    solver = {"jacobian": opt.get("jacobian", "ad"), "horizons": tuple(opt.get("horizons", ()))}
-    return problem, solver, {"config_file": str(path), **cfg}
+    except DanoError as exc:
+        raise DanoError(exc.args[0] if str(path) in str(exc) else f"{path}: {exc}") from exc
+    solver = {"jacobian": opt.jacobian, "horizons": opt.horizons}
+    return problem, solver, {"config_file": str(path), **dataclasses.asdict(cfg)}
 
 
 def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) -> tuple[SysIdProblem, object, dict]:
