@@ -231,3 +231,56 @@ rotation_weight = 0.0
     cfg.write_text("[scene\n")
     assert main(["sysid", str(cfg)]) == 1
     assert "not valid TOML" in " ".join(capsys.readouterr().err.split())
+
+
+_GOOD_TOML = """
+[scene]
+dt = 0.01
+[[scene.object]]
+name = "box"
+asset = "builtin:bunny"
+[[trajectory]]
+file = "slide.csv"
+object = "box"
+[[parameter]]
+name = "sliding_friction"
+initial = 0.2
+lower = 0.0
+upper = 2.0
+[options]
+substeps = 1
+"""
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ("[[scene.object]]", "[scene.object.x]", "[scene].object: expected an array, got a table"),
+    ("substeps = 1", "substeps = 1\nfit_velocity = 7", "[options].fit_velocity: expected a string, got 7"),
+    ("substeps = 1", 'substeps = 1\nhorizons = "0.4"', "[options].horizons: expected an array"),
+    ('file = "slide.csv"', "file = 42", "[trajectory][0].file: expected a string, got 42"),
+    ("substeps = 1", "substeps = 0", "[options].substeps: must be at least 1"),
+    ("substeps = 1", "substep = 2", "[options]: unknown key 'substep'"),
+    ("lower = 0.0", "lower = -0.5", "lower bound -0.5 is negative"),
+    ("initial = 0.2", "initial = 3.0", "initial 3.0 must lie within"),
+    ("[[parameter]]\nname = \"sliding_friction\"\ninitial = 0.2\nlower = 0.0\nupper = 2.0\n", "",
+     "[[parameter]]: at least one parameter"),
+    ("dt = 0.01", "dt = true", "[scene].dt: expected a number, got true"),
+])
+def test_sysid_configuration_errors_name_the_key(tmp_path, capsys, old, new, message):
+    assert old in _GOOD_TOML
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(_GOOD_TOML.replace(old, new))
+    code = main(["sysid", str(cfg), "--out-dir", str(tmp_path / "out")])
+    err = " ".join(capsys.readouterr().err.split())
+    assert code == 1 and f"{cfg}: " in err and message in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_trajectory_in_millimetres_is_refused(tmp_path, capsys):
+    t = np.arange(10) * 0.01
+    rows = np.column_stack([t, 300.0 * t, 0 * t, 30 + 0 * t, 1 + 0 * t, 0 * t, 0 * t, 0 * t])  # 0.3 m/s in mm
+    np.savetxt(tmp_path / "slide.csv", rows, delimiter=",", header="t,x,y,z,qw,qx,qy,qz", comments="")
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(_GOOD_TOML)
+    code = main(["sysid", str(cfg), "--out-dir", str(tmp_path / "out")])
+    err = " ".join(capsys.readouterr().err.split())
+    assert code == 1 and "positions must be in metres" in err and "slide.csv" in err

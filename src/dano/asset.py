@@ -513,6 +513,11 @@ def validate(asset: DanoAsset) -> None:
     normals of unit length (1e-6); inertia symmetric positive definite with the triangle
     inequalities; mesh faces integer indices into the vertices.
     """
+    with np.errstate(all="ignore"):  # absurd values are reported by the checks, not by numpy warnings
+        _validate(asset)
+
+
+def _validate(asset: DanoAsset) -> None:
     if not isinstance(asset.name, str):
         raise DanoError(f"name must be a string, got {asset.name!r}")
     if not isinstance(asset.metadata, dict):

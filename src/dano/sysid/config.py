@@ -36,8 +36,10 @@ interactive-perception experiment). A TOML file describes a user problem::
     rotation_weight = 1.0
     jacobian = "ad"
 
-Relative paths are resolved against the file's folder. Everything resolved is returned
-so that it can be saved next to the results.
+Relative paths are resolved against the file's folder. The file is read into typed
+dataclasses (:func:`read_config`): unknown keys, wrong types and out-of-range values are
+refused naming the key; at least one ``[[parameter]]`` is required. Everything resolved
+(defaults included) is returned so that it can be saved next to the results.
 """
 
 from __future__ import annotations
@@ -154,8 +156,8 @@ class OptionsConfig:
 @dataclass(frozen=True)
 class SysIdConfig:
     scene: SceneConfig
-    trajectory: tuple[TrajectoryConfig, ...]
-    parameter: tuple[ParameterConfig, ...]
+    trajectory: tuple[TrajectoryConfig, ...] = ()
+    parameter: tuple[ParameterConfig, ...] = ()
     contact: dict = field(default_factory=dict)
     options: OptionsConfig = OptionsConfig()
 
