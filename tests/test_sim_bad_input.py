@@ -171,3 +171,32 @@ def test_cli_process_routes_mujoco_warnings_and_unwinds_on_sigterm(tmp_path, mon
     finally:
         signal.signal(signal.SIGTERM, previous)
         mujoco.set_mju_user_warning(None)
+
+
+def test_simulate_saves_its_configuration_and_reruns_it(tmp_path, capsys):
+    out = tmp_path / "t.npz"
+    code, _, _ = run(capsys, "simulate", "bunny-slide", "--duration", "0.2", "--param", "sliding_friction=0.4",
+                     "--out", out, "--quiet")
+    assert code == 0
+    saved = tmp_path / "t.config.json"
+    assert json.loads(saved.read_text())["param"] == ["sliding_friction=0.4"]
+    code, _, _ = run(capsys, "simulate", "--config", saved, "--out", tmp_path / "again.npz", "--quiet")
+    assert code == 0
+    np.testing.assert_array_equal(np.load(out)["qpos"], np.load(tmp_path / "again.npz")["qpos"])
+    bad = tmp_path / "bad.toml"
+    for text, message in [('scene = "bunny-slide"\nduraton = 1.0', "unknown key 'duraton'"),
+                          ('scene = "bunny-slide"\nduration = "1"', "[duration]: expected a number"),
+                          ('duration = 1.0', "[scene]: missing")]:
+        bad.write_text(text)
+        code, _, err = run(capsys, "simulate", "--config", bad, "--out", tmp_path / "x.npz")
+        assert code == 1 and f"{bad}: " in err and message in err
+        assert not (tmp_path / "x.npz").exists()
+
+
+def test_debug_shows_the_traceback(tmp_path, capsys):
+    from dano.errors import FileFormatError
+
+    code, _, err = run(capsys, "inspect", tmp_path / "missing.dano")
+    assert code == 1 and err == f"error: {tmp_path / 'missing.dano'}: no such file"  # one line, names the file
+    with pytest.raises(FileFormatError):
+        main(["inspect", str(tmp_path / "missing.dano"), "--debug"])

@@ -217,7 +217,15 @@ rotation_weight = 0.0
     report = json.loads(out)
     assert abs(report["sliding_friction"] / 0.45 - 1) < 0.01
     assert {p.name for p in (tmp_path / "out").iterdir()} == {"result.json", "config.json", "fit.png"}
-    assert json.loads((tmp_path / "out" / "config.json").read_text())["options"]["substeps"] == 4
+    saved = tmp_path / "out" / "config.json"
+    assert json.loads(saved.read_text())["options"]["substeps"] == 4
+    # the saved configuration runs the same problem again, from another folder
+    moved = tmp_path / "elsewhere" / "config.json"
+    moved.parent.mkdir()
+    saved.rename(moved)
+    assert main(["sysid", str(moved), "--json", "--out-dir", str(tmp_path / "again")]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["sliding_friction"] == pytest.approx(report["sliding_friction"], rel=1e-9)
 
     bad = tmp_path / "bad.csv"
     rows = np.column_stack([t, poses])

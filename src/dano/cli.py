@@ -7,7 +7,9 @@ import json
 import math
 import signal
 import sys
+import dataclasses
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -33,11 +35,11 @@ def _names(param: str):
         def verb(*args, **kwargs):
             from .errors import DanoError
 
-            name = str(_inspect.signature(fn).bind(*args, **kwargs).arguments[param])
+            name = str(_inspect.signature(fn).bind(*args, **kwargs).arguments.get(param))
             try:
                 return fn(*args, **kwargs)
             except (DanoError, ValueError) as exc:
-                if name in str(exc):
+                if name == "None" or name in str(exc):
                     raise
                 raise DanoError(f"{name}: {exc}") from exc
 
@@ -264,9 +266,35 @@ def _simulate_summary(setup, traj, wall: float) -> Table:
     return t
 
 
+@dataclass(frozen=True)
+class SimulateConfig:
+    """What ``dano simulate`` ran, saved as ``<output>.config.json`` and read by ``--config``
+    (TOML or JSON; keys as the options; paths relative to the file)."""
+
+    scene: str
+    duration: float | None = None
+    dt: float | None = None
+    param: tuple[str, ...] = ()
+    object: tuple[str, ...] = ()
+    fps: float = 30.0
+    contact_model: str = "centroid"
+    max_steps: int = 2_000_000
+
+
+def _absolute_source(text: str, base: Path) -> str:
+    """'FILE[@x,y,z]' with FILE made absolute against ``base`` (builtin: and scene names kept)."""
+    from .sim.scenes import BUILTIN_SCENES
+
+    src, at, pos = text.partition("@")
+    if src.startswith("builtin:") or src in BUILTIN_SCENES:
+        return text
+    return str((base / src).resolve()) + at + pos
+
+
 @_names("scene")
 def simulate(
-    scene: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="SCENE")],
+    scene: Annotated[str | None, tyro.conf.Positional, tyro.conf.arg(metavar="SCENE")] = None,
+    config: Path | None = None,
     duration: float | None = None,
     dt: float | None = None,
     param: Annotated[tuple[str, ...], tyro.conf.arg(metavar="NAME=VALUE")] = (),
@@ -282,7 +310,9 @@ def simulate(
 
     Args:
         scene: built-in name (bunny-drop, bunny-slide, sphere-hits-bunny, two-bunnies-sphere,
-            panda-push-bunny) or an MJCF path.
+            panda-push-bunny) or an MJCF path (optional with --config).
+        config: a configuration (TOML or JSON, e.g. the <out>.config.json a run saved) whose values are used
+            for every option left at its default; the run then repeats that one.
         duration: simulated time [s] (default: the scene's).
         dt: time step [s] (default: the scene's).
         param: contact parameters name=value for all pairs, or PAIR:name=value for one pair
@@ -304,9 +334,27 @@ def simulate(
 
     import numpy as np
 
+    from ._config import read_table, typed_table
+    from .errors import DanoError
     from .sim import rollout, save_trajectory
     from .sim.scenes import BUILTIN_SCENES, load_scene, mjcf_setup
 
+    if config is not None:
+        try:
+            c = typed_table(read_table(config), SimulateConfig, "")
+        except DanoError as exc:
+            raise DanoError(str(exc) if str(config) in str(exc) else f"{config}: {exc}") from exc
+        base = config.parent
+        scene = scene or _absolute_source(c.scene, base)
+        duration = c.duration if duration is None else duration
+        dt = c.dt if dt is None else dt
+        param = param or c.param
+        object = object or tuple(_absolute_source(o, base) for o in c.object)
+        fps = c.fps if fps == 30.0 else fps
+        contact_model = c.contact_model if contact_model == "centroid" else contact_model
+        max_steps = c.max_steps if max_steps == 2_000_000 else max_steps
+    if scene is None:
+        raise ValueError("give a SCENE (or --config)")
     _check_contact_model(contact_model)
     for opt, v in (("duration", duration), ("dt", dt), ("fps", fps if video is not None else None)):
         if v is not None and not (0 < v < math.inf):
@@ -338,8 +386,16 @@ def simulate(
     wall = _time.perf_counter() - t0
     out_ = Console()
     out_.print(_simulate_summary(setup, traj, wall))
-    # all outputs or none: both are written to temporary files, published together at the end
+    resolved = SimulateConfig(scene=_absolute_source(scene, Path.cwd()), duration=T * setup.scene.dt,
+                              dt=setup.scene.dt, param=tuple(param),
+                              object=tuple(_absolute_source(o, Path.cwd()) for o in object), fps=fps,
+                              contact_model=contact_model, max_steps=max_steps)
+    first = out if out is not None else video
+    saved = first.with_name(f"{first.stem}.config.json") if first is not None else None
+    # all outputs or none: they are written to temporary files, published together at the end
     with ExitStack() as stack:
+        if saved is not None:
+            stack.enter_context(atomic_path(saved)).write_text(json.dumps(dataclasses.asdict(resolved), indent=2))
         if video is not None:
             from .viz.video import write_video
 
@@ -348,7 +404,7 @@ def simulate(
                 write_video(setup.scene, traj, tmp_video, fps=fps, progress=progress)
         if out is not None:
             save_trajectory(traj, stack.enter_context(atomic_path(out)))
-    for path in (out, video):
+    for path in (out, video, saved):
         if path is not None:
             err.print(f"wrote {path}")
     return setup, traj, wall

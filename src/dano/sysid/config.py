@@ -45,14 +45,12 @@ refused naming the key; at least one ``[[parameter]]`` is required. Everything r
 from __future__ import annotations
 
 import dataclasses
-import tomllib
-import types
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .._config import read_table, typed_table
 from ..errors import DanoError, FileFormatError
 from .problem import FitParameter, Observation, SysIdProblem, Weights
 from .solve import identify
@@ -138,7 +136,7 @@ class ParameterConfig:
     name: str
     initial: float
     lower: float = 0.0
-    upper: float = float("inf")
+    upper: float | None = None  # None: no upper bound
     target: str | None = None
 
 
@@ -158,67 +156,8 @@ class SysIdConfig:
     scene: SceneConfig
     trajectory: tuple[TrajectoryConfig, ...] = ()
     parameter: tuple[ParameterConfig, ...] = ()
-    contact: dict = field(default_factory=dict)
+    contact: dict[str, float] = field(default_factory=dict)
     options: OptionsConfig = OptionsConfig()
-
-
-def _typed(value, tp, where: str):
-    """``value`` read as type ``tp`` (float accepts integers; never booleans)."""
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin in (typing.Union, types.UnionType):
-        if value is None:
-            return None
-        return _typed(value, next(a for a in args if a is not type(None)), where)
-    if origin is tuple:
-        if not isinstance(value, list):
-            raise DanoError(f"{where}: expected an array, got {_kind(value)}")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_typed(v, args[0], f"{where}[{i}]") for i, v in enumerate(value))
-        if len(value) != len(args):
-            raise DanoError(f"{where}: expected {len(args)} values, got {len(value)}")
-        return tuple(_typed(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args)))
-    if dataclasses.is_dataclass(tp):
-        return _table(value, tp, where)
-    if tp is dict:
-        if not isinstance(value, dict):
-            raise DanoError(f"{where}: expected a table, got {_kind(value)}")
-        return {k: _typed(v, float, f"{where}.{k}") for k, v in value.items()}
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise DanoError(f"{where}: expected a number, got {_kind(value)}")
-        return float(value)
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise DanoError(f"{where}: expected an integer, got {_kind(value)}")
-        return value
-    if tp is str:
-        if not isinstance(value, str):
-            raise DanoError(f"{where}: expected a string, got {_kind(value)}")
-        return value
-    raise TypeError(f"unsupported schema type {tp}")  # a bug in the schema, not in the file
-
-
-def _kind(value) -> str:
-    return {dict: "a table", list: "an array", str: f"the string {value!r}", bool: f"{value!r}".lower()}.get(
-        type(value), repr(value))
-
-
-def _table(value, cls, where: str):
-    if not isinstance(value, dict):
-        raise DanoError(f"{where}: expected a table, got {_kind(value)}")
-    hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(value) - names)
-    if unknown:
-        raise DanoError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(names))})")
-    kwargs = {}
-    for f in dataclasses.fields(cls):
-        key = f"{where}.{f.name}" if where else f"[{f.name}]"
-        if f.name in value:
-            kwargs[f.name] = _typed(value[f.name], hints[f.name], key)
-        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-            raise DanoError(f"{key}: missing")
-    return cls(**kwargs)
 
 
 def _check_values(c: SysIdConfig) -> None:
@@ -232,11 +171,12 @@ def _check_values(c: SysIdConfig) -> None:
         raise DanoError("[[parameter]]: at least one parameter to identify is needed")
     for i, p in enumerate(c.parameter):
         where = f"[[parameter]] {i + 1} ({p.name})"
-        if not (np.isfinite(p.initial) and np.isfinite(p.lower)) or np.isnan(p.upper):
-            raise DanoError(f"{where}: initial and lower must be finite, upper finite or inf")
+        upper = np.inf if p.upper is None else p.upper
+        if not (np.isfinite(p.initial) and np.isfinite(p.lower)) or np.isnan(upper):
+            raise DanoError(f"{where}: initial and lower must be finite, upper finite, inf or left out")
         if p.lower < 0:
             raise DanoError(f"{where}: lower bound {p.lower} is negative; contact parameters and alpha are >= 0")
-        if not p.lower <= p.initial <= p.upper:
+        if not p.lower <= p.initial <= upper:
             raise DanoError(f"{where}: initial {p.initial} must lie within [lower, upper] = [{p.lower}, {p.upper}]")
     o = c.options
     if o.substeps < 1:
@@ -252,20 +192,29 @@ def _check_values(c: SysIdConfig) -> None:
 
 
 def read_config(path: str | Path) -> SysIdConfig:
-    """Read and check a sysid TOML file. Raises FileFormatError naming the file and the key."""
+    """Read and check a sysid configuration (TOML, or the JSON that ``dano sysid`` saves as
+    ``config.json``). Raises FileFormatError naming the file and the key."""
     path = Path(path)
+    raw = read_table(path)
     try:
-        raw = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise FileFormatError(f"{path}: no such configuration file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise FileFormatError(f"{path}: not valid TOML ({exc})") from exc
-    try:
-        cfg = _table(raw, SysIdConfig, "")
+        cfg = typed_table(raw, SysIdConfig, "")
         _check_values(cfg)
     except DanoError as exc:
         raise FileFormatError(f"{path}: {exc}") from exc
     return cfg
+
+
+def _absolute(cfg: SysIdConfig, base: Path) -> SysIdConfig:
+    """The configuration with file paths made absolute, loadable from any folder."""
+    def where(p: str) -> str:
+        return p if p.startswith("builtin:") else str((base / p).resolve())
+
+    return dataclasses.replace(
+        cfg,
+        scene=dataclasses.replace(cfg.scene, mjcf=None if cfg.scene.mjcf is None else where(cfg.scene.mjcf),
+                                  object=tuple(dataclasses.replace(o, asset=where(o.asset)) for o in cfg.scene.object)),
+        trajectory=tuple(dataclasses.replace(t, file=where(t.file)) for t in cfg.trajectory),
+    )
 
 
 def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
@@ -290,7 +239,8 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
                         contact_model=sc.contact_model)
         base_params = scene.default_params(**cfg.contact)
         obs = [_read_trajectory(base / t.file, t.object, scene) for t in cfg.trajectory]
-        params = [FitParameter(p.name, p.initial, p.lower, p.upper, p.target) for p in cfg.parameter]
+        params = [FitParameter(p.name, p.initial, p.lower, np.inf if p.upper is None else p.upper, p.target)
+                  for p in cfg.parameter]
         weights = Weights(opt.position_weights, opt.rotation_weight)
         problem = SysIdProblem(scene, obs, params, weights, base_params=base_params, substeps=opt.substeps,
                                fit_velocity=opt.fit_velocity, window=opt.window or None)
@@ -299,11 +249,12 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
     except DanoError as exc:
         raise DanoError(exc.args[0] if str(path) in str(exc) else f"{path}: {exc}") from exc
     solver = {"jacobian": opt.jacobian, "horizons": opt.horizons}
-    return problem, solver, {"config_file": str(path), **dataclasses.asdict(cfg)}
+    return problem, solver, dataclasses.asdict(_absolute(cfg, base))
 
 
 def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) -> tuple[SysIdProblem, object, dict]:
-    """Run an identification: ``config`` is a built-in example name or a TOML file.
+    """Run an identification: ``config`` is a built-in example name, a TOML file or the
+    ``config.json`` an earlier run saved (which runs the same problem again).
 
     Returns (problem, result, report); ``report`` is JSON-able: the estimates as top-level
     keys (e.g. ``sliding_friction``), their standard errors (``<name>_std``), wall and
@@ -313,6 +264,14 @@ def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) 
     from .examples import PUSH_GUESS, PUSH_TRUTH, push_problem, soap_problem
 
     extra: dict = {}
+    if Path(config).suffix.lower() == ".json" and Path(config).is_file():
+        saved = read_table(config)
+        if "example" in saved:  # the config.json of a built-in example reruns it
+            if saved["example"] not in EXAMPLES:
+                raise FileFormatError(f"{config}: unknown example {saved['example']!r}; one of {', '.join(EXAMPLES)}")
+            noise_saved = saved.get("noise", {})
+            noise = noise and not (isinstance(noise_saved, dict) and noise_saved.get("position_m") == 0)
+            config = saved["example"]
     if config == "soap":
         problem, solver = soap_problem(substeps=4), {"jacobian": "ad", "horizons": ()}
         resolved = {"example": "soap", "substeps": 4, "length_scale": 1.0,
@@ -329,12 +288,16 @@ def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) 
         extra["truth"] = PUSH_TRUTH
     else:
         path = Path(config)
-        if path.suffix.lower() != ".toml" and not path.exists():
-            raise DanoError(f"unknown identification {config!r}: give a TOML file or one of {', '.join(EXAMPLES)}")
+        if path.suffix.lower() not in (".toml", ".json") and not path.exists():
+            raise DanoError(f"unknown identification {config!r}: give a TOML file, a saved config.json or one of "
+                            f"{', '.join(EXAMPLES)}")
         problem, solver, resolved = problem_from_toml(path)
     if jacobian is not None:
         solver["jacobian"] = jacobian
-    resolved["solver"] = {**solver, "method": "scipy.optimize.least_squares (trf), bounds"}
+    if "options" in resolved:  # a user problem: config.json is loadable again (dano sysid config.json)
+        resolved["options"]["jacobian"] = solver["jacobian"]
+    else:
+        resolved["solver"] = {**solver, "method": "scipy.optimize.least_squares (trf), bounds"}
     result = identify(problem, jacobian=solver["jacobian"], horizons=solver["horizons"])
     report = {}
     for label, v, s in zip(result.labels, result.estimates, result.standard_errors):
