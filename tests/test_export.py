@@ -152,3 +152,12 @@ def test_convex_object_agrees_across_engines(tmp_path, capsys):
     assert abs(report["dano"]["slide_distance"] - 1 / (2 * 0.2 * 9.81)) < 0.02
     assert r["slide_divergence"] < 0.02
     assert (tmp_path / "fig.png").stat().st_size > 10_000
+
+
+def test_write_errors_name_the_output_not_a_temporary_file(tmp_path, capsys):
+    blocker = tmp_path / "afile"
+    blocker.write_text("")
+    out = blocker / "x.xml"
+    assert main(["export", "builtin:bunny", "-o", str(out)]) == 1
+    err = " ".join(capsys.readouterr().err.split())
+    assert err.startswith(f"error: {out}: cannot write") and ".x." not in err

@@ -112,10 +112,14 @@ def fuzz_dano(capsys, good_dano, key, how, seed):
         folder = Path(tmp)
         bad = folder / "in.dano"
         _corrupt_dano(good_dano, bad, key, how, seed)
-        if run_cli(capsys, "inspect", [bad, "--json"], folder, []) == 0:
+        accepted = run_cli(capsys, "inspect", [bad, "--json"], folder, []) == 0
+        if accepted:
             assert_physical(load(bad))
         out = folder / "out.xml"
         run_cli(capsys, "export", [bad, "-o", out, "--collision", "none"], folder, [out])
+        if not accepted:  # (an accepted file would run a whole comparison: minutes)
+            report = folder / "r.json"
+            assert run_cli(capsys, "compare-mesh", [bad, "--out", report, "--quiet"], folder, [report]) == 1
 
 
 @FAST
@@ -234,7 +238,7 @@ def _dump(cfg: dict) -> str:
     return "\n".join(f"{k} = {_toml(v)}" for k, v in cfg.items())
 
 
-def fuzz_toml(key, raw):
+def fuzz_toml(key, raw, capsys=None):
     from dano.errors import DanoError
     from dano.sysid.config import _check_values, read_config
 
@@ -258,6 +262,9 @@ def fuzz_toml(key, raw):
         except DanoError as exc:
             assert str(path) in str(exc)
             COUNTS["sysid-config", "refused"] += 1
+            if capsys is not None:  # and the command line says so, writing nothing
+                out_dir = folder / "out"
+                assert run_cli(capsys, "sysid", [path, "--out-dir", out_dir], folder, [out_dir]) == 1
             return
         _check_values(c)  # accepted: the values are in range
         COUNTS["sysid-config", "accepted"] += 1
@@ -265,9 +272,9 @@ def fuzz_toml(key, raw):
 
 @FAST
 @given(key=st.sampled_from(_TOML_KEYS), raw=st.sampled_from(_TOML_VALUES))
-def test_bad_sysid_configurations(good_dano, key, raw, monkeypatch):
+def test_bad_sysid_configurations(capsys, good_dano, key, raw, monkeypatch):
     monkeypatch.setenv("DANO_FUZZ_DANO", str(good_dano))
-    fuzz_toml(key, raw)
+    fuzz_toml(key, raw, capsys)
 
 
 _OPTION_VALUES = ["0", "-1", "inf", "nan", "1e400", "abc", "", "1e9", "1e-9"]
@@ -291,6 +298,23 @@ def test_bad_simulate_options(capsys, option, value):
     fuzz_simulate(capsys, option, value)
 
 
+def fuzz_bench(capsys, option, value):
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        out = folder / "b.json"
+        args = ["--suite", "energy", f"--{option}", value, "--out", out]
+        if option == "suite":
+            args = ["--suite", value, "--out", out]
+        assert run_cli(capsys, "bench", args, folder, [out]) in (1, 2)
+
+
+@FAST
+@given(option=st.sampled_from(["drops", "repeats", "suite", "contact-model"]),
+       value=st.sampled_from(["0", "-3", "1e9", "x", "", "10000000", "simulation"]))
+def test_bad_bench_options(capsys, option, value):
+    fuzz_bench(capsys, option, value)
+
+
 @pytest.mark.slow
 def test_fuzz_run_counts(capsys, good_dano, shared, monkeypatch):
     """The larger run (≥ 300 generated inputs across all verbs); prints the counts."""
@@ -304,9 +328,12 @@ def test_fuzz_run_counts(capsys, good_dano, shared, monkeypatch):
               seed=st.integers(0, 10**6))),
         (lambda **kw: fuzz_mesh(capsys, shared, **kw),
          dict(suffix=st.sampled_from([".obj", ".stl"]), cut=st.floats(0.0, 0.98), garbage=st.binary(max_size=40))),
-        (lambda **kw: fuzz_toml(**kw), dict(key=st.sampled_from(_TOML_KEYS), raw=st.sampled_from(_TOML_VALUES))),
+        (lambda **kw: fuzz_toml(capsys=capsys, **kw), dict(key=st.sampled_from(_TOML_KEYS), raw=st.sampled_from(_TOML_VALUES))),
         (lambda **kw: fuzz_simulate(capsys, **kw),
          dict(option=st.sampled_from(["duration", "dt", "fps", "param"]), value=st.sampled_from(_OPTION_VALUES))),
+        (lambda **kw: fuzz_bench(capsys, **kw),
+         dict(option=st.sampled_from(["drops", "repeats", "suite", "contact-model"]),
+              value=st.sampled_from(["0", "-3", "1e9", "x", "", "10000000", "simulation"]))),
     ]:
         SLOW(given(**strategies)(test))()
     total = sum(COUNTS.values())

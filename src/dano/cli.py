@@ -527,8 +527,10 @@ def bench(
     unknown = set(suite) - set(SUITES)
     if unknown:
         raise ValueError(f"unknown benchmark suite(s) {sorted(unknown)}; available: {', '.join(SUITES)}")
-    if drops < 1:
-        raise ValueError(f"--drops must be at least 1, got {drops}")
+    if not 1 <= drops <= 1_000_000:
+        raise ValueError(f"--drops must be 1 to 1000000, got {drops}")
+    if not 1 <= repeats <= 1000:
+        raise ValueError(f"--repeats must be 1 to 1000, got {repeats}")
     _check_contact_model(contact_model)
     result = run(list(suite) or None, repeats=repeats,
                  options={"energy": {"drops": drops, "seed": seed, "contact_model": contact_model}})
@@ -728,7 +730,7 @@ def _terminate(signum, frame):
 
 
 # options that take several values after one flag; tyro would keep only the last repetition
-_MULTI_VALUE_FLAGS = ("--object", "--param", "--levels", "--collision")
+_MULTI_VALUE_FLAGS = ("--object", "--param", "--levels", "--collision", "--suite")
 
 
 def _configure_process() -> None:
@@ -754,6 +756,12 @@ def _configure_process() -> None:
                                                       soft_wrap=True))
     # SIGTERM unwinds like Ctrl-C: temporary files are removed, no partial output is left
     signal.signal(signal.SIGTERM, _terminate)
+    # Python warnings (numpy, JAX, MJX): one line each, like dano's own messages
+    import warnings
+
+    warnings.showwarning = lambda message, category, *rest: err.print(
+        f"[yellow]warning:[/] {category.__name__}: {escape(' '.join(str(message).split()))}", highlight=False,
+        soft_wrap=True)
 
 
 def main(argv: list[str] | None = None) -> int:
