@@ -3,11 +3,11 @@ prints and saves. Every verb's options are its function's arguments (tyro)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import signal
 import sys
-import dataclasses
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -93,8 +93,14 @@ def _progress(enabled: bool = True):
         yield update
 
 
-MAX_RESOLUTION = 512  # 1.3e8 nodes: about 5 GB while the signed-distance grid is built
+MAX_RESOLUTION = 512  # 1.3e8 nodes: about 5 GB while a signed-distance or marching-cubes grid is built
 MAX_SAMPLES = 10_000_000
+
+
+def _check_resolution(resolution: int) -> None:
+    if not 8 <= resolution <= MAX_RESOLUTION:
+        raise ValueError(f"--resolution {resolution}: must be 8 to {MAX_RESOLUTION} (a grid of about resolution^3 "
+                         f"nodes at ~40 bytes each: {40 * float(resolution) ** 3 / 1e9:.3g} GB)")
 
 
 @_names("source")
@@ -137,10 +143,7 @@ def build(
     kind = source_kind(source)
     if not source.is_file():
         raise FileNotFoundError(f"{source}: no such file")
-    if not 8 <= resolution <= MAX_RESOLUTION:
-        raise ValueError(f"--resolution {resolution}: must be 8 to {MAX_RESOLUTION} (the signed-distance grid has "
-                         f"about resolution^3 nodes at ~40 bytes each while it is built: "
-                         f"{40 * float(resolution) ** 3 / 1e9:.3g} GB)")
+    _check_resolution(resolution)
     if not 1 <= samples <= MAX_SAMPLES:
         raise ValueError(f"--samples {samples}: must be 1 to {MAX_SAMPLES}")
     with _progress(not quiet) as progress:
@@ -326,15 +329,13 @@ def simulate(
         max_steps: refuse a run of more steps than this (duration / dt) up front.
         quiet: no progress bars.
     """
-    import math
     import time as _time
     from contextlib import ExitStack
-
-    from ._files import atomic_path
 
     import numpy as np
 
     from ._config import read_table, typed_table
+    from ._files import atomic_path
     from .errors import DanoError
     from .sim import rollout, save_trajectory
     from .sim.scenes import BUILTIN_SCENES, load_scene, mjcf_setup
@@ -430,12 +431,11 @@ def sysid(
         jacobian: ad (forward-mode AD, default) or fd (finite differences, for comparison).
         no_noise: bunny-pushes: observations without the 1 mm / 0.5 deg pose noise.
     """
-    from .sysid.config import run
-    from .viz import plot_sysid
-
     from contextlib import ExitStack
 
     from ._files import atomic_path
+    from .sysid.config import run
+    from .viz import plot_sysid
 
     problem, result, report = run(config, jacobian=jacobian, noise=not no_noise)
     report["report"], nonfinite = _json_safe(report["report"])
@@ -588,13 +588,14 @@ def export(
         json_: print a JSON summary (path, collision, pieces, mass, inertia) to stdout.
     """
     from .io import load_mesh
-    from .io.exporters import Decomposition, body_meshes
+    from .io.exporters import EXPORT_SUFFIXES, Decomposition, body_meshes
     from .io.exporters import export as export_asset
 
-    if threshold <= 0 or not threshold < float("inf"):
+    if out.suffix.lower() not in EXPORT_SUFFIXES:  # before any (possibly long) decomposition
+        raise ValueError(f"-o {out}: unknown export format {out.suffix!r}; use .xml (MJCF) or .urdf (URDF)")
+    if not 0 < threshold < float("inf"):
         raise ValueError(f"--threshold must be a positive number, got {threshold}")
-    if resolution < 8:
-        raise ValueError(f"--resolution must be at least 8, got {resolution}")
+    _check_resolution(resolution)
     asset = _load_asset(file)
     given = load_mesh(mesh, require_watertight=False) if mesh is not None else None
     if given is not None and level is not None:
@@ -677,6 +678,7 @@ def compare_mesh(
     from .sim.scene import interior_density
 
     _check_contact_model(contact_model)
+    _check_resolution(resolution)
     for opt, v, least in (("friction", friction, "non-negative"), ("slide-speed", slide_speed, "non-negative"),
                           ("rest-time", rest_time, "positive"), ("slide-time", slide_time, "positive"),
                           ("threshold", threshold, "positive")):
