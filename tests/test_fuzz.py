@@ -277,6 +277,66 @@ def test_bad_sysid_configurations(capsys, good_dano, key, raw, monkeypatch):
     fuzz_toml(key, raw, capsys)
 
 
+@pytest.fixture(scope="module")
+def box_scene(good_dano):
+    from dano.sim import DanoObject, compose
+
+    return compose([DanoObject("box", load(good_dano), (0, 0, 0.03))], dt=0.01)
+
+
+_CSV_EDITS = ["drop_header_column", "text_cell", "nan_cell", "repeat_time", "cut_line", "empty", "header_only",
+              "huge_cell", "extra_cell", "semicolons", "mm_positions"]
+
+
+def fuzz_csv(box_scene, how, row, col):
+    from dano.errors import DanoError
+    from dano.sysid.config import _read_trajectory
+    from dano.sysid.problem import _check_observation
+
+    t = np.arange(8) * 0.01
+    rows = np.column_stack([t, 0.1 * t, 0 * t, 0.03 + 0 * t, 1 + 0 * t, 0 * t, 0 * t, 0 * t])
+    lines = ["t,x,y,z,qw,qx,qy,qz"] + [",".join(repr(float(v)) for v in r) for r in rows]
+    r, c = 1 + row % (len(lines) - 1), col % 8
+    cells = lines[r].split(",")
+    if how == "drop_header_column":
+        lines[0] = ",".join(lines[0].split(",")[:c] + lines[0].split(",")[c + 1:])
+    elif how in ("text_cell", "nan_cell", "huge_cell"):
+        cells[c] = {"text_cell": "abc", "nan_cell": "nan", "huge_cell": "1e300"}[how]
+        lines[r] = ",".join(cells)
+    elif how == "repeat_time":
+        lines[r] = ",".join([lines[r - 1].split(",")[0]] + cells[1:]) if r > 1 else lines[r]
+    elif how == "cut_line":
+        lines = lines[:r] + [lines[r][: len(lines[r]) // 2]]
+    elif how == "empty":
+        lines = []
+    elif how == "header_only":
+        lines = lines[:1]
+    elif how == "extra_cell":
+        lines[r] += ",7"
+    elif how == "semicolons":
+        lines = [x.replace(",", ";") for x in lines]
+    elif how == "mm_positions":
+        lines = lines[:1] + [",".join([x.split(",")[0]] + [repr(float(v) * 1000) for v in x.split(",")[1:4]]
+                                      + x.split(",")[4:]) for x in lines[1:]]
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "obs.csv"
+        path.write_text("\n".join(lines) + "\n")
+        try:
+            obs = _read_trajectory(path, "box", box_scene)
+            _check_observation(obs, box_scene, 0)
+        except DanoError as exc:
+            assert "obs.csv" in str(exc), str(exc)
+            COUNTS["sysid-csv", "refused"] += 1
+            return
+        COUNTS["sysid-csv", "accepted"] += 1
+
+
+@FAST
+@given(how=st.sampled_from(_CSV_EDITS), row=st.integers(0, 100), col=st.integers(0, 100))
+def test_bad_trajectory_csv(box_scene, how, row, col):
+    fuzz_csv(box_scene, how, row, col)
+
+
 _OPTION_VALUES = ["0", "-1", "inf", "nan", "1e400", "abc", "", "1e9", "1e-9"]
 
 
@@ -316,7 +376,7 @@ def test_bad_bench_options(capsys, option, value):
 
 
 @pytest.mark.slow
-def test_fuzz_run_counts(capsys, good_dano, shared, monkeypatch):
+def test_fuzz_run_counts(capsys, good_dano, shared, box_scene, monkeypatch):
     """The larger run (≥ 300 generated inputs across all verbs); prints the counts."""
     monkeypatch.setenv("DANO_FUZZ_DANO", str(good_dano))
     COUNTS.clear()
@@ -331,6 +391,8 @@ def test_fuzz_run_counts(capsys, good_dano, shared, monkeypatch):
         (lambda **kw: fuzz_toml(capsys=capsys, **kw), dict(key=st.sampled_from(_TOML_KEYS), raw=st.sampled_from(_TOML_VALUES))),
         (lambda **kw: fuzz_simulate(capsys, **kw),
          dict(option=st.sampled_from(["duration", "dt", "fps", "param"]), value=st.sampled_from(_OPTION_VALUES))),
+        (lambda **kw: fuzz_csv(box_scene, **kw),
+         dict(how=st.sampled_from(_CSV_EDITS), row=st.integers(0, 100), col=st.integers(0, 100))),
         (lambda **kw: fuzz_bench(capsys, **kw),
          dict(option=st.sampled_from(["drops", "repeats", "suite", "contact-model"]),
               value=st.sampled_from(["0", "-3", "1e9", "x", "", "10000000", "simulation"]))),

@@ -100,6 +100,11 @@ class Weights:
 
 
 def _check_observation(obs: Observation, scene: Scene, k: int) -> None:
+    with np.errstate(all="ignore"):  # absurd values are reported by the checks, not by numpy warnings
+        _check_observation_values(obs, scene, k)
+
+
+def _check_observation_values(obs: Observation, scene: Scene, k: int) -> None:
     tag = obs.name or f"trajectory {k}"
     t = np.asarray(obs.time, dtype=np.float64)
     if t.ndim != 1 or len(t) < 3:
