@@ -122,8 +122,11 @@ def fuzz_dano(capsys, good_dano, key, how, seed):
             assert run_cli(capsys, "compare-mesh", [bad, "--out", report, "--quiet"], folder, [report]) == 1
 
 
+S_DANO = dict(key=st.sampled_from(_ARRAYS + ["metadata"]), how=st.sampled_from(_EDITS), seed=st.integers(0, 10**6))
+
+
 @FAST
-@given(key=st.sampled_from(_ARRAYS + ["metadata"]), how=st.sampled_from(_EDITS), seed=st.integers(0, 10**6))
+@given(**S_DANO)
 def test_corrupted_dano_files(capsys, good_dano, key, how, seed):
     fuzz_dano(capsys, good_dano, key, how, seed)
 
@@ -156,9 +159,12 @@ def fuzz_jld2(capsys, shared, key, how, seed):
             assert_physical(load(out))
 
 
+S_JLD2 = dict(key=st.sampled_from(_JLD2_KEYS + ["particles"]), how=st.sampled_from(_EDITS[:-2]),
+              seed=st.integers(0, 10**6))
+
+
 @FAST
-@given(key=st.sampled_from(_JLD2_KEYS + ["particles"]), how=st.sampled_from(_EDITS[:-2]),
-       seed=st.integers(0, 10**6))
+@given(**S_JLD2)
 def test_corrupted_paper_colliders(capsys, shared, key, how, seed):
     fuzz_jld2(capsys, shared, key, how, seed)
 
@@ -180,8 +186,11 @@ def fuzz_mesh(capsys, shared, suffix, cut, garbage):
             assert_physical(load(out))
 
 
+S_MESH = dict(suffix=st.sampled_from([".obj", ".stl"]), cut=st.floats(0.0, 0.98), garbage=st.binary(max_size=40))
+
+
 @FAST
-@given(suffix=st.sampled_from([".obj", ".stl"]), cut=st.floats(0.0, 0.98), garbage=st.binary(max_size=40))
+@given(**S_MESH)
 def test_truncated_meshes(capsys, shared, suffix, cut, garbage):
     fuzz_mesh(capsys, shared, suffix, cut, garbage)
 
@@ -199,11 +208,14 @@ def fuzz_voxels(capsys, shape, value, bounds):
             assert_physical(load(out))
 
 
+S_VOXELS = dict(shape=st.sampled_from([(0,), (4, 4), (1, 1, 1), (3, 3, 3), (2, 2, 2, 2)]),
+                value=st.sampled_from([0.0, -1.0, np.nan, np.inf, 1.0]),
+                bounds=st.sampled_from([None, [[1, 1, 1], [0, 0, 0]], [[0, 0, 0], [0, 0, 0]], [[0, 0], [1, 1]],
+                                        [[0, 0, np.nan], [1, 1, 1]], [[-1, -1, -1], [1, 1, 1]]]))
+
+
 @FAST
-@given(shape=st.sampled_from([(0,), (4, 4), (1, 1, 1), (3, 3, 3), (2, 2, 2, 2)]),
-       value=st.sampled_from([0.0, -1.0, np.nan, np.inf, 1.0]),
-       bounds=st.sampled_from([None, [[1, 1, 1], [0, 0, 0]], [[0, 0, 0], [0, 0, 0]], [[0, 0], [1, 1]],
-                               [[0, 0, np.nan], [1, 1, 1]], [[-1, -1, -1], [1, 1, 1]]]))
+@given(**S_VOXELS)
 def test_bad_voxel_grids(capsys, shape, value, bounds):
     fuzz_voxels(capsys, shape, value, bounds)
 
@@ -270,8 +282,11 @@ def fuzz_toml(key, raw, capsys=None):
         COUNTS["sysid-config", "accepted"] += 1
 
 
+S_TOML = dict(key=st.sampled_from(_TOML_KEYS), raw=st.sampled_from(_TOML_VALUES))
+
+
 @FAST
-@given(key=st.sampled_from(_TOML_KEYS), raw=st.sampled_from(_TOML_VALUES))
+@given(**S_TOML)
 def test_bad_sysid_configurations(capsys, good_dano, key, raw, monkeypatch):
     monkeypatch.setenv("DANO_FUZZ_DANO", str(good_dano))
     fuzz_toml(key, raw, capsys)
@@ -331,8 +346,11 @@ def fuzz_csv(box_scene, how, row, col):
         COUNTS["sysid-csv", "accepted"] += 1
 
 
+S_CSV = dict(how=st.sampled_from(_CSV_EDITS), row=st.integers(0, 100), col=st.integers(0, 100))
+
+
 @FAST
-@given(how=st.sampled_from(_CSV_EDITS), row=st.integers(0, 100), col=st.integers(0, 100))
+@given(**S_CSV)
 def test_bad_trajectory_csv(box_scene, how, row, col):
     fuzz_csv(box_scene, how, row, col)
 
@@ -352,8 +370,11 @@ def fuzz_simulate(capsys, option, value):
         run_cli(capsys, "simulate", args, folder, [out, video])
 
 
+S_SIM = dict(option=st.sampled_from(["duration", "dt", "fps", "param"]), value=st.sampled_from(_OPTION_VALUES))
+
+
 @FAST
-@given(option=st.sampled_from(["duration", "dt", "fps", "param"]), value=st.sampled_from(_OPTION_VALUES))
+@given(**S_SIM)
 def test_bad_simulate_options(capsys, option, value):
     fuzz_simulate(capsys, option, value)
 
@@ -368,9 +389,12 @@ def fuzz_bench(capsys, option, value):
         assert run_cli(capsys, "bench", args, folder, [out]) in (1, 2)
 
 
+S_BENCH = dict(option=st.sampled_from(["drops", "repeats", "suite", "contact-model"]),
+               value=st.sampled_from(["0", "-3", "1e9", "x", "", "10000000", "simulation"]))
+
+
 @FAST
-@given(option=st.sampled_from(["drops", "repeats", "suite", "contact-model"]),
-       value=st.sampled_from(["0", "-3", "1e9", "x", "", "10000000", "simulation"]))
+@given(**S_BENCH)
 def test_bad_bench_options(capsys, option, value):
     fuzz_bench(capsys, option, value)
 
@@ -381,21 +405,14 @@ def test_fuzz_run_counts(capsys, good_dano, shared, box_scene, monkeypatch):
     monkeypatch.setenv("DANO_FUZZ_DANO", str(good_dano))
     COUNTS.clear()
     for test, strategies in [
-        (lambda **kw: fuzz_dano(capsys, good_dano, **kw),
-         dict(key=st.sampled_from(_ARRAYS + ["metadata"]), how=st.sampled_from(_EDITS), seed=st.integers(0, 10**6))),
-        (lambda **kw: fuzz_jld2(capsys, shared, **kw),
-         dict(key=st.sampled_from(_JLD2_KEYS + ["particles"]), how=st.sampled_from(_EDITS[:-2]),
-              seed=st.integers(0, 10**6))),
-        (lambda **kw: fuzz_mesh(capsys, shared, **kw),
-         dict(suffix=st.sampled_from([".obj", ".stl"]), cut=st.floats(0.0, 0.98), garbage=st.binary(max_size=40))),
-        (lambda **kw: fuzz_toml(capsys=capsys, **kw), dict(key=st.sampled_from(_TOML_KEYS), raw=st.sampled_from(_TOML_VALUES))),
-        (lambda **kw: fuzz_simulate(capsys, **kw),
-         dict(option=st.sampled_from(["duration", "dt", "fps", "param"]), value=st.sampled_from(_OPTION_VALUES))),
-        (lambda **kw: fuzz_csv(box_scene, **kw),
-         dict(how=st.sampled_from(_CSV_EDITS), row=st.integers(0, 100), col=st.integers(0, 100))),
-        (lambda **kw: fuzz_bench(capsys, **kw),
-         dict(option=st.sampled_from(["drops", "repeats", "suite", "contact-model"]),
-              value=st.sampled_from(["0", "-3", "1e9", "x", "", "10000000", "simulation"]))),
+        (lambda **kw: fuzz_dano(capsys, good_dano, **kw), S_DANO),
+        (lambda **kw: fuzz_jld2(capsys, shared, **kw), S_JLD2),
+        (lambda **kw: fuzz_mesh(capsys, shared, **kw), S_MESH),
+        (lambda **kw: fuzz_voxels(capsys, **kw), S_VOXELS),
+        (lambda **kw: fuzz_toml(capsys=capsys, **kw), S_TOML),
+        (lambda **kw: fuzz_csv(box_scene, **kw), S_CSV),
+        (lambda **kw: fuzz_simulate(capsys, **kw), S_SIM),
+        (lambda **kw: fuzz_bench(capsys, **kw), S_BENCH),
     ]:
         SLOW(given(**strategies)(test))()
     total = sum(COUNTS.values())
