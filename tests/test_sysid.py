@@ -180,6 +180,17 @@ def test_windows_fold_a_short_remainder(box_setup):
     assert r.shape == (problem.num_residuals,) and np.all(np.isfinite(r))
 
 
+_FIT_SLIDING = """[[trajectory]]
+file = "slide.csv"
+object = "box"
+[[parameter]]
+name = "sliding_friction"
+initial = 0.2
+lower = 0.0
+upper = 2.0
+"""
+
+
 def test_cli_runs_a_toml_problem_and_refuses_bad_files(tmp_path, capsys, box_setup):
     asset, _, z = box_setup
     from dano.asset import save
@@ -198,15 +209,7 @@ asset = "box.dano"
 pos = [0.0, 0.0, {z}]
 [contact]
 sliding_drag = 0.0
-[[trajectory]]
-file = "slide.csv"
-object = "box"
-[[parameter]]
-name = "sliding_friction"
-initial = 0.2
-lower = 0.0
-upper = 2.0
-[options]
+{_FIT_SLIDING}[options]
 substeps = 4
 position_weights = [1.0, 1.0, 0.0]
 rotation_weight = 0.0
@@ -241,21 +244,13 @@ rotation_weight = 0.0
     assert "not valid TOML" in " ".join(capsys.readouterr().err.split())
 
 
-_GOOD_TOML = """
+_GOOD_TOML = f"""
 [scene]
 dt = 0.01
 [[scene.object]]
 name = "box"
 asset = "builtin:bunny"
-[[trajectory]]
-file = "slide.csv"
-object = "box"
-[[parameter]]
-name = "sliding_friction"
-initial = 0.2
-lower = 0.0
-upper = 2.0
-[options]
+{_FIT_SLIDING}[options]
 substeps = 1
 """
 
