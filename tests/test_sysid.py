@@ -4,6 +4,7 @@ the bunny pushes, residuals on SO(3) and bad input."""
 import dataclasses
 import json
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -287,3 +288,24 @@ def test_trajectory_in_millimetres_is_refused(tmp_path, capsys):
     code = main(["sysid", str(cfg), "--out-dir", str(tmp_path / "out")])
     err = " ".join(capsys.readouterr().err.split())
     assert code == 1 and "positions must be in metres" in err and "slide.csv" in err
+
+
+def test_trajectories_of_different_lengths_share_one_compiled_rollout(box_setup):
+    """Segments of 30 and 22 frames: one batch padded to the longest (one scan in the
+    traced residual, so one compilation), and exactly the residuals of the two alone."""
+    _, scene, z = box_setup
+    t, poses = analytic_slide(0.45, z=z)
+    fit = [FitParameter("sliding_friction", 0.2, 0.0, 2.0)]
+    kw = dict(weights=Weights((1.0, 1.0, 0.0), 0.3), substeps=4, base_params=scene.default_params(sliding_drag=0.0),
+              fit_velocity="x")
+    long = Observation(time=t, poses={"box": poses}, qvel0=np.r_[2.0, 0, 0, 0, 0, 0])
+    short = Observation(time=t[:22], poses={"box": poses[:22]}, qvel0=np.r_[1.9, 0, 0, 0, 0, 0])
+    both = SysIdProblem(scene, [long, short], fit, **kw)
+    theta = jnp.asarray([0.3, 0.05, -0.02])
+    fun = both.residual_function()
+    alone_fns = [SysIdProblem(scene, [o], fit, **kw).residual_function() for o in (long, short)]
+    scans = lambda f, x: str(jax.make_jaxpr(f)(x)).count("scan[")  # noqa: E731  (nested jaxprs included)
+    assert scans(fun, theta) == scans(alone_fns[0], theta[:2]) > 0  # one rollout, not one per length
+    alone = [f(theta[jnp.asarray(i)]) for f, i in zip(alone_fns, ([0, 1], [0, 2]))]
+    np.testing.assert_allclose(fun(theta), jnp.concatenate(alone), rtol=0, atol=1e-12)
+    assert both.num_residuals == len(fun(theta))

@@ -195,6 +195,30 @@ class Segment:
     frames: int
 
 
+def _pad(a: np.ndarray, key: str, frames: int, steps: int) -> np.ndarray:
+    """Pad one segment's array to a batch's longest segment: controls and forces with zeros
+    (steps after the segment's end), observed frames by repeating the last one."""
+    if key in ("ctrl", "qfrc"):
+        return np.concatenate([a, np.zeros((steps - len(a),) + a.shape[1:])])
+    if key in ("obs_pose", "obs_joint") and a.shape[1] < frames:
+        return np.concatenate([a, np.repeat(a[:, -1:], frames - a.shape[1], axis=1)], axis=1)
+    return a
+
+
+def _valid_residuals(intervals: list[int], padded: int, cols: list[int]) -> np.ndarray:
+    """Indices into the raveled (segments, residuals) array of a batch that belong to real
+    frames: each segment's residuals are blocks of ``padded`` frames × ``cols[k]`` columns,
+    of which the first ``intervals[s]`` frames are real."""
+    per_segment = padded * sum(cols)
+    keep = []
+    for s, n in enumerate(intervals):
+        start = s * per_segment
+        for c in cols:
+            keep.append(start + np.arange(n * c))
+            start += padded * c
+    return np.concatenate(keep) if keep else np.zeros(0, dtype=np.int64)
+
+
 class SysIdProblem:
     """Identification of ``parameters`` from ``observations`` of ``scene``.
 
@@ -399,28 +423,37 @@ class SysIdProblem:
 
     def residual_function(self):
         """(θ) -> residual vector (m,), a pure JAX function (jit/jacfwd it). Segments of the
-        same layout are batched with ``vmap``; residuals are ordered by batch, then segment,
-        then tracked DANO (position axes with non-zero weight [m·√w], rotation vector
-        [rad·√w]) and joints, frame by frame."""
+        same layout (tracked bodies, joints, settling) are batched with ``vmap`` whatever their
+        lengths: shorter ones are padded to the longest (extra steps simulated, their frames
+        dropped by a fixed gather), so one trace and one compilation serve them all. Residuals
+        are ordered by batch, then segment, then tracked DANO (position axes with non-zero
+        weight [m·√w], rotation vector [rad·√w]) and joints, frame by frame."""
         groups: dict = {}
         for i, seg in enumerate(self.segments):
-            data, layout = self._segment_data(seg)
-            groups.setdefault(layout, []).append((i, data))
-        batches = []
-        for layout, items in groups.items():
-            stacked = {k: jnp.asarray(np.stack([d[k] for _, d in items])) for k in items[0][1]}
-            batches.append((layout, [i for i, _ in items], stacked))
+            data, (qadr, dadr, jadr, steps, settle) = self._segment_data(seg)
+            groups.setdefault((qadr, dadr, jadr, settle), []).append((i, data, steps))
         pos_axes = jnp.asarray(self._pos_axes(), dtype=jnp.int32)
         wpos = jnp.sqrt(jnp.asarray(self.weights.position, dtype=jnp.float64))[pos_axes]
         wrot, wjoint = float(np.sqrt(self.weights.rotation)), float(np.sqrt(self.weights.joints))
         axes = self.fit_axes
         scene, substeps = self.scene, self.substeps
         offsets = self._nuisance_offsets()
+        batches = []
+        for (qadr, dadr, jadr, settle), items in groups.items():
+            steps = max(st for _, _, st in items)
+            frames = steps // substeps + 1
+            stacked = {k: jnp.asarray(np.stack([_pad(d[k], k, frames, settle + steps) for _, d, _ in items]))
+                       for k in items[0][1]}
+            cols = [c for _ in qadr for c in ((len(self._pos_axes()),) if len(self._pos_axes()) else ())
+                    + ((3,) if wrot > 0 else ())] + ([1] * len(jadr) if wjoint > 0 else [])
+            keep = _valid_residuals([st // substeps for _, _, st in items], frames - 1, cols)
+            batches.append(((qadr, dadr, jadr, settle + steps, settle), [i for i, _, _ in items], stacked,
+                            jnp.asarray(keep)))
 
         def residuals(theta):
             params = self.sim_params(theta)
             out = []
-            for (qadr, dadr, jadr, steps, settle), seg_ids, data in batches:
+            for (qadr, dadr, jadr, n_steps, settle), seg_ids, data, keep in batches:
                 # nuisance initial velocities of this batch's segments
                 dv = jnp.zeros((len(seg_ids), scene.nv), dtype=theta.dtype)
                 if axes:
@@ -430,7 +463,7 @@ class SysIdProblem:
                             dv = dv.at[row, jnp.asarray([d + a for a in axes])].add(block[b])
 
                 def one(qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, dv_):
-                    qpos, _, _ = rollout_arrays(scene, State(qpos0, qvel0 + dv_), ctrl, params, settle + steps, qfrc)
+                    qpos, _, _ = rollout_arrays(scene, State(qpos0, qvel0 + dv_), ctrl, params, n_steps, qfrc)
                     frames = qpos[settle + substeps :: substeps]  # states at frames 1..F-1
                     res = []  # components with zero weight are left out (they would dilute σ²)
                     for b, a in enumerate(qadr):
@@ -446,7 +479,7 @@ class SysIdProblem:
 
                 r = jax.vmap(one)(data["qpos0"], data["qvel0"], data["ctrl"], data["qfrc"], data["obs_pose"],
                                   data["obs_joint"], dv)
-                out.append(r.ravel())
+                out.append(r.ravel()[keep])  # padded frames dropped
             return jnp.concatenate(out)
 
         return residuals
