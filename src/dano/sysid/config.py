@@ -32,6 +32,8 @@ interactive-perception experiment). A TOML file describes a user problem::
     fit_velocity = "xy"           # nuisance initial velocity axes
     window = 0                    # >0: multiple shooting windows of this many frames
     horizons = []                 # continuation, e.g. [0.4]
+    scan = 0                      # global start: >0 scans the bounds (points per parameter)
+    starts = 3                    # local solves from the best scan points
     position_weights = [1.0, 1.0, 1.0]
     rotation_weight = 1.0
     jacobian = "ad"
@@ -153,6 +155,8 @@ class OptionsConfig:
     position_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
     rotation_weight: float = 1.0
     jacobian: str = "ad"
+    scan: int = 0
+    starts: int = 3
 
 
 @dataclass(frozen=True)
@@ -189,6 +193,12 @@ def _check_values(c: SysIdConfig) -> None:
         raise DanoError(f"[options].window: must be 0 (no windows) or at least 2 frame intervals, got {o.window}")
     if any(not 0 < h <= 1 for h in o.horizons):
         raise DanoError(f"[options].horizons: fractions of the trajectory in (0, 1], got {list(o.horizons)}")
+    if o.scan != 0 and not 2 <= o.scan <= 64:
+        raise DanoError(f"[options].scan: 0 (no global scan) or 2 to 64 points per parameter, got {o.scan}")
+    if not 1 <= o.starts <= 16:
+        raise DanoError(f"[options].starts: 1 to 16 local starts, got {o.starts}")
+    if o.scan and any(p.upper is None for p in c.parameter):
+        raise DanoError("[options].scan: a global scan needs an upper bound on every [[parameter]]")
     if o.jacobian not in ("ad", "fd"):
         raise DanoError(f"[options].jacobian: 'ad' or 'fd', got {o.jacobian!r}")
     if not all(0 <= w < np.inf for w in (*o.position_weights, o.rotation_weight)):
@@ -252,7 +262,7 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
         raise DanoError(f"{path}: {exc}") from exc
     except DanoError as exc:
         raise DanoError(exc.args[0] if str(path) in str(exc) else f"{path}: {exc}") from exc
-    solver = {"jacobian": opt.jacobian, "horizons": opt.horizons}
+    solver = {"jacobian": opt.jacobian, "horizons": opt.horizons, "scan": opt.scan, "starts": opt.starts}
     return problem, solver, dataclasses.asdict(_absolute(cfg, base))
 
 
@@ -302,7 +312,8 @@ def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) 
         resolved["options"]["jacobian"] = solver["jacobian"]
     else:
         resolved["solver"] = {**solver, "method": "scipy.optimize.least_squares (trf), bounds"}
-    result = identify(problem, jacobian=solver["jacobian"], horizons=solver["horizons"])
+    result = identify(problem, jacobian=solver["jacobian"], horizons=solver["horizons"],
+                      scan=solver.get("scan", 0), starts=solver.get("starts", 3))
     report = {}
     for label, v, s in zip(result.labels, result.estimates, result.standard_errors):
         if not label.startswith("v0["):

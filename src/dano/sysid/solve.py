@@ -48,6 +48,7 @@ class SysIdResult:
     jacobian: str
     fitted: list = field(default_factory=list, repr=False)
     stages: list = field(default_factory=list)
+    scan: dict | None = None
 
     def as_dict(self) -> dict:
         return {
@@ -66,13 +67,71 @@ class SysIdResult:
             "message": self.message,
             "jacobian": self.jacobian,
             "stages": self.stages,
+            "scan": self.scan,
         }
+
+
+def scan_points(lower: np.ndarray, upper: np.ndarray, scan: int, seed: int = 0) -> np.ndarray:
+    """Points of the coarse global scan over the box [lower, upper] (n,): a grid of ``scan``
+    values per axis for n ≤ 2, else ``scan``² scrambled Sobol points (seeded). (K, n)."""
+    from scipy.stats import qmc
+
+    n = len(lower)
+    if n <= 2:
+        axes = [np.linspace(lower[i], upper[i], scan) for i in range(n)]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, n)
+    unit = qmc.Sobol(d=n, scramble=True, seed=np.random.default_rng(seed)).random(scan * scan)
+    return lower + unit * (upper - lower)
+
+
+def scan_costs(problem: SysIdProblem, points: np.ndarray, batch: int = 16) -> np.ndarray:
+    """Cost ½‖r‖² at each row of ``points`` (K, n_global) (nuisance parameters at their
+    initial values), evaluated ``batch`` points at a time through one vmapped, compiled
+    residual; non-finite costs (diverging rollouts) are returned as inf."""
+    fun = problem.residual_function()
+    x0 = problem.initial()
+    n = points.shape[1]
+    cost = jax.jit(jax.vmap(lambda th: 0.5 * jnp.sum(fun(th) ** 2)))
+    out = []
+    for start in range(0, len(points), batch):
+        chunk = points[start : start + batch]
+        thetas = np.repeat(x0[None], batch, axis=0)
+        thetas[: len(chunk), :n] = chunk
+        thetas[len(chunk) :, :n] = chunk[-1]  # pad the last chunk: one compiled shape
+        out.append(np.asarray(cost(jnp.asarray(thetas)))[: len(chunk)])
+    c = np.concatenate(out)
+    return np.where(np.isfinite(c), c, np.inf)
+
+
+def _profiles(labels, points: np.ndarray, costs: np.ndarray, bins: int) -> dict:
+    """Cost profile along each parameter: the lowest cost seen per value (grid) or bin."""
+    prof = {}
+    for i, lab in enumerate(labels):
+        x = points[:, i]
+        values = np.unique(x)
+        if len(values) > bins:
+            edges = np.linspace(x.min(), x.max(), bins + 1)
+            idx = np.clip(np.digitize(x, edges) - 1, 0, bins - 1)
+            values = 0.5 * (edges[:-1] + edges[1:])
+            best = [float(costs[idx == b].min()) if np.any(idx == b) else None for b in range(bins)]
+        else:
+            best = [float(costs[x == v].min()) for v in values]
+        prof[lab] = {"values": [float(v) for v in values],
+                     "cost": [None if c is None or not np.isfinite(c) else c for c in best]}
+    return prof
 
 
 def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int = 50,
              xtol: float = 1e-8, ftol: float = 1e-8, gtol: float = 1e-8,
-             horizons: tuple[float, ...] = ()) -> SysIdResult:
+             horizons: tuple[float, ...] = (), scan: int = 0, starts: int = 3) -> SysIdResult:
     """Identify the problem's parameters; returns a :class:`SysIdResult`.
+
+    scan: global start (0: off). Before the local solver, the cost is evaluated on a coarse
+    scan of the global parameters' bounds (:func:`scan_points`: ``scan`` values per axis for
+    one or two parameters, ``scan``² Sobol points beyond), in vmapped batches; the local
+    solver then starts from the ``starts`` best points (and the given initial guess) and the
+    lowest final cost wins. The result's ``scan`` holds the points, their costs, the starts
+    and the cost profile along each parameter. Needs finite bounds on the global parameters.
 
     jacobian: "ad" (forward-mode AD, default) or "fd" (SciPy's 2-point finite
     differences, for comparison). max_iterations: the most residual evaluations per
@@ -88,6 +147,9 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     if problem.scene.dtype != jnp.float64:
         raise DanoError(f"identification needs a float64 scene, got {problem.scene.dtype}: call "
                         "dano.enable_float64() before composing the scene")
+    if scan:
+        return _identify_from_scan(problem, scan, starts, jacobian=jacobian, max_iterations=max_iterations,
+                                   xtol=xtol, ftol=ftol, gtol=gtol, horizons=horizons)
     if jacobian not in ("ad", "fd"):
         raise DanoError(f"jacobian must be 'ad' or 'fd', got {jacobian!r}")
     if horizons:
@@ -156,3 +218,38 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         compile_time_s=compile_time, success=bool(sol.success), message=str(sol.message), jacobian=jacobian,
         fitted=problem.simulate(sol.x),
     )
+
+
+def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) -> SysIdResult:
+    n = len(problem.parameters)
+    if n == 0:
+        raise DanoError("a global scan needs global parameters (only nuisance velocities are fitted)")
+    if not 2 <= scan <= 64 or not 1 <= starts <= 16:
+        raise DanoError(f"scan must be 2 to 64 points per axis and starts 1 to 16, got {scan} and {starts}")
+    lo = np.array([p.lower for p in problem.parameters])
+    hi = np.array([p.upper for p in problem.parameters])
+    if not np.all(np.isfinite(hi)):
+        raise DanoError("a global scan needs finite upper bounds on every parameter (set 'upper')")
+    t0 = time.perf_counter()
+    points = scan_points(lo, hi, scan)
+    costs = scan_costs(problem, points)
+    scan_time = time.perf_counter() - t0
+    order = [int(i) for i in np.argsort(costs) if np.isfinite(costs[i])][:starts]
+    if not order:
+        raise DanoError("every point of the global scan gives a diverging simulation; check the bounds")
+    candidates = [problem.initial()[:n]] + [points[i] for i in order]
+    results = [identify(problem.with_initial(x), **local) for x in candidates]
+    best = min(results, key=lambda r: r.final_cost)
+    best.initial = problem.initial()
+    best.wall_time_s = sum(r.wall_time_s for r in results) + scan_time
+    best.nfev = sum(r.nfev for r in results) + len(points)
+    best.njev = sum(r.njev for r in results)
+    best.scan = {
+        "points": points.tolist(),
+        "cost": [None if not np.isfinite(c) else float(c) for c in costs],
+        "starts": [np.asarray(x).tolist() for x in candidates],
+        "start_results": [{"estimates": r.estimates[:n].tolist(), "final_cost": r.final_cost} for r in results],
+        "profile": _profiles([p.label for p in problem.parameters], points, costs, bins=max(scan, 8)),
+        "wall_time_s": scan_time,
+    }
+    return best

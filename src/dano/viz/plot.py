@@ -45,13 +45,15 @@ def plot_samples(asset, path: str | Path, max_arrows: int = 600, seed: int = 0) 
 
 def plot_sysid(problem, result, path, max_trajectories: int = 4) -> Path:
     """Observed vs fitted trajectories (top-down x–y paths of the tracked DANOs and their
-    positions over time) and the cost per iteration, to an image file. Written atomically."""
+    positions over time), the cost per iteration and, after a global scan, the cost profile
+    along each parameter, to an image file. Written atomically."""
     import matplotlib
     from matplotlib.figure import Figure
 
     segs = problem.segments[:max_trajectories]
-    fig = Figure(figsize=(15, 4.5))
-    axes = fig.subplots(1, 3)
+    profiles = (result.scan or {}).get("profile", {})
+    fig = Figure(figsize=(15 + 5 * bool(profiles), 4.5))
+    axes = fig.subplots(1, 3 + bool(profiles))
     colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, seg in enumerate(segs):
         obs = problem.observations[seg.obs]
@@ -74,6 +76,14 @@ def plot_sysid(problem, result, path, max_trajectories: int = 4) -> Path:
     axes[1].set(xlabel="time [s]", ylabel="position [m]", title="x (o, solid) and y (s, dashed)")
     axes[2].semilogy(np.maximum(result.cost_history, 1e-300), "o-")
     axes[2].set(xlabel="iteration", ylabel="cost ½‖r‖²", title="cost")
+    if profiles:  # the global scan: lowest cost along each parameter, and the estimate
+        for (label, prof), c in zip(profiles.items(), colors):
+            x = [v for v, y in zip(prof["values"], prof["cost"]) if y is not None]
+            y = [y for y in prof["cost"] if y is not None]
+            axes[3].semilogy(x, y, "o-", color=c, label=label)
+            axes[3].axvline(result.estimates[result.labels.index(label)], color=c, ls=":")
+        axes[3].set(xlabel="parameter value", ylabel="lowest cost on the scan", title="global scan (dotted: estimate)")
+        axes[3].legend(fontsize=7)
     est = ", ".join(f"{k} = {v:.4g} ± {s:.2g}" for k, v, s in
                     zip(result.labels, result.estimates, result.standard_errors) if not k.startswith("v0["))
     fig.suptitle(est, fontsize=10)
