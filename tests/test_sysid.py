@@ -6,6 +6,7 @@ import json
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -331,3 +332,25 @@ def test_global_scan_finds_the_basin_and_reports_the_profile(box_setup):
     with pytest.raises(DanoError, match="finite upper bounds"):
         identify(SysIdProblem(scene, [obs], [FitParameter("sliding_friction", 0.3, 0.0, np.inf)],
                               substeps=4), scan=5)
+
+
+def test_ground_height_is_identified_with_friction(box_setup):
+    """The analytic slide observed on a table 3 mm above z = 0: with fit_ground the ground
+    height and μ are both recovered; the scene must have only the ground as world geometry."""
+    _, scene, z = box_setup
+    t, poses = analytic_slide(0.45, z=z + 0.003)
+    obs = Observation(time=t, poses={"box": poses}, qvel0=np.r_[2.0, 0, 0, 0, 0, 0])
+    problem = SysIdProblem(scene, [obs], [FitParameter("sliding_friction", 0.2, 0.0, 2.0)],
+                           weights=Weights((1.0, 1.0, 1.0), 0.0), substeps=4,
+                           base_params=scene.default_params(sliding_drag=0.0), fit_ground=True)
+    assert problem.labels == ["sliding_friction", "ground_height"]
+    res = identify(problem)
+    assert abs(res.estimates[0] / 0.45 - 1) < 0.01
+    assert abs(res.estimates[1] - 0.003) < 2e-4
+    fitted_z = res.fitted[0][:, 2]
+    assert np.max(np.abs(fitted_z - poses[:, 2])) < 5e-4  # the fit is shown in the observations' frame
+    spec = mujoco.MjSpec()
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[1, 1, 0.1], pos=[0, 0, -0.1])
+    boxed = compose([DanoObject("box", box_setup[0], (0, 0, z))], spec, dt=0.0025)
+    with pytest.raises(DanoError, match="only world geometry"):
+        SysIdProblem(boxed, [obs], [FitParameter("sliding_friction", 0.2, 0.0, 2.0)], substeps=4, fit_ground=True)

@@ -57,6 +57,10 @@ def typed(value, tp, where: str):
         if not isinstance(value, dict):
             raise DanoError(f"{where}: expected a table, got {_kind(value)}")
         return {k: typed(v, args[1], f"{where}.{k}") for k, v in value.items()}
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise DanoError(f"{where}: expected true or false, got {_kind(value)}")
+        return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise DanoError(f"{where}: expected a number, got {_kind(value)}")

@@ -34,6 +34,7 @@ interactive-perception experiment). A TOML file describes a user problem::
     horizons = []                 # continuation, e.g. [0.4]
     scan = 0                      # global start: >0 scans the bounds (points per parameter)
     starts = 3                    # local solves from the best scan points
+    fit_ground = false            # fit the ground plane's height (nuisance "ground_height" [m])
     position_weights = [1.0, 1.0, 1.0]
     rotation_weight = 1.0
     jacobian = "ad"
@@ -157,6 +158,7 @@ class OptionsConfig:
     jacobian: str = "ad"
     scan: int = 0
     starts: int = 3
+    fit_ground: bool = False
 
 
 @dataclass(frozen=True)
@@ -257,7 +259,8 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
                   for p in cfg.parameter]
         weights = Weights(opt.position_weights, opt.rotation_weight)
         problem = SysIdProblem(scene, obs, params, weights, base_params=base_params, substeps=opt.substeps,
-                               fit_velocity=opt.fit_velocity, window=opt.window or None)
+                               fit_velocity=opt.fit_velocity, window=opt.window or None,
+                               fit_ground=opt.fit_ground)
     except TypeError as exc:  # e.g. an unknown [contact] parameter name
         raise DanoError(f"{path}: {exc}") from exc
     except DanoError as exc:

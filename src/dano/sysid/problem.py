@@ -219,6 +219,20 @@ def _valid_residuals(intervals: list[int], padded: int, cols: list[int]) -> np.n
     return np.concatenate(keep) if keep else np.zeros(0, dtype=np.int64)
 
 
+def _check_ground_only(scene) -> None:
+    """fit_ground shifts observations; that equals moving the ground only if the ground plane
+    (at z = 0, horizontal) is the world's only collidable geometry."""
+    import mujoco
+
+    m = scene.mj_model
+    world = [g for g in range(m.ngeom) if m.geom_bodyid[g] == 0 and (m.geom_contype[g] or m.geom_conaffinity[g])]
+    planes = [g for g in world if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE]
+    if len(world) != 1 or len(planes) != 1 or abs(m.geom_pos[planes[0], 2]) > 0 or not np.allclose(
+            m.geom_quat[planes[0]], [1, 0, 0, 0]):
+        raise DanoError("fit_ground needs a scene whose only world geometry is the horizontal ground plane at z = 0 "
+                        f"(this one has {len(world)} collidable world geoms)")
+
+
 class SysIdProblem:
     """Identification of ``parameters`` from ``observations`` of ``scene``.
 
@@ -227,15 +241,22 @@ class SysIdProblem:
     velocity to fit as nuisance parameters, per segment (e.g. "xy"); window: split
     trajectories into windows of this many frame intervals, each rolled out from its
     observed state (multiple shooting for long or chaotic motions); None: whole trajectories.
+    fit_ground: fit the height [m] of the ground plane (a real table is never exactly at
+    z = 0) as one more nuisance parameter, ``ground_height``, the last entry of θ. It is
+    applied by shifting the observed heights (exact: the ground plane is then the scene's
+    only world geometry, and a vertical shift leaves gravity unchanged).
     Raises DanoError for inconsistent input (see :func:`_check_observation`), unknown
     parameters, bounds that exclude the initial guess, or fewer residuals than parameters.
     """
 
     def __init__(self, scene: Scene, observations: Sequence[Observation], parameters: Sequence[FitParameter],
                  weights: Weights = Weights(), base_params: SimParams | None = None, substeps: int = 1,
-                 fit_velocity: str = "", window: int | None = None):
+                 fit_velocity: str = "", window: int | None = None, fit_ground: bool = False):
         self._args = dict(weights=weights, base_params=base_params, substeps=substeps, fit_velocity=fit_velocity,
-                          window=window)
+                          window=window, fit_ground=fit_ground)
+        self.fit_ground = bool(fit_ground)
+        if self.fit_ground:
+            _check_ground_only(scene)
         if not observations:
             raise DanoError("no observed trajectories given")
         if not parameters and not fit_velocity:
@@ -326,7 +347,7 @@ class SysIdProblem:
         for i, s in enumerate(self.segments):
             for d in self._tracked[s.obs]:
                 names += [f"v0[{i}]:{d}:{'xyz'[a]}" for a in self.fit_axes]
-        return names
+        return names + (["ground_height"] if self.fit_ground else [])
 
     @property
     def num_parameters(self) -> int:
@@ -450,8 +471,11 @@ class SysIdProblem:
             batches.append(((qadr, dadr, jadr, settle + steps, settle), [i for i, _, _ in items], stacked,
                             jnp.asarray(keep)))
 
+        fit_ground = self.fit_ground
+
         def residuals(theta):
             params = self.sim_params(theta)
+            height = theta[-1] if fit_ground else 0.0
             out = []
             for (qadr, dadr, jadr, n_steps, settle), seg_ids, data, keep in batches:
                 # nuisance initial velocities of this batch's segments
@@ -463,6 +487,9 @@ class SysIdProblem:
                             dv = dv.at[row, jnp.asarray([d + a for a in axes])].add(block[b])
 
                 def one(qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, dv_):
+                    if fit_ground:  # observations in the frame of a ground at z = height
+                        qpos0 = qpos0.at[jnp.asarray([a + 2 for a in qadr])].add(-height)
+                        obs_pose = obs_pose.at[:, :, 2].add(-height)
                     qpos, _, _ = rollout_arrays(scene, State(qpos0, qvel0 + dv_), ctrl, params, n_steps, qfrc)
                     frames = qpos[settle + substeps :: substeps]  # states at frames 1..F-1
                     res = []  # components with zero weight are left out (they would dilute σ²)
@@ -496,7 +523,12 @@ class SysIdProblem:
                 block = np.asarray(theta)[offsets[sid] : offsets[sid + 1]].reshape(-1, len(axes))
                 for b, d in enumerate(dadr):
                     qvel0[[d + a for a in axes]] += block[b]
-            qpos, _, _ = rollout_arrays(self.scene, State(jnp.asarray(data["qpos0"]), jnp.asarray(qvel0)),
+            height = float(np.asarray(theta)[-1]) if self.fit_ground else 0.0
+            qpos0 = np.array(data["qpos0"])
+            qpos0[[a + 2 for a in qadr]] -= height
+            qpos, _, _ = rollout_arrays(self.scene, State(jnp.asarray(qpos0), jnp.asarray(qvel0)),
                                         jnp.asarray(data["ctrl"]), params, settle + steps, jnp.asarray(data["qfrc"]))
-            out.append(np.asarray(qpos)[settle :: self.substeps])
+            qpos = np.array(qpos)[settle :: self.substeps]
+            qpos[:, [a + 2 for a in qadr]] += height  # back in the observations' frame
+            out.append(qpos)
         return out
