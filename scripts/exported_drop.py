@@ -14,7 +14,7 @@ import numpy as np
 
 import dano
 from dano.io import export
-from dano.meshroute import Scenario, _DanoRuns, _quat_angle_deg, _tilt_deg
+from dano.meshroute import Scenario, _advance, _DanoRuns, _quat_angle_deg, _tilt_deg
 from dano.sim import rollout
 from dano.sim.scenes import PAPER_DROP_QUAT, initial_state
 
@@ -30,8 +30,8 @@ def drop(asset, qpos0, qvel0, seconds=3.0, friction=0.2):
     m = spec.compile()
     d = mujoco.MjData(m)
     d.qpos[:], d.qvel[:] = qpos0, qvel0
-    for _ in range(int(seconds / m.opt.timestep)):
-        mujoco.mj_step(m, d)
+    mujoco.mj_forward(m, d)
+    _advance(m, d, seconds)
     runs = _DanoRuns(asset, Scenario(friction=friction), "centroid")
     st = initial_state(runs.scene, {"dano": (qpos0[:3], qpos0[3:])}, {"dano": (qvel0[:3], qvel0[3:])})
     q = rollout(runs.scene, st, params=runs.params, steps=int(seconds / 0.01)).qpos[-1]

@@ -183,6 +183,13 @@ def test_simulate_saves_its_configuration_and_reruns_it(tmp_path, capsys):
     code, _, _ = run(capsys, "simulate", "--config", saved, "--out", tmp_path / "again.npz", "--quiet")
     assert code == 0
     np.testing.assert_array_equal(np.load(out)["qpos"], np.load(tmp_path / "again.npz")["qpos"])
+    # an option given on the command line wins, even when it equals its default
+    edited = json.loads(saved.read_text())
+    edited["contact_model"] = "per_sample"
+    saved.write_text(json.dumps(edited))
+    code, _, _ = run(capsys, "simulate", "--config", saved, "--contact-model", "centroid", "--out",
+                     tmp_path / "third.npz", "--quiet")
+    assert code == 0 and json.loads((tmp_path / "third.config.json").read_text())["contact_model"] == "centroid"
     bad = tmp_path / "bad.toml"
     for text, message in [('scene = "bunny-slide"\nduraton = 1.0', "unknown key 'duraton'"),
                           ('scene = "bunny-slide"\nduration = "1"', "[duration]: expected a number"),

@@ -354,3 +354,8 @@ def test_ground_height_is_identified_with_friction(box_setup):
     boxed = compose([DanoObject("box", box_setup[0], (0, 0, z))], spec, dt=0.0025)
     with pytest.raises(DanoError, match="only world geometry"):
         SysIdProblem(boxed, [obs], [FitParameter("sliding_friction", 0.2, 0.0, 2.0)], substeps=4, fit_ground=True)
+    from dano.sysid.examples import pusher_scene
+
+    pushed, _ = pusher_scene()  # a pusher on slide joints: a shifted ground would move relative to it
+    with pytest.raises(DanoError, match="DANOs on the ground only"):
+        SysIdProblem(pushed, [obs], [FitParameter("sliding_friction", 0.2, 0.0, 2.0)], fit_ground=True)

@@ -82,13 +82,16 @@ def _kind(value) -> str:
 
 
 def typed_table(value, cls, where: str):
+    """The dataclass ``cls`` read from the table ``value`` (a dict) found at ``where`` ("" for
+    the top level); raises DanoError naming the key for unknown keys, missing required keys
+    and wrong types."""
     if not isinstance(value, dict):
-        raise DanoError(f"{where}: expected a table, got {_kind(value)}")
+        raise DanoError(f"{where or 'the file'}: expected a table, got {_kind(value)}")
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(value) - names)
     if unknown:
-        raise DanoError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(names))})")
+        raise DanoError(f"{where or 'top level'}: unknown key {unknown[0]!r} (known: {', '.join(sorted(names))})")
     kwargs = {}
     for f in dataclasses.fields(cls):
         key = f"{where}.{f.name}" if where else f"[{f.name}]"

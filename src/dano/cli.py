@@ -304,9 +304,9 @@ def simulate(
     object: Annotated[tuple[str, ...], tyro.conf.arg(metavar="FILE@X,Y,Z")] = (),
     out: Path | None = None,
     video: Path | None = None,
-    fps: float = 30.0,
-    contact_model: str = "centroid",
-    max_steps: int = 2_000_000,
+    fps: float | None = None,
+    contact_model: str | None = None,
+    max_steps: int | None = None,
     quiet: bool = False,
 ):
     """Simulate a built-in scene or an MJCF file with DANOs and write the trajectory and a video.
@@ -315,7 +315,7 @@ def simulate(
         scene: built-in name (bunny-drop, bunny-slide, sphere-hits-bunny, two-bunnies-sphere,
             panda-push-bunny) or an MJCF path (optional with --config).
         config: a configuration (TOML or JSON, e.g. the <out>.config.json a run saved) whose values are used
-            for every option left at its default; the run then repeats that one.
+            for every option not given on the command line; the run then repeats that one.
         duration: simulated time [s] (default: the scene's).
         dt: time step [s] (default: the scene's).
         param: contact parameters name=value for all pairs, or PAIR:name=value for one pair
@@ -324,9 +324,9 @@ def simulate(
             (default: builtin:bunny@0,0,1).
         out: trajectory .npz (time, qpos, qvel, psi, names).
         video: .mp4 (or .gif) video, rendered headless with MuJoCo.
-        fps: video frame rate.
-        contact_model: DANO contact model of every pair: centroid (the paper's) or per_sample.
-        max_steps: refuse a run of more steps than this (duration / dt) up front.
+        fps: video frame rate (default 30).
+        contact_model: DANO contact model of every pair: centroid (the paper's, default) or per_sample.
+        max_steps: refuse a run of more steps than this (duration / dt) up front (default 2000000).
         quiet: no progress bars.
     """
     import time as _time
@@ -351,9 +351,13 @@ def simulate(
         dt = c.dt if dt is None else dt
         param = param or c.param
         object = object or tuple(_absolute_source(o, base) for o in c.object)
-        fps = c.fps if fps == 30.0 else fps
-        contact_model = c.contact_model if contact_model == "centroid" else contact_model
-        max_steps = c.max_steps if max_steps == 2_000_000 else max_steps
+        fps = c.fps if fps is None else fps
+        contact_model = c.contact_model if contact_model is None else contact_model
+        max_steps = c.max_steps if max_steps is None else max_steps
+    defaults = SimulateConfig(scene="")
+    fps = defaults.fps if fps is None else fps
+    contact_model = defaults.contact_model if contact_model is None else contact_model
+    max_steps = defaults.max_steps if max_steps is None else max_steps
     if scene is None:
         raise ValueError("give a SCENE (or --config)")
     _check_contact_model(contact_model)
@@ -671,11 +675,11 @@ def compare_mesh(
         json_: print the report as one JSON object instead of a table.
         quiet: no progress bar.
     """
-    import trimesh
+    from contextlib import ExitStack
 
+    from ._files import atomic_path
     from .io.exporters import Decomposition
-    from .meshroute import Level, Scenario, compare_mesh as run, extract_levels, render_rest_figure
-    from .sim.scene import interior_density
+    from .meshroute import Scenario, compare_mesh as run, default_levels, extract_levels, render_rest_figure
 
     _check_contact_model(contact_model)
     _check_resolution(resolution)
@@ -685,30 +689,23 @@ def compare_mesh(
         if not (0 <= v < float("inf")) or (least == "positive" and v == 0):
             raise ValueError(f"--{opt} must be a finite {least} number, got {v}")
     asset = _load_asset(source)
-    lv = _level_meshes(mesh)
-    if levels:
-        lv += extract_levels(asset, levels, resolution)
-    if not lv:
-        if asset.field is not None:
-            rho = interior_density(asset.field)
-            lv = extract_levels(asset, [f * rho for f in (0.1, 0.5, 0.9)], resolution)
-        elif len(asset.mesh_faces):
-            visual = trimesh.Trimesh(asset.mesh_vertices + asset.center_of_mass, asset.mesh_faces, process=False)
-            lv = [Level("visual mesh", visual, file="(stored in the .dano)")]
-        else:
-            raise ValueError(f"{source}: no field, no visual mesh and no --mesh given: nothing to compare")
+    lv = _level_meshes(mesh) + (extract_levels(asset, levels, resolution) if levels else [])
+    lv = lv or default_levels(asset, resolution)
     scenario = Scenario(quat=quat, friction=friction, rest_time=rest_time, slide_time=slide_time,
                         slide_speed=slide_speed)
     with _progress(not quiet) as progress:
         report = run(asset, lv, collisions=collision, scenario=scenario, contact_model=contact_model,
                      decomposition=Decomposition(threshold=threshold, max_pieces=max_pieces), progress=progress)
-    if figure is not None:
-        render_rest_figure(asset, report, figure, levels=lv)
-        err.print(f"wrote {figure}")
-    report.pop("_models")
+    with ExitStack() as stack:  # the figure and the report: both or neither
+        if figure is not None:
+            render_rest_figure(asset, report, stack.enter_context(atomic_path(figure)), levels=lv)
+        report.pop("_models")
+        if out is not None:
+            stack.enter_context(atomic_path(out)).write_text(json.dumps(report, indent=1))
+    for path in (figure, out):
+        if path is not None:
+            err.print(f"wrote {path}")
     text = json.dumps(report)
-    if out is not None:
-        atomic_write(out, lambda f: f.write(json.dumps(report, indent=1).encode()))
     if json_:
         print(text)
     else:

@@ -90,6 +90,21 @@ def extract_levels(asset, levels: Sequence[float], resolution: int = 96) -> list
     return out
 
 
+def default_levels(asset, resolution: int = 96) -> list[Level]:
+    """The levels compared when none are given: 0.1, 0.5 and 0.9 of the field's interior
+    density if the asset stores its field, else its visual mesh. Raises DanoError if it has
+    neither."""
+    from .sim.scene import interior_density
+
+    if asset.field is not None:
+        rho = interior_density(asset.field)
+        return extract_levels(asset, [f * rho for f in (0.1, 0.5, 0.9)], resolution)
+    if len(asset.mesh_faces):
+        visual = trimesh.Trimesh(asset.mesh_vertices + asset.center_of_mass, asset.mesh_faces, process=False)
+        return [Level("visual mesh", visual, file="(stored in the .dano)")]
+    raise DanoError(f"{asset.name}: no field, no visual mesh and no level-set mesh given: nothing to compare")
+
+
 def _quat_angle_deg(q1: np.ndarray, q2: np.ndarray) -> float:
     """Angle of the rotation between two orientations [deg]."""
     d = abs(float(np.dot(q1 / np.linalg.norm(q1), q2 / np.linalg.norm(q2))))
@@ -114,32 +129,42 @@ def _full_inertia(m: mujoco.MjModel, b: int) -> np.ndarray:
 
 def mesh_body_model(pieces: Sequence[trimesh.Trimesh], mass: float, friction: float, dt: float,
                     pos=(0.0, 0.0, 0.0)) -> mujoco.MjModel:
-    """A MuJoCo model: ground plane z = 0 and a free body ``mesh`` made of the convex
-    ``pieces`` (body frame) with uniform density scaled so that its mass is ``mass``; MuJoCo
-    computes centre of mass and inertia from the pieces."""
+    """A MuJoCo model: the ground plane z = 0 and a free body ``mesh`` at ``pos`` (3,) [m],
+    made of the convex ``pieces`` (body frame [m]) with the uniform density that gives it
+    ``mass`` [kg] (MuJoCo computes centre of mass and inertia from the pieces; overlapping
+    pieces count twice, as in MuJoCo); sliding ``friction`` on both geoms (MuJoCo takes the
+    larger of the two); timestep ``dt`` [s], implicitfast integrator. Raises DanoError if
+    MuJoCo cannot compile it."""
+    from .io.exporters import add_collision_geoms
+    from .sim.scene import add_ground
 
-    def build(density: float) -> mujoco.MjModel:
-        spec = mujoco.MjSpec()
-        spec.option.timestep = dt
-        spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
-        # MuJoCo takes the larger friction of the two geoms: the ground gets the same
-        spec.worldbody.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1],
-                                friction=[friction, 0.005, 0.0001])
-        spec.worldbody.add_light(pos=[0, 0, 6], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
-        body = spec.worldbody.add_body(name="mesh", pos=list(pos))
-        body.add_freejoint(name="mesh_free")
-        for k, p in enumerate(pieces):
-            spec.add_mesh(name=f"piece_{k}", uservert=np.asarray(p.vertices).ravel().tolist(),
-                          userface=np.asarray(p.faces).ravel().tolist())
-            body.add_geom(name=f"piece_{k}", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"piece_{k}", density=density,
-                          friction=[friction, 0.005, 0.0001], rgba=[0.45, 0.6, 0.85, 1.0])
-        return spec.compile()
-
+    spec = mujoco.MjSpec()
+    spec.option.timestep = dt
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    add_ground(spec)
+    spec.geom("ground").friction = [friction, 0.005, 0.0001]
+    body = spec.worldbody.add_body(name="mesh", pos=list(pos))
+    body.add_freejoint(name="mesh_free")
+    volume = float(sum(p.volume for p in pieces))
+    add_collision_geoms(spec, body, "mesh", pieces, density=mass / volume, friction=friction,
+                        rgba=(0.45, 0.6, 0.85, 1.0))
     try:
-        m1 = build(1.0)
-        return build(mass / float(m1.body_mass[1]))
+        return spec.compile()
     except Exception as exc:
         raise DanoError(f"MuJoCo cannot compile the mesh collider ({exc})") from exc
+
+
+def _advance(m: mujoco.MjModel, d: mujoco.MjData, seconds: float) -> None:
+    """Step ``d`` forward by ``seconds`` with MuJoCo's C rollout (warm start carried over)."""
+    from mujoco import rollout
+
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state = np.empty(mujoco.mj_stateSize(m, spec))
+    mujoco.mj_getState(m, d, state, spec)
+    states, _ = rollout.rollout(m, d, state[None], nstep=int(round(seconds / m.opt.timestep)),
+                                initial_warmstart=d.qacc_warmstart[None].copy())
+    mujoco.mj_setState(m, d, states[0, -1], spec)
+    mujoco.mj_forward(m, d)
 
 
 def _simulate_mujoco(m: mujoco.MjModel, qpos0: np.ndarray, sc: Scenario):
@@ -147,13 +172,11 @@ def _simulate_mujoco(m: mujoco.MjModel, qpos0: np.ndarray, sc: Scenario):
     d = mujoco.MjData(m)
     d.qpos[:] = qpos0
     mujoco.mj_forward(m, d)
-    for _ in range(int(round(sc.rest_time / m.opt.timestep))):
-        mujoco.mj_step(m, d)
+    _advance(m, d, sc.rest_time)
     rest = d.qpos.copy()
     d.qvel[:] = 0.0
     d.qvel[0] = sc.slide_speed
-    for _ in range(int(round(sc.slide_time / m.opt.timestep))):
-        mujoco.mj_step(m, d)
+    _advance(m, d, sc.slide_time)
     if not np.all(np.isfinite(d.qpos)):
         raise DanoError("the MuJoCo mesh simulation became non-finite")
     return rest, d.qpos[:3] - rest[:3]
@@ -344,9 +367,10 @@ def render_rest_figure(asset, report: dict, path, width: int = 320, height: int 
         panels.append((r.render().copy(), title))
         r.close()
 
+    from .sim.scene import add_ground
+
     spec = mujoco.MjSpec()
-    spec.worldbody.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1], rgba=[0.8, 0.8, 0.82, 1])
-    spec.worldbody.add_light(pos=[0, 0, 6], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+    add_ground(spec)
     vis = None
     if not len(asset.mesh_faces) and levels:
         vis = BodyMeshes(trimesh.Trimesh(np.asarray(levels[0].mesh.vertices) - asset.center_of_mass,

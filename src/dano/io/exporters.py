@@ -33,6 +33,8 @@ import trimesh
 from ..errors import DanoError
 
 COLLISION_MODES = ("hull", "decomposition", "none")
+VISUAL_RGBA = (0.85, 0.65, 0.45, 1.0)
+COLLISION_RGBA = (0.4, 0.6, 0.9, 0.5)
 EXPORT_SUFFIXES = (".xml", ".urdf")
 
 
@@ -141,9 +143,26 @@ def _fullinertia(J: np.ndarray) -> list[float]:
     return [J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2]]
 
 
+def add_collision_geoms(spec, body, name: str, pieces: Sequence[trimesh.Trimesh], *, density: float = 0.0,
+                        friction: float | None = None, rgba: Sequence[float] = COLLISION_RGBA) -> None:
+    """Add convex ``pieces`` (body frame [m]) to ``body`` as mesh geoms ``<name>_collision_<kkk>``
+    (group 3) of ``density`` [kg/m³] (0: massless, the body's inertial is explicit) and sliding
+    ``friction`` (MuJoCo's default when None)."""
+    import mujoco
+
+    for k, piece in enumerate(pieces):
+        mname = f"{name}_collision_{k:03d}"
+        spec.add_mesh(name=mname, uservert=np.asarray(piece.vertices).ravel().tolist(),
+                      userface=np.asarray(piece.faces).ravel().tolist())
+        geom = body.add_geom(name=mname, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mname, group=3,
+                             density=float(density), rgba=list(rgba))
+        if friction is not None:
+            geom.friction = [float(friction), geom.friction[1], geom.friction[2]]
+
+
 def add_to_spec(spec, asset, name: str | None = None, *, meshes: BodyMeshes | None = None,
                 pos: Sequence[float] = (0.0, 0.0, 0.0), quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0),
-                free: bool = True, rgba: Sequence[float] = (0.85, 0.65, 0.45, 1.0), friction: float | None = None,
+                free: bool = True, rgba: Sequence[float] = VISUAL_RGBA, friction: float | None = None,
                 parent=None):
     """Add ``asset`` as a body to a :class:`mujoco.MjSpec` and return the body.
 
@@ -153,7 +172,8 @@ def add_to_spec(spec, asset, name: str | None = None, *, meshes: BodyMeshes | No
     friction: sliding friction of the collision geoms (MuJoCo's default when None);
     parent: the parent body (default the world). The inertial is explicit (mass, centre of
     mass at the origin, full inertia), so geoms do not change it. Geom names: ``<name>_visual``
-    (group 1, no collisions), ``<name>_collision_<k>`` (group 3). Without a visual mesh, a
+    (group 1, no collisions), ``<name>_collision_000``, ``_001``, … (group 3), as in the
+    exported MJCF. Without a visual mesh, a
     translucent ellipsoid spanning the samples is drawn.
     """
     import mujoco
@@ -180,14 +200,7 @@ def add_to_spec(spec, asset, name: str | None = None, *, meshes: BodyMeshes | No
         body.add_geom(name=f"{name}_visual", type=mujoco.mjtGeom.mjGEOM_ELLIPSOID, size=list(half),
                       pos=list(0.5 * (asset.points.min(0) + asset.points.max(0))), contype=0, conaffinity=0, group=1,
                       density=0, rgba=list(rgba))
-    for k, piece in enumerate(meshes.collision):
-        mname = f"{name}_collision_{k}"
-        spec.add_mesh(name=mname, uservert=np.asarray(piece.vertices).ravel().tolist(),
-                      userface=np.asarray(piece.faces).ravel().tolist())
-        geom = body.add_geom(name=mname, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mname, group=3, density=0,
-                             rgba=[0.4, 0.6, 0.9, 0.5])
-        if friction is not None:
-            geom.friction = [float(friction), geom.friction[1], geom.friction[2]]
+    add_collision_geoms(spec, body, name, meshes.collision, friction=friction)
     return body
 
 
@@ -224,9 +237,9 @@ def _mjcf(asset, name: str, meshes: dict, free: bool) -> ET.ElementTree:
     for stem in meshes:
         attrs = {"name": f"{name}_{stem}", "type": "mesh", "mesh": f"{name}_{stem}", "density": "0"}
         if stem == "visual":
-            attrs.update(contype="0", conaffinity="0", group="1", rgba="0.85 0.65 0.45 1")
+            attrs.update(contype="0", conaffinity="0", group="1", rgba=_nums(VISUAL_RGBA))
         else:
-            attrs.update(group="3", rgba="0.4 0.6 0.9 0.5")
+            attrs.update(group="3", rgba=_nums(COLLISION_RGBA))
         ET.SubElement(body, "geom", attrs)
     return ET.ElementTree(root)
 

@@ -13,8 +13,9 @@ MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
 
 
 def _check_binary_stl(path: Path) -> None:
-    """A binary STL states its triangle count: refuse a truncated or padded file by size
-    (trimesh would otherwise retry it as ASCII and report an unrelated error)."""
+    """A binary STL states its triangle count: refuse a file too short to hold them
+    (trimesh would otherwise retry it as ASCII and report an unrelated error). Trailing
+    bytes after the triangles, which some exporters write, are allowed (readers ignore them)."""
     size = path.stat().st_size
     with open(path, "rb") as f:
         head = f.read(84)
@@ -23,7 +24,7 @@ def _check_binary_stl(path: Path) -> None:
     if size < 84:
         raise FileFormatError(f"{path}: truncated binary STL ({size} bytes, shorter than the 84-byte header)")
     n = int.from_bytes(head[80:84], "little")
-    if size != 84 + 50 * n:
+    if size < 84 + 50 * n:
         raise FileFormatError(f"{path}: truncated or corrupt binary STL: the header states {n} triangles "
                               f"({84 + 50 * n} bytes), the file has {size} bytes")
 

@@ -193,8 +193,8 @@ def _check_values(c: SysIdConfig) -> None:
         raise DanoError(f"[options].substeps: must be at least 1, got {o.substeps}")
     if o.window < 0 or o.window == 1:
         raise DanoError(f"[options].window: must be 0 (no windows) or at least 2 frame intervals, got {o.window}")
-    if any(not 0 < h <= 1 for h in o.horizons):
-        raise DanoError(f"[options].horizons: fractions of the trajectory in (0, 1], got {list(o.horizons)}")
+    if any(not 0 < h < 1 for h in o.horizons):
+        raise DanoError(f"[options].horizons: fractions of the trajectory in (0, 1), got {list(o.horizons)}")
     if o.scan != 0 and not 2 <= o.scan <= 64:
         raise DanoError(f"[options].scan: 0 (no global scan) or 2 to 64 points per parameter, got {o.scan}")
     if not 1 <= o.starts <= 16:

@@ -219,12 +219,21 @@ def _valid_residuals(intervals: list[int], padded: int, cols: list[int]) -> np.n
     return np.concatenate(keep) if keep else np.zeros(0, dtype=np.int64)
 
 
-def _check_ground_only(scene) -> None:
-    """fit_ground shifts observations; that equals moving the ground only if the ground plane
-    (at z = 0, horizontal) is the world's only collidable geometry."""
+def _check_ground_only(scene, observations) -> None:
+    """fit_ground shifts the observed DANOs; that equals moving the ground only if the
+    ground plane (at z = 0, horizontal) is the world's only collidable geometry, every
+    other body is a DANO, and every observation tracks all DANOs."""
     import mujoco
 
     m = scene.mj_model
+    others = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in range(1, m.nbody)]
+    others = [b for b in others if b not in scene.dano_names]
+    if others:
+        raise DanoError(f"fit_ground needs a scene of DANOs on the ground only; it also has bodies {others}")
+    for k, o in enumerate(observations):
+        if set(o.poses) != set(scene.dano_names):
+            raise DanoError(f"fit_ground: {o.name or f'trajectory {k}'} must track every DANO "
+                            f"{list(scene.dano_names)}, it tracks {sorted(o.poses)}")
     world = [g for g in range(m.ngeom) if m.geom_bodyid[g] == 0 and (m.geom_contype[g] or m.geom_conaffinity[g])]
     planes = [g for g in world if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE]
     if len(world) != 1 or len(planes) != 1 or abs(m.geom_pos[planes[0], 2]) > 0 or not np.allclose(
@@ -243,8 +252,8 @@ class SysIdProblem:
     observed state (multiple shooting for long or chaotic motions); None: whole trajectories.
     fit_ground: fit the height [m] of the ground plane (a real table is never exactly at
     z = 0) as one more nuisance parameter, ``ground_height``, the last entry of θ. It is
-    applied by shifting the observed heights (exact: the ground plane is then the scene's
-    only world geometry, and a vertical shift leaves gravity unchanged).
+    applied by shifting the observed heights (exact, since a vertical shift leaves gravity
+    unchanged, for scenes of DANOs on the ground plane only, all tracked: checked).
     Raises DanoError for inconsistent input (see :func:`_check_observation`), unknown
     parameters, bounds that exclude the initial guess, or fewer residuals than parameters.
     """
@@ -256,7 +265,7 @@ class SysIdProblem:
                           window=window, fit_ground=fit_ground)
         self.fit_ground = bool(fit_ground)
         if self.fit_ground:
-            _check_ground_only(scene)
+            _check_ground_only(scene, observations)
         if not observations:
             raise DanoError("no observed trajectories given")
         if not parameters and not fit_velocity:

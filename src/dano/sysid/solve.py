@@ -84,11 +84,12 @@ def scan_points(lower: np.ndarray, upper: np.ndarray, scan: int, seed: int = 0) 
     return lower + unit * (upper - lower)
 
 
-def scan_costs(problem: SysIdProblem, points: np.ndarray, batch: int = 16) -> np.ndarray:
+def scan_costs(problem: SysIdProblem, points: np.ndarray, batch: int = 16, residual_function=None) -> np.ndarray:
     """Cost ½‖r‖² at each row of ``points`` (K, n_global) (nuisance parameters at their
     initial values), evaluated ``batch`` points at a time through one vmapped, compiled
-    residual; non-finite costs (diverging rollouts) are returned as inf."""
-    fun = problem.residual_function()
+    residual (``residual_function``: the problem's, built once by the caller, or built
+    here); non-finite costs (diverging rollouts) are returned as inf. Returns (K,)."""
+    fun = residual_function or problem.residual_function()
     x0 = problem.initial()
     n = points.shape[1]
     cost = jax.jit(jax.vmap(lambda th: 0.5 * jnp.sum(fun(th) ** 2)))
@@ -130,7 +131,8 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     scan of the global parameters' bounds (:func:`scan_points`: ``scan`` values per axis for
     one or two parameters, ``scan``² Sobol points beyond), in vmapped batches; the local
     solver then starts from the ``starts`` best points (and the given initial guess) and the
-    lowest final cost wins. The result's ``scan`` holds the points, their costs, the starts
+    lowest final cost wins. Without ``horizons`` the scan and every start share one traced
+    residual and Jacobian (compiled once each). The result's ``scan`` holds the points, their costs, the starts
     and the cost profile along each parameter. Needs finite bounds on the global parameters.
 
     jacobian: "ad" (forward-mode AD, default) or "fd" (SciPy's 2-point finite
@@ -147,15 +149,15 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     if problem.scene.dtype != jnp.float64:
         raise DanoError(f"identification needs a float64 scene, got {problem.scene.dtype}: call "
                         "dano.enable_float64() before composing the scene")
+    if jacobian not in ("ad", "fd"):
+        raise DanoError(f"jacobian must be 'ad' or 'fd', got {jacobian!r}")
+    for h in horizons:
+        if not 0 < h < 1:
+            raise DanoError(f"horizons must be fractions in (0, 1), got {h}")
     if scan:
         return _identify_from_scan(problem, scan, starts, jacobian=jacobian, max_iterations=max_iterations,
                                    xtol=xtol, ftol=ftol, gtol=gtol, horizons=horizons)
-    if jacobian not in ("ad", "fd"):
-        raise DanoError(f"jacobian must be 'ad' or 'fd', got {jacobian!r}")
     if horizons:
-        for h in horizons:
-            if not 0 < h < 1:
-                raise DanoError(f"horizons must be fractions in (0, 1), got {h}")
         stages, current = [], problem
         for h in horizons:
             r = identify(current.truncated(h), jacobian=jacobian, max_iterations=max_iterations, xtol=xtol,
@@ -171,10 +173,21 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         final.stages = [{"horizon": h, "estimates": r.estimates.tolist(), "cost_history": r.cost_history}
                         for h, r in zip(horizons, stages)]
         return final
+    return _local_solve(problem, _compile(problem), problem.initial(), jacobian=jacobian,
+                        max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
+
+
+def _compile(problem: SysIdProblem):
+    """(residual function, its jit, the jit of its forward-mode Jacobian): one trace of the
+    problem, shared by every local solve from another starting point."""
     r_fn = problem.residual_function()
-    fun = jax.jit(r_fn)
-    jac_fn = jax.jit(jax.jacfwd(r_fn))  # compiled only when used (jacobian="ad")
-    x0 = problem.initial()
+    return r_fn, jax.jit(r_fn), jax.jit(jax.jacfwd(r_fn))  # the Jacobian compiles only when used
+
+
+def _local_solve(problem: SysIdProblem, compiled, x0: np.ndarray, *, jacobian: str, max_iterations: int,
+                 xtol: float, ftol: float, gtol: float, fitted: bool = True) -> SysIdResult:
+    """Bounded least squares from ``x0`` (n,) with the compiled residual and Jacobian."""
+    _, fun, jac_fn = compiled
     lo, hi = problem.bounds()
 
     t0 = time.perf_counter()
@@ -216,7 +229,7 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         cost_history=history, final_cost=float(sol.cost), rms_residual=float(np.sqrt(2 * sol.cost / m)),
         num_residuals=m, nfev=int(sol.nfev), njev=int(sol.njev or 0), wall_time_s=wall,
         compile_time_s=compile_time, success=bool(sol.success), message=str(sol.message), jacobian=jacobian,
-        fitted=problem.simulate(sol.x),
+        fitted=problem.simulate(sol.x) if fitted else [],
     )
 
 
@@ -230,16 +243,33 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
     hi = np.array([p.upper for p in problem.parameters])
     if not np.all(np.isfinite(hi)):
         raise DanoError("a global scan needs finite upper bounds on every parameter (set 'upper')")
+    compiled = _compile(problem)
     t0 = time.perf_counter()
     points = scan_points(lo, hi, scan)
-    costs = scan_costs(problem, points)
+    costs = scan_costs(problem, points, residual_function=compiled[0])
     scan_time = time.perf_counter() - t0
     order = [int(i) for i in np.argsort(costs) if np.isfinite(costs[i])][:starts]
     if not order:
         raise DanoError("every point of the global scan gives a diverging simulation; check the bounds")
     candidates = [problem.initial()[:n]] + [points[i] for i in order]
-    results = [identify(problem.with_initial(x), **local) for x in candidates]
+    opts = {k: v for k, v in local.items() if k != "horizons"}
+    results, kept = [], []
+    for x in candidates:
+        try:
+            if local["horizons"]:  # continuation: truncated problems, compiled per start
+                results.append(identify(problem.with_initial(x), **local))
+            else:  # one compiled residual and Jacobian for every start
+                x0 = np.concatenate([np.clip(x, lo, hi), problem.initial()[n:]])
+                results.append(_local_solve(problem, compiled, x0, fitted=False, **opts))
+            kept.append(x)
+        except DanoError:  # a start whose rollout is non-finite (e.g. the given guess): skipped
+            continue
+    if not results:
+        raise DanoError("no start of the global scan gives finite residuals")
+    candidates = kept
     best = min(results, key=lambda r: r.final_cost)
+    if not best.fitted:
+        best.fitted = problem.simulate(best.estimates)
     best.initial = problem.initial()
     best.wall_time_s = sum(r.wall_time_s for r in results) + scan_time
     best.nfev = sum(r.nfev for r in results) + len(points)
