@@ -544,6 +544,63 @@ def bench(
     print(text)
 
 
+@_names("task")
+def trajopt(
+    task: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="TASK|CONFIG")],
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False,
+    out_dir: Path | None = None,
+    model_error: float | None = None,
+    max_iterations: int | None = None,
+    contact_model: str | None = None,
+    no_video: bool = False,
+    quiet: bool = False,
+) -> None:
+    """Optimise a robot motion through contact (constrained iLQR with an augmented Lagrangian).
+
+    Args:
+        task: a built-in task (push-sphere: the paper's sphere pushing the bunny 1.0 sideways of a plain push)
+            or a TOML/JSON configuration (key task and the task's settings, e.g. the config.json a run saved).
+        json_: print one JSON object (bunny_final_error, pusher_final_error, max_constraint_violation,
+            iterations, converged, status, wall_time_s, compile_time_s, ...; model_error with --model-error).
+        out_dir: write report.json, config.json, solution.npz, log.csv, convergence.png and the video here
+            (default: trajopt-<task>/).
+        model_error: also run the plan in a world with (1 + this) times the sliding friction: open loop and
+            with receding horizon (e.g. 0.3).
+        max_iterations: iLQR iterations in all (default 300).
+        contact_model: DANO contact model: centroid (the paper's, default) or per_sample.
+        no_video: skip the video.
+        quiet: no progress bars.
+    """
+    from .trajopt.run import run, write_outputs
+
+    if contact_model is not None:
+        _check_contact_model(contact_model)
+    with _progress(not quiet and not json_) as progress:
+        problem, solution, me, report = run(task, progress=progress, model_error=model_error,
+                                            max_iterations=max_iterations, contact_model=contact_model)
+    report, nonfinite = _json_safe(report)
+    if nonfinite:
+        report["warnings"] = [f"not finite (written as null): {', '.join(nonfinite)}"]
+    out_dir = out_dir or Path(f"trajopt-{problem.config.task}")
+    with _progress(not quiet and not json_) as progress:
+        paths = write_outputs(problem, solution, me, report, out_dir, video=not no_video, progress=progress)
+    if json_:
+        print(json.dumps(report))
+        return
+    t = Table(title=f"trajectory optimisation: {task}")
+    t.add_column("quantity")
+    t.add_column("value")
+    for key in ("status", "iterations", "bunny_final_error", "pusher_final_error", "max_constraint_violation", "cost"):
+        v = report[key]
+        t.add_row(key.replace("_", " "), f"{v:.4g}" if isinstance(v, float) else str(v))
+    for key, v in (report.get("model_error") or {}).items():
+        if isinstance(v, float):
+            t.add_row(key.replace("_", " "), f"{v:.4g}")
+    t.caption = (f"{report['wall_time_s']:.1f} s (of which {report['compile_time_s']:.1f} s compiling); "
+                 f"wrote {', '.join(str(p) for p in paths)}")
+    out.print(t)
+
+
 Collision = Literal["hull", "decomposition", "none"]
 
 
@@ -721,7 +778,7 @@ def _check_contact_model(name: str) -> None:
 
 
 COMMANDS = {"build": build, "inspect": inspect, "simulate": simulate, "sysid": sysid, "export": export,
-            "compare-mesh": compare_mesh, "demo": demo, "bench": bench}
+            "compare-mesh": compare_mesh, "trajopt": trajopt, "demo": demo, "bench": bench}
 
 
 def _terminate(signum, frame):

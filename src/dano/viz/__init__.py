@@ -1,5 +1,5 @@
 """Plots and (later) videos."""
 
-from .plot import plot_samples, plot_sysid
+from .plot import plot_samples, plot_sysid, plot_trajopt
 
-__all__ = ["plot_samples", "plot_sysid"]
+__all__ = ["plot_samples", "plot_sysid", "plot_trajopt"]

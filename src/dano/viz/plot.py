@@ -91,3 +91,42 @@ def plot_sysid(problem, result, path, max_trajectories: int = 4) -> Path:
     path = Path(path)
     atomic_write(path, lambda f: fig.savefig(f, format=path.suffix.lstrip(".") or "png", dpi=110))
     return path
+
+
+def plot_trajopt(task, solution, model_error, path) -> Path:
+    """A trajectory optimisation's convergence (cost, constraint violation and penalty per
+    iteration) and its top-down paths (plain push, optimised plan, goals and, with a model
+    error, the open-loop and receding-horizon runs in the other world), to an image file.
+    Written atomically."""
+    from matplotlib.figure import Figure
+
+    log = solution.log
+    fig = Figure(figsize=(14, 4.5))
+    ax_cost, ax_viol, ax_path = fig.subplots(1, 3)
+    it = log["iteration"]
+    ax_cost.plot(it, log["cost"], label="cost J")
+    ax_cost.plot(it, log["merit"], "--", label="augmented Lagrangian")
+    ax_cost.set(xlabel="iteration", ylabel="cost", yscale="symlog", title=f"{solution.status}, "
+                f"{solution.iterations} iterations")
+    ax_cost.legend()
+    ax_viol.semilogy(it, np.maximum(log["max_violation"], 1e-12), label="max constraint violation")
+    ax_viol.semilogy(it, log["penalty"], ":", label="penalty μ")
+    ax_viol.semilogy(it, np.maximum(log["step"], 1e-6), ".", ms=3, label="line-search step")
+    ax_viol.set(xlabel="iteration", title="constraints")
+    ax_viol.legend(fontsize=8)
+    runs = [("plain push", task.X_plain, ":"), ("optimised", np.asarray(solution.states), "-")]
+    if model_error is not None:
+        runs += [(f"open loop, μ={model_error.friction:.3g}", model_error.open_loop_states, "--"),
+                 ("receding horizon", model_error.receding.states, "-.")]
+    for label, X, style in runs:
+        b, p = X[:, task.bunny_qpos], X[:, task.pusher_qpos]
+        line, = ax_path.plot(b[:, 0], b[:, 1], style, label=f"bunny, {label}")
+        ax_path.plot(p[:, 0], p[:, 1], style, color=line.get_color(), alpha=0.4)
+    ax_path.plot(*task.bunny_goal[:2], "k*", ms=12, label="bunny goal")
+    ax_path.plot(*task.pusher_goal[:2], "kx", ms=10, label="sphere goal")
+    ax_path.set(xlabel="x [m]", ylabel="y [m]", title="top view (faint: sphere)", aspect="equal")
+    ax_path.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    path = Path(path)
+    atomic_write(path, lambda f: fig.savefig(f, format=path.suffix.lstrip(".") or "png", dpi=110))
+    return path

@@ -1,0 +1,12 @@
+"""Trajectory optimisation through contact: constrained iLQR (augmented Lagrangian) on
+:func:`dano.sim.step`, receding-horizon control, and the built-in tasks of ``dano trajopt``.
+
+``Problem`` states the dynamics, costs and constraints; ``solve`` runs the solver;
+``receding_horizon`` re-plans from measured states; ``tasks`` holds the paper's push.
+"""
+
+from .ilqr import LOG_KEYS, Multipliers, Options, Solution, rollout, solve
+from .problem import Problem, mjx_dynamics, quadratic, quadratic_problem
+
+__all__ = ["LOG_KEYS", "Multipliers", "Options", "Problem", "Solution", "mjx_dynamics", "quadratic",
+           "quadratic_problem", "rollout", "solve"]

@@ -1,0 +1,390 @@
+"""Constrained iterative LQR with an augmented Lagrangian (ALTRO-style, as the paper used).
+
+Outer loop: the augmented Lagrangian of the constraints c (inequalities g ≤ 0, equalities
+h = 0, control bounds folded in as inequalities),
+
+    L = J + Σ λᵀc + ½ Σ cᵀ I_μ c,   I_μ = μ on equalities and on inequalities that are
+                                         violated or have λ > 0, else 0
+
+is minimised by iLQR, then λ ← λ + μc (λ ≥ 0 for inequalities) and μ ← φμ until the
+largest violation is below tolerance (Howell, Jackson & Manchester, "ALTRO", IROS 2019).
+
+Inner loop (iLQR): dynamics linearised by forward-mode AD (``jax.jacfwd``, vmapped over
+the horizon), the cost's second-order expansion by AD, constraint terms Gauss–Newton;
+Riccati backward pass with state regularisation ρ (Tassa, Erez & Todorov, IROS 2012),
+raised when Q_uu is not positive definite; forward pass with a backtracking line search
+on the merit L (accepted when the actual decrease is at least 1e-4 of the predicted
+one); controls are clipped to their bounds in the forward pass.
+
+Each piece is one jitted function of the problem's shape: a problem compiles once, every
+later solve (other x0, warm starts, parameters p) reuses it. The loop itself runs in
+Python so that it can report progress and stop early.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import DanoError
+from .problem import Problem
+
+
+@dataclass(frozen=True)
+class Options:
+    """Solver settings.
+
+    max_iterations: iLQR iterations in all (every backward + forward pass counts);
+    inner_iterations: at most this many per penalty value; cost_tolerance: the inner loop
+    stops when an accepted step decreases the merit by less than this (relative), once the
+    constraints are met; cost_tolerance_intermediate: the same while they are not (a loose
+    inner solve before each multiplier update, as ALTRO does); gradient_tolerance: or when
+    the feed-forward step max|k|/(|u| + 1), averaged over the horizon, is below this;
+    constraint_tolerance: largest allowed violation (constraint units);
+    penalty_initial, penalty_scaling, penalty_max: μ₀, φ and the largest μ (reaching it
+    with the constraints still violated means the problem is reported infeasible);
+    penalty_keep: after an inner solve that cut the violation to below this fraction of
+    the previous one, only the multipliers are updated, μ is kept (Nocedal & Wright,
+    Numerical Optimization, Framework 17.3); else μ ← φμ too;
+    regularization_initial/min/max: ρ; line_search: step sizes tried, largest first.
+    """
+
+    max_iterations: int = 300
+    inner_iterations: int = 50
+    cost_tolerance: float = 1e-4
+    cost_tolerance_intermediate: float = 1e-3
+    gradient_tolerance: float = 1e-5
+    constraint_tolerance: float = 1e-4
+    penalty_initial: float = 1.0
+    penalty_scaling: float = 10.0
+    penalty_max: float = 1e8
+    penalty_keep: float = 0.25
+    regularization_initial: float = 0.0
+    regularization_min: float = 1e-8
+    regularization_max: float = 1e10
+    line_search: tuple[float, ...] = tuple(0.5**i for i in range(11))
+
+    def __post_init__(self):
+        if self.max_iterations < 1 or self.inner_iterations < 1:
+            raise DanoError("max_iterations and inner_iterations must be at least 1")
+        if not (self.penalty_scaling > 1 and self.penalty_initial > 0 and self.penalty_max >= self.penalty_initial):
+            raise DanoError("need penalty_initial > 0, penalty_scaling > 1 and penalty_max >= penalty_initial")
+        if not self.line_search or any(not 0 < a <= 1 for a in self.line_search):
+            raise DanoError("line_search step sizes must lie in (0, 1]")
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Multipliers:
+    """Lagrange multipliers: inequality (T, ni) ≥ 0, equality (T, ne), terminal_inequality
+    (niT,) ≥ 0, terminal_equality (neT,)."""
+
+    inequality: jax.Array
+    equality: jax.Array
+    terminal_inequality: jax.Array
+    terminal_equality: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Solution:
+    """A solve's result (a pytree).
+
+    states: (T + 1, nx); controls: (T, nu); gains: (T, nu, nx) feedback K of the last
+    backward pass (u = U + K (x − X) stabilises the plan); multipliers; cost: J without
+    constraint terms; max_violation: largest constraint violation; penalty: final μ;
+    iterations: iLQR iterations run; converged: constraints within tolerance and the
+    inner loop converged; status: "converged", "infeasible" (penalty at its maximum with
+    the constraints still violated, or their violation no longer decreasing as μ grows)
+    or "max_iterations"; log: per iteration, a dict of arrays
+    ``iteration, outer, cost, merit, max_violation, step, penalty, regularization,
+    gradient``; wall_time_s, compile_time_s: seconds in all, and of those in compiling.
+    """
+
+    states: jax.Array
+    controls: jax.Array
+    gains: jax.Array
+    multipliers: Multipliers
+    cost: float = dataclasses.field(metadata=dict(static=True))
+    max_violation: float = dataclasses.field(metadata=dict(static=True))
+    penalty: float = dataclasses.field(metadata=dict(static=True))
+    iterations: int = dataclasses.field(metadata=dict(static=True))
+    converged: bool = dataclasses.field(metadata=dict(static=True))
+    status: str = dataclasses.field(metadata=dict(static=True))
+    log: Any = dataclasses.field(default=None, metadata=dict(static=True))
+    wall_time_s: float = dataclasses.field(default=0.0, metadata=dict(static=True))
+    compile_time_s: float = dataclasses.field(default=0.0, metadata=dict(static=True))
+
+
+LOG_KEYS = ("iteration", "outer", "cost", "merit", "max_violation", "step", "penalty", "regularization", "gradient")
+
+
+class _Compiled:
+    """The jitted pieces of one problem (cached on the problem object)."""
+
+    def __init__(self, pr: Problem):
+        T = pr.horizon
+        ts = jnp.arange(T)
+
+        def rollout(x0, U, p):
+            def body(x, tu):
+                t, u = tu
+                xn = pr.dynamics(x, u, t, p).astype(x.dtype)
+                return xn, xn
+
+            _, X = jax.lax.scan(body, x0, (ts, U))
+            return jnp.concatenate([x0[None], X])
+
+        def constraint_values(X, U, p):
+            gi = jax.vmap(pr.stage_inequality, (0, 0, 0, None))(X[:-1], U, ts, p)
+            ge = jax.vmap(pr.stage_equality, (0, 0, 0, None))(X[:-1], U, ts, p)
+            return gi, ge, pr.final_inequality(X[-1], p), pr.final_equality(X[-1], p)
+
+        def active(g, lam, mu):
+            return jnp.where((g > 0) | (lam > 0), mu, 0.0)
+
+        def merit(X, U, lam: Multipliers, mu, p):
+            cost = jnp.sum(jax.vmap(pr.stage_cost, (0, 0, 0, None))(X[:-1], U, ts, p)) + pr.terminal_cost(X[-1], p)
+            gi, ge, gT, hT = constraint_values(X, U, p)
+            al = (jnp.sum(lam.inequality * gi) + 0.5 * jnp.sum(active(gi, lam.inequality, mu) * gi**2)
+                  + jnp.sum(lam.equality * ge) + 0.5 * mu * jnp.sum(ge**2)
+                  + jnp.sum(lam.terminal_inequality * gT) + 0.5 * jnp.sum(active(gT, lam.terminal_inequality, mu) * gT**2)
+                  + jnp.sum(lam.terminal_equality * hT) + 0.5 * mu * jnp.sum(hT**2))
+            viol = jnp.concatenate([jnp.maximum(gi, 0).ravel(), jnp.abs(ge).ravel(), jnp.maximum(gT, 0),
+                                    jnp.abs(hT), jnp.zeros((1,), X.dtype)])
+            return cost, cost + al, jnp.max(viol)
+
+        def evaluate(x0, U, lam, mu, p):
+            X = rollout(x0, U, p)
+            return (X,) + merit(X, U, lam, mu, p)
+
+        def forward(x0, X, U, K, k, alpha, lam, mu, p):
+            def body(x, inp):
+                t, xr, ur, Kt, kt = inp
+                u = ur + alpha * kt + Kt @ (x - xr)
+                xn = pr.dynamics(x, u, t, p).astype(x.dtype)
+                return xn, (xn, u)
+
+            _, (Xn, Un) = jax.lax.scan(body, x0, (ts, X[:-1], U, K, k))
+            Xn = jnp.concatenate([x0[None], Xn])
+            return (Xn, Un) + merit(Xn, Un, lam, mu, p)
+
+        def expand(X, U, lam: Multipliers, mu, p):
+            """Linearised dynamics and the merit's quadratic expansion along (X, U)."""
+
+            def stage(x, u, t, li, le):
+                z = jnp.concatenate([x, u])
+                nx = x.shape[0]
+                split = (lambda f: lambda z_: f(z_[:nx], z_[nx:], t, p))
+                F = jax.jacfwd(split(pr.dynamics))(z)
+                lz = jax.grad(split(pr.stage_cost))(z)
+                lzz = jax.hessian(split(pr.stage_cost))(z)
+                g, Jg = split(pr.stage_inequality)(z), jax.jacfwd(split(pr.stage_inequality))(z)
+                h, Jh = split(pr.stage_equality)(z), jax.jacfwd(split(pr.stage_equality))(z)
+                Ig = active(g, li, mu)
+                lz = lz + Jg.T @ (li + Ig * g) + Jh.T @ (le + mu * h)
+                lzz = lzz + Jg.T @ (Ig[:, None] * Jg) + mu * Jh.T @ Jh
+                return F, lz, lzz
+
+            F, lz, lzz = jax.vmap(stage)(X[:-1], U, ts, lam.inequality, lam.equality)
+            xT = X[-1]
+            fT = (lambda x: pr.terminal_cost(x, p))
+            gT, JgT = pr.final_inequality(xT, p), jax.jacfwd(lambda x: pr.final_inequality(x, p))(xT)
+            hT, JhT = pr.final_equality(xT, p), jax.jacfwd(lambda x: pr.final_equality(x, p))(xT)
+            IgT = active(gT, lam.terminal_inequality, mu)
+            Vx = jax.grad(fT)(xT) + JgT.T @ (lam.terminal_inequality + IgT * gT) + JhT.T @ (lam.terminal_equality + mu * hT)
+            Vxx = jax.hessian(fT)(xT) + JgT.T @ (IgT[:, None] * JgT) + mu * JhT.T @ JhT
+            return F, lz, lzz, Vx, Vxx
+
+        def backward(F, lz, lzz, Vx, Vxx, rho):
+            nx = Vx.shape[0]
+            eye = jnp.eye(nx, dtype=Vx.dtype)
+
+            def body(carry, inp):
+                Vx, Vxx = carry
+                Ft, lzt, lzzt = inp
+                A, B = Ft[:, :nx], Ft[:, nx:]
+                Qx = lzt[:nx] + A.T @ Vx
+                Qu = lzt[nx:] + B.T @ Vx
+                Qxx = lzzt[:nx, :nx] + A.T @ Vxx @ A
+                Quu = lzzt[nx:, nx:] + B.T @ Vxx @ B
+                Qux = lzzt[nx:, :nx] + B.T @ Vxx @ A
+                Vreg = Vxx + rho * eye
+                Quu_r = lzzt[nx:, nx:] + B.T @ Vreg @ B
+                Qux_r = lzzt[nx:, :nx] + B.T @ Vreg @ A
+                Quu_r = 0.5 * (Quu_r + Quu_r.T)
+                L = jnp.linalg.cholesky(Quu_r)
+                ok = jnp.all(jnp.isfinite(L))
+                sol = jax.scipy.linalg.cho_solve((L, True), jnp.concatenate([Qu[:, None], Qux_r], axis=1))
+                k, K = -sol[:, 0], -sol[:, 1:]
+                Vx_n = Qx + K.T @ Quu @ k + K.T @ Qu + Qux.T @ k
+                Vxx_n = Qxx + K.T @ Quu @ K + K.T @ Qux + Qux.T @ K
+                Vxx_n = 0.5 * (Vxx_n + Vxx_n.T)
+                dv = jnp.stack([k @ Qu, 0.5 * k @ Quu @ k])
+                return (Vx_n, Vxx_n), (K, k, dv, ok)
+
+            _, (K, k, dv, ok) = jax.lax.scan(body, (Vx, Vxx), (F, lz, lzz), reverse=True)
+            return K, k, jnp.sum(dv, axis=0), jnp.all(ok) & jnp.all(jnp.isfinite(K)) & jnp.all(jnp.isfinite(k))
+
+        def duals(X, U, lam: Multipliers, mu, p):
+            gi, ge, gT, hT = constraint_values(X, U, p)
+            return Multipliers(jnp.maximum(lam.inequality + mu * gi, 0), lam.equality + mu * ge,
+                               jnp.maximum(lam.terminal_inequality + mu * gT, 0), lam.terminal_equality + mu * hT)
+
+        def sizes(x0, U, p):
+            return tuple(a.shape for a in constraint_values(rollout(x0, U, p), U, p))
+
+        self.evaluate = jax.jit(evaluate)
+        self.forward = jax.jit(forward)
+        self.expand = jax.jit(expand)
+        self.backward = jax.jit(backward)
+        self.duals = jax.jit(duals)
+        self.sizes = sizes
+
+
+_CACHE: dict[Problem, _Compiled] = {}  # problems compare by identity
+
+
+def _compiled(problem: Problem) -> _Compiled:
+    if problem not in _CACHE:
+        _CACHE[problem] = _Compiled(problem)
+    return _CACHE[problem]
+
+
+def _check_inputs(problem: Problem, x0, U0):
+    x0 = jnp.asarray(x0)
+    U0 = jnp.asarray(U0, dtype=x0.dtype)
+    if x0.shape != (problem.nx,):
+        raise DanoError(f"x0 must have shape ({problem.nx},), got {x0.shape}")
+    if U0.shape != (problem.horizon, problem.nu):
+        raise DanoError(f"initial controls must have shape ({problem.horizon}, {problem.nu}), got {U0.shape}")
+    if not (np.all(np.isfinite(np.asarray(x0))) and np.all(np.isfinite(np.asarray(U0)))):
+        raise DanoError("x0 and the initial controls must be finite")
+    return x0, problem.clip(U0)
+
+
+def solve(problem: Problem, x0, U0, params=None, options: Options = Options(),
+          multipliers: Multipliers | None = None, penalty: float | None = None,
+          callback: Callable[[dict], None] | None = None) -> Solution:
+    """Solve ``problem`` from state x0 (nx,) with initial controls U0 (T, nu) (clipped to
+    the bounds; a warm start), parameters ``params`` (the problems' p, any pytree).
+
+    multipliers, penalty: warm-start the augmented Lagrangian (e.g. from a previous
+    :class:`Solution`); callback: called with each iteration's log entry (a dict of
+    floats), e.g. to draw progress. Returns a :class:`Solution`; never raises for lack
+    of convergence (its ``status`` says why it stopped). Raises DanoError for inputs of
+    the wrong shape or non-finite inputs, or if the initial rollout is not finite.
+    """
+    start = time.perf_counter()
+    fns = _compiled(problem)
+    x0, U = _check_inputs(problem, x0, U0)
+    compile_s = 0.0
+
+    def timed(fn, *args):
+        nonlocal compile_s
+        before = fn._cache_size()
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(fn(*args))
+        if fn._cache_size() > before:
+            compile_s += time.perf_counter() - t0
+        return out
+
+    if multipliers is None:
+        shapes = fns.sizes(x0, U, params)
+        multipliers = Multipliers(*(jnp.zeros(s, x0.dtype) for s in shapes))
+    lam = multipliers
+    mu = jnp.asarray(options.penalty_initial if penalty is None else penalty, x0.dtype)
+    X, cost, merit, viol = timed(fns.evaluate, x0, U, lam, mu, params)
+    if not np.isfinite(float(merit)):
+        raise DanoError("the initial rollout or its cost is not finite; check x0, the initial controls and the dynamics")
+    rho = options.regularization_initial
+    log = {k: [] for k in LOG_KEYS}
+    K = jnp.zeros((problem.horizon, problem.nu, problem.nx), x0.dtype)
+    status, outer, inner, it = "max_iterations", 0, 0, 0
+    violations = [float(viol)]
+    expansion = None
+    while it < options.max_iterations:
+        if expansion is None:  # the expansion changes only when the trajectory, λ or μ do
+            expansion = timed(fns.expand, X, U, lam, mu, params)
+        # backward pass, raising the regularisation until Q_uu is positive definite
+        while True:
+            K_new, k, dV, ok = timed(fns.backward, *expansion, jnp.asarray(rho, x0.dtype))
+            if bool(ok) or rho >= options.regularization_max:
+                break
+            rho = max(rho * 10.0, options.regularization_min * 1e2)
+        it += 1
+        inner += 1
+        gradient = float(jnp.mean(jnp.max(jnp.abs(k) / (jnp.abs(U) + 1.0), axis=1)))
+        accepted, step = False, 0.0
+        if bool(ok):
+            for alpha in options.line_search:
+                Xn, Un, cost_n, merit_n, viol_n = timed(fns.forward, x0, X, U, K_new, k, alpha, lam, mu, params)
+                expected = -(alpha * float(dV[0]) + alpha**2 * float(dV[1]))
+                actual = float(merit) - float(merit_n)
+                if np.isfinite(float(merit_n)) and (actual >= 1e-4 * expected if expected > 0 else actual >= 0):
+                    accepted, step = True, alpha
+                    break
+        previous = float(merit)
+        if accepted:
+            X, U, cost, merit, viol, K = Xn, Un, cost_n, merit_n, viol_n, K_new
+            expansion = None
+            rho = 0.0 if rho <= options.regularization_min * 1e2 else rho / 10.0
+        else:
+            rho = max(rho * 10.0, options.regularization_min * 1e2)
+        entry = dict(iteration=it, outer=outer, cost=float(cost), merit=float(merit), max_violation=float(viol),
+                     step=step, penalty=float(mu), regularization=rho, gradient=gradient)
+        for key in LOG_KEYS:
+            log[key].append(entry[key])
+        if callback is not None:
+            callback(entry)
+        feasible = float(viol) <= options.constraint_tolerance
+        tol = options.cost_tolerance if feasible else options.cost_tolerance_intermediate
+        change = (previous - float(merit)) / max(abs(previous), 1.0)
+        stalled = not accepted and rho > options.regularization_max
+        if not ((accepted and change < tol) or gradient < options.gradient_tolerance or stalled
+                or inner >= options.inner_iterations):
+            continue
+        # the inner solve is done: converged, or an augmented-Lagrangian update
+        if feasible:
+            status = "converged"
+            break
+        if float(mu) >= options.penalty_max or _stagnant(violations + [float(viol)]):
+            status = "infeasible"
+            break
+        lam = timed(fns.duals, X, U, lam, mu, params)
+        if float(viol) > options.penalty_keep * violations[-1]:  # too slow: stiffen the penalty
+            mu = jnp.minimum(mu * options.penalty_scaling, options.penalty_max)
+        violations.append(float(viol))
+        outer += 1
+        inner = 0
+        rho = options.regularization_initial
+        expansion = None
+        _, cost, merit, viol = timed(fns.evaluate, x0, U, lam, mu, params)
+    return Solution(X, U, K, lam, float(cost), float(viol), float(mu), it, status == "converged", status,
+                    {k: np.asarray(v) for k, v in log.items()}, time.perf_counter() - start, compile_s)
+
+
+def _stagnant(violations: list[float], rounds: int = 5) -> bool:
+    """The violation decreased by less than 1 % over the last ``rounds`` penalty increases
+    (each ×φ): more penalty no longer helps, the constraints cannot be met."""
+    if len(violations) <= rounds:
+        return False
+    return violations[-1] > 0.99 * violations[-1 - rounds]
+
+
+def rollout(problem: Problem, x0, U, params=None) -> jax.Array:
+    """States (T + 1, nx) of ``problem``'s dynamics from x0 (nx,) under controls U (T, nu)
+    (clipped to the bounds)."""
+    x0, U = _check_inputs(problem, x0, U)
+    return _compiled(problem).evaluate(x0, U, Multipliers(*(jnp.zeros(s, x0.dtype) for s in
+                                                            _compiled(problem).sizes(x0, U, params))),
+                                       jnp.asarray(1.0, x0.dtype), params)[0]
+
+
+__all__ = ["LOG_KEYS", "Multipliers", "Options", "Solution", "rollout", "solve"]

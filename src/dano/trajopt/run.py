@@ -1,0 +1,136 @@
+"""``dano trajopt``'s work as library calls: read a task or configuration, solve, report and
+write every output (all or none)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from contextlib import ExitStack
+from pathlib import Path
+
+import numpy as np
+
+from .._config import read_table, typed_table
+from ..errors import DanoError
+from .tasks import TASKS, final_errors, model_error_run, solve_task, unknown_task
+
+
+def load_config(source: str, **overrides):
+    """The task configuration: a built-in task name or a TOML/JSON file (key ``task`` and
+    the task's settings), with ``overrides`` (None values ignored) applied and validated.
+    Raises DanoError for an unknown task, unknown keys, wrong types or values out of range."""
+    if source in TASKS:
+        cls = TASKS[source][1]
+        cfg = cls()
+    else:
+        path = Path(source)
+        if path.suffix.lower() not in (".toml", ".json") and not path.exists():
+            raise unknown_task(source)
+        raw = read_table(path)
+        name = raw.get("task")
+        if name not in TASKS:
+            raise DanoError(f"{path}: [task] must name a built-in task ({', '.join(TASKS)}), got {name!r}")
+        try:
+            cfg = typed_table(raw, TASKS[name][1], "")
+        except DanoError as exc:
+            raise DanoError(f"{path}: {exc}") from None
+    cfg = dataclasses.replace(cfg, **{k: v for k, v in overrides.items() if v is not None})
+    return cfg.validate()
+
+
+def report(task, solution, model_error=None) -> dict:
+    """The JSON report: ``bunny_final_error``, ``pusher_final_error`` [m],
+    ``max_constraint_violation``, ``iterations``, ``converged``, ``status``, ``cost``,
+    ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final``, goals and, with a model
+    error, ``model_error``: world friction, open-loop and receding-horizon final errors."""
+    eb, ep = final_errors(task, solution.states)
+    out = {
+        "task": task.config.task, "bunny_final_error": eb, "pusher_final_error": ep,
+        "max_constraint_violation": solution.max_violation, "iterations": solution.iterations,
+        "converged": solution.converged, "status": solution.status, "cost": solution.cost,
+        "wall_time_s": solution.wall_time_s, "compile_time_s": solution.compile_time_s,
+        "bunny_goal": task.bunny_goal.tolist(), "pusher_goal": task.pusher_goal.tolist(),
+        "plain_push_bunny_final": task.X_plain[-1, task.bunny_qpos].tolist(),
+        "horizon": task.problem.horizon, "dt": task.scene.dt,
+    }
+    if model_error is not None:
+        rh = model_error.receding
+        ob, op = final_errors(task, model_error.open_loop_states)
+        rb, rp = final_errors(task, rh.states)
+        out["model_error"] = {
+            "world_sliding_friction": model_error.friction, "model_sliding_friction": task.config.sliding_friction,
+            "open_loop_bunny_final_error": ob, "open_loop_pusher_final_error": op,
+            "receding_horizon_bunny_final_error": rb, "receding_horizon_pusher_final_error": rp,
+            "replans": len(rh.replan_steps), "replan_every": task.config.replan_every,
+            "replan_statuses": [s.status for s in rh.solves], "wall_time_s": rh.wall_time_s,
+        }
+    return out
+
+
+def run(source: str, progress=None, **overrides):
+    """Build and solve the task (and the model-error runs if configured). progress:
+    optional ``progress(done, total, description)``. Returns (task, solution,
+    model_error or None, report dict)."""
+    cfg = load_config(source, **overrides)
+    build = TASKS[cfg.task][0]
+    if progress is not None:
+        progress(0, 1, "building the task")
+    task = build(cfg)
+    if progress is not None:
+        progress(1, 1, "building the task")
+    cb = None if progress is None else (lambda e: progress(e["iteration"], cfg.max_iterations,
+                                                             f"iLQR (violation {e['max_violation']:.2g})"))
+    solution = solve_task(task, callback=cb)
+    me = None
+    if cfg.model_error > 0:
+        T = task.problem.horizon
+        me = model_error_run(task, solution, callback=None if progress is None else (
+            lambda k, s: progress(k, T, "receding horizon")))
+    return task, solution, me, report(task, solution, me)
+
+
+def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: bool = True, progress=None) -> list:
+    """Write ``report.json``, ``config.json`` (the resolved configuration), ``solution.npz``
+    (time (T+1,) [s], states (T+1, nx), controls (T, nu), qpos, qvel, gains, the plain push,
+    the goals and, with a model error, the world's open-loop and receding-horizon states),
+    ``log.csv`` (the iteration log), ``convergence.png`` and, if ``video``, ``<task>.mp4``
+    into ``out_dir``: all published together, or none. Returns the paths."""
+    from .._files import atomic_path
+    from ..sim import State, rollout
+    from ..viz.plot import plot_trajopt
+
+    out_dir = Path(out_dir)
+    names = ["report.json", "config.json", "solution.npz", "log.csv", "convergence.png"]
+    if video:
+        names.append(f"{task.config.task}.mp4")
+    X, U = np.asarray(solution.states), np.asarray(solution.controls)
+    nq = task.scene.nq
+    arrays = dict(time=np.arange(len(X)) * task.scene.dt, states=X, controls=U, qpos=X[:, :nq], qvel=X[:, nq:],
+                  gains=np.asarray(solution.gains), plain_states=task.X_plain, plain_controls=task.U_plain,
+                  bunny_goal=task.bunny_goal, pusher_goal=task.pusher_goal)
+    if model_error is not None:
+        arrays.update(open_loop_world_states=model_error.open_loop_states,
+                      receding_states=model_error.receding.states, receding_controls=model_error.receding.controls)
+    log = solution.log
+    keys = list(log)
+    csv = ",".join(keys) + "\n" + "".join(",".join(f"{log[k][i]:.10g}" for k in keys) + "\n"
+                                          for i in range(len(log[keys[0]])))
+    with ExitStack() as stack:
+        paths = {n: stack.enter_context(atomic_path(out_dir / n)) for n in names}
+        paths["report.json"].write_text(json.dumps(rep, indent=2))
+        paths["config.json"].write_text(json.dumps(dataclasses.asdict(task.config), indent=2))
+        with open(paths["solution.npz"], "wb") as f:
+            np.savez(f, **arrays)
+        paths["log.csv"].write_text(csv)
+        plot_trajopt(task, solution, model_error, paths["convergence.png"])
+        if video:
+            from ..viz.video import write_video
+
+            qfrc = np.zeros((len(U), task.scene.nv))
+            qfrc[:, task.control_dofs] = U
+            traj = rollout(task.scene, State(X[0, :nq], X[0, nq:]), None, task.params, len(U), qfrc=qfrc)
+            gap = float(np.abs(traj.qpos[-1] - X[-1, :nq]).max())
+            if gap > 1e-6:
+                raise DanoError(f"internal: the replayed solution ends {gap:.3g} m from the solver's states")
+            write_video(task.scene, traj, paths[f"{task.config.task}.mp4"], progress=progress)
+    return [out_dir / n for n in names]
