@@ -11,8 +11,10 @@ ctrl, qfrc_applied, xfrc_applied and solver warm start):
    constraints, its solver, with the contact force at the current velocity applied;
 4. the implicit velocity equation (M + h·B)(v' − v) = h·(f + Q(v')) solved by Newton's
    method to a tolerance (:mod:`dano.sim.implicit`), damping and friction evaluated at v';
-5. ``mjx.euler`` (EULERDAMP disabled) advances qvel to v', positions (quaternions
-   included) with v', activations and time.
+5. ``mjx.euler`` (EULERDAMP disabled) advances qvel to v', positions with v',
+   activations and time; the quaternions of free and ball joints are then recomputed
+   by the same rotation, q ⊗ exp(h·ω/2), written so that its derivative is also right at
+   ω = 0 (MJX's normalises ω first: its derivative there is zero, not h/2).
 
 The returned ``Data`` keeps the caller's ``qfrc_applied`` (the contact force is not left
 in it) and carries act, time and the constraint solver's warm start to the next step.
@@ -26,6 +28,7 @@ from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 
 from .._mjx import mjx
@@ -186,11 +189,50 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonOptions 
         diag = jnp.asarray([1.0, 0.0], d.qvel.dtype)
     qacc = (v_next - d.qvel) / h
     d = mjx.euler(m, d.replace(qacc=qacc))
+    d = d.replace(qpos=_rotate_quaternions(scene, data.qpos, v_next, h, d.qpos))
     d = d.replace(qfrc_applied=user_qfrc)
     # same structure and dtypes as the input (MJX makes some integer fields int32 in
     # make_data but int64 in its stages under 64-bit mode), so that steps chain in a scan
     d = jax.tree_util.tree_map(lambda new, old: new.astype(old.dtype), d, data)
     return d, StepInfo(_psi(scene, geos, d.qpos.dtype), diag[0], diag[1])
+
+
+def _quaternion_slots(scene: Scene) -> tuple[tuple[int, int], ...]:
+    """(qpos address of the quaternion, dof address of ω) of every free and ball joint."""
+    m = scene.mj_model
+    slots = []
+    for j in range(m.njnt):
+        kind = int(m.jnt_type[j])
+        if kind == int(mujoco.mjtJoint.mjJNT_FREE):
+            slots.append((int(m.jnt_qposadr[j]) + 3, int(m.jnt_dofadr[j]) + 3))
+        elif kind == int(mujoco.mjtJoint.mjJNT_BALL):
+            slots.append((int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])))
+    return tuple(slots)
+
+
+def _rotate_quaternions(scene: Scene, qpos0, v, h: float, qpos):
+    """``qpos`` with each free/ball joint's quaternion set to normalize(q0 ⊗ exp(h·ω/2)),
+    q0 from ``qpos0``, ω (body frame) from ``v``; exp through cos(θ/2) and
+    sin(θ/2)/|ω| as even functions of θ² = h²|ω|² (Taylor series near 0), so that value and
+    derivatives are exact at ω = 0 too."""
+    slots = _quaternion_slots(scene)
+    if not slots:
+        return qpos
+    qa = np.asarray([a for a, _ in slots])[:, None] + np.arange(4)
+    wa = np.asarray([b for _, b in slots])[:, None] + np.arange(3)
+    q0, w = qpos0[qa], v[wa]
+    th2 = h * h * jnp.sum(w * w, axis=-1)
+    small = th2 < 1e-6
+    th = jnp.sqrt(jnp.where(small, 1.0, th2))
+    c = jnp.where(small, 1.0 - th2 / 8.0 + th2 * th2 / 384.0, jnp.cos(0.5 * th))
+    s = jnp.where(small, 0.5 * h * (1.0 - th2 / 24.0 + th2 * th2 / 1920.0), h * jnp.sin(0.5 * th) / th)
+    r = jnp.concatenate([c[:, None], s[:, None] * w], axis=-1)
+    w0, x0 = q0[:, :1], q0[:, 1:]
+    w1, x1 = r[:, :1], r[:, 1:]
+    q = jnp.concatenate([w0 * w1 - jnp.sum(x0 * x1, axis=-1, keepdims=True),
+                         w0 * x1 + w1 * x0 + jnp.cross(x0, x1)], axis=-1)
+    q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+    return qpos.at[qa].set(q.astype(qpos.dtype))
 
 
 def step(scene: Scene, params: SimParams, data, newton: NewtonOptions = NewtonOptions()):

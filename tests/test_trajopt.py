@@ -1,0 +1,200 @@
+"""Trajectory optimisation: the constrained iLQR against analytic LQR, a pendulum swing-up,
+infeasible constraints, receding horizon under model error, the linearisation of the
+contact dynamics against finite differences, and the paper's push-sphere task end to end."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dano.cli import main
+from dano.errors import DanoError
+from dano.trajopt import Options, Problem, quadratic_problem, rollout, solve
+from dano.trajopt.ilqr import _compiled
+from dano.trajopt.mpc import receding_horizon
+
+
+def _batch_lqr(A, B, Q, R, Qf, x0, T):
+    """The finite-horizon LQR optimum as one least-squares problem over the stacked
+    controls (no Riccati recursion): X = Φx0 + ΓU, minimise ½XᵀQ̄X + ½UᵀR̄U."""
+    nx, nu = B.shape
+    Phi = np.vstack([np.linalg.matrix_power(A, t) for t in range(T + 1)])
+    Gam = np.zeros(((T + 1) * nx, T * nu))
+    for t in range(T + 1):
+        for s in range(t):
+            Gam[t * nx:(t + 1) * nx, s * nu:(s + 1) * nu] = np.linalg.matrix_power(A, t - 1 - s) @ B
+    Qb = np.kron(np.eye(T + 1), Q)
+    Qb[-nx:, -nx:] = Qf
+    Rb = np.kron(np.eye(T), R)
+    return -np.linalg.solve(Gam.T @ Qb @ Gam + Rb, Gam.T @ Qb @ Phi @ x0).reshape(T, nu)
+
+
+def test_first_iteration_is_the_analytic_lqr_solution():
+    rng = np.random.default_rng(0)
+    nx, nu, T = 4, 2, 20
+    A = np.eye(nx) + 0.1 * rng.normal(size=(nx, nx))
+    B = rng.normal(size=(nx, nu))
+    Q, R, Qf = np.diag(rng.uniform(0.5, 2, nx)), np.diag(rng.uniform(0.1, 1, nu)), 10 * np.eye(nx)
+    pr = quadratic_problem(lambda x, u, t, p: jnp.asarray(A) @ x + jnp.asarray(B) @ u, Q, R, Qf, T, nx, nu)
+    x0 = rng.normal(size=nx)
+    sol = solve(pr, x0, np.zeros((T, nu)), options=Options(max_iterations=1))
+    assert sol.iterations == 1 and sol.log["step"][0] == 1.0
+    np.testing.assert_allclose(np.asarray(sol.controls), _batch_lqr(A, B, Q, R, Qf, x0, T), atol=1e-10)
+    # and the states are the dynamics' rollout of those controls
+    np.testing.assert_allclose(np.asarray(sol.states), np.asarray(rollout(pr, x0, sol.controls)), atol=1e-12)
+
+
+H = 0.05
+
+
+def _pendulum(x, u, t, p):
+    """θ'' = −(g/l)·sin θ − b·θ' + u (semi-implicit Euler, h = 0.05 s); p scales gravity."""
+    g = 9.81 if p is None else p
+    th, w = x
+    w2 = w + H * (-g * jnp.sin(th) - 0.1 * w + u[0])
+    return jnp.stack([th + H * w2, w2])
+
+
+def _swing_up(u_max: float, T: int) -> Problem:
+    return Problem(_pendulum, lambda x, u, t, p: 0.005 * jnp.sum(x**2) + 0.05 * jnp.sum(u**2), lambda x, p: 0.0,
+                   T, 2, 1, terminal_equality=lambda x, p: x - jnp.array([jnp.pi, 0.0]),
+                   u_lower=np.array([-u_max]), u_upper=np.array([u_max]))
+
+
+def test_pendulum_swing_up_converges_within_torque_limits():
+    pr = _swing_up(5.0, 100)  # 5 < g: it must pump energy over several swings
+    sol = solve(pr, np.zeros(2), np.zeros((100, 1)))
+    assert sol.converged and sol.status == "converged", sol.status
+    assert np.abs(np.asarray(sol.states[-1]) - [np.pi, 0]).max() < 1e-4
+    assert np.abs(np.asarray(sol.controls)).max() <= 5.0 + 1e-4  # bounds hold to the constraint tolerance
+    assert np.abs(np.asarray(sol.controls)).max() > 3.0  # and are used
+    assert np.all(np.diff(sol.log["iteration"]) == 1) and len(sol.log["cost"]) == sol.iterations
+
+
+def test_infeasible_constraints_are_reported_not_looped_on():
+    pr = _swing_up(0.05, 60)  # far too weak to lift the pendulum in 3 s
+    sol = solve(pr, np.zeros(2), np.zeros((60, 1)), options=Options(max_iterations=500))
+    assert sol.status == "infeasible" and not sol.converged
+    assert sol.iterations < 100 and sol.max_violation > 1.0
+
+
+def test_receding_horizon_recovers_from_model_error():
+    pr = _swing_up(8.0, 60)
+    plan = solve(pr, np.zeros(2), np.zeros((60, 1)), 9.81)
+    assert plan.converged
+    world = jax.jit(lambda x, u: _pendulum(x, u, 0, 9.81 * 1.15))  # gravity 15 % stronger than modelled
+    open_loop = np.asarray(rollout(pr, np.zeros(2), plan.controls, 9.81 * 1.15))
+    rh = receding_horizon(pr, np.zeros(2), world, plan.controls, 9.81, every=5, first=plan)
+    err_open = np.abs(open_loop[-1] - [np.pi, 0]).max()
+    err_rh = np.abs(rh.states[-1] - [np.pi, 0]).max()
+    assert err_open > 0.1 and err_rh < 0.01 * err_open, (err_open, err_rh)
+    assert rh.states.shape == (61, 2) and rh.controls.shape == (60, 1) and rh.replan_steps == tuple(range(0, 60, 5))
+
+
+def test_bad_inputs_are_refused():
+    pr = _swing_up(5.0, 10)
+    with pytest.raises(DanoError, match="x0 must have shape"):
+        solve(pr, np.zeros(3), np.zeros((10, 1)))
+    with pytest.raises(DanoError, match="initial controls must have shape"):
+        solve(pr, np.zeros(2), np.zeros((9, 1)))
+    with pytest.raises(DanoError, match="finite"):
+        solve(pr, np.array([np.nan, 0.0]), np.zeros((10, 1)))
+    with pytest.raises(DanoError, match="u_lower exceeds u_upper"):
+        Problem(_pendulum, lambda x, u, t, p: 0.0, lambda x, p: 0.0, 10, 2, 1, u_lower=[1.0], u_upper=[0.0])
+    with pytest.raises(DanoError, match="horizon"):
+        Problem(_pendulum, lambda x, u, t, p: 0.0, lambda x, p: 0.0, 0, 2, 1)
+    with pytest.raises(DanoError, match="every"):
+        receding_horizon(pr, np.zeros(2), lambda x, u: x, np.zeros((10, 1)), every=0)
+
+
+@pytest.fixture(scope="module")
+def push_task():
+    from dano.trajopt.tasks import PushSphereConfig, push_sphere_task
+
+    return push_sphere_task(PushSphereConfig())
+
+
+@pytest.mark.slow
+def test_contact_linearisation_matches_central_differences(push_task):
+    """The solver's A_t, B_t (forward-mode AD of dano.sim.step, vmapped over the horizon)
+    against central differences of the step in float64, at stages of the plain push with
+    the sphere touching the bunny and with it free, away from contact onsets."""
+    task = push_task
+    pr = task.problem
+    X = np.asarray(rollout(pr, task.x0, task.U_plain, task.params))
+    fns = _compiled(pr)
+    from dano.trajopt.ilqr import Multipliers
+
+    lam = Multipliers(*(jnp.zeros(s) for s in fns.sizes(jnp.asarray(task.x0), jnp.asarray(task.U_plain), task.params)))
+    F = np.asarray(fns.expand(jnp.asarray(X), jnp.asarray(task.U_plain), lam, jnp.asarray(1.0), task.params)[0])
+    step = jax.jit(lambda z: pr.dynamics(z[:pr.nx], z[pr.nx:], 0, task.params))
+    from dano.sim import overlaps
+
+    psi = np.array([np.asarray(overlaps(task.scene, task.params, _data(task, x))) for x in X[:-1]])
+    pusher_pair = task.scene.pair_names.index("bunny/pusher")
+    touching = np.flatnonzero(psi[:, pusher_pair] > 1e-3)
+    free = np.flatnonzero(psi[:, pusher_pair] == 0)
+    # well inside each phase (contact on for 3 steps before and after)
+    inner = [t for t in touching if all(psi[s, pusher_pair] > 1e-3 for s in range(t - 3, t + 4) if 0 <= s < len(psi))]
+    stages = [inner[len(inner) // 2], int(free[2])]
+    eps = 1e-6  # relative; 1e-4 and 1e-5 see the friction law's kinks, smaller ones roundoff
+    for t in stages:
+        z = np.r_[X[t], task.U_plain[t]]
+        scale = np.maximum(np.abs(z), 1.0)
+        cols = []
+        for i in range(len(z)):
+            dz = np.zeros_like(z)
+            dz[i] = eps * scale[i]
+            cols.append((np.asarray(step(z + dz)) - np.asarray(step(z - dz))) / (2 * dz[i]))
+        fd = np.stack(cols, axis=1)
+        err = np.abs(F[t] - fd).max() / max(np.abs(fd).max(), 1.0)
+        assert err < 1e-5, (t, err)
+
+
+def _data(task, x):
+    from dano.sim import make_data
+
+    return make_data(task.scene, x[:task.scene.nq], x[task.scene.nq:])
+
+
+@pytest.mark.slow
+def test_push_sphere_cli_reaches_both_goals(tmp_path, capsys):
+    """The paper's push-and-slide (Fig. 7) through the command line: the bunny ends 1.0 unit
+    sideways of the plain push, the sphere at its goal, both within 0.02 (the aim)."""
+    out = tmp_path / "push"
+    code = main(["trajopt", "push-sphere", "--json", "--out-dir", str(out), "--quiet"])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    rep = json.loads(cap.out)
+    for key in ("bunny_final_error", "pusher_final_error", "max_constraint_violation", "iterations", "converged",
+                "wall_time_s", "compile_time_s"):
+        assert key in rep
+    assert rep["converged"] and rep["bunny_final_error"] < 0.02 and rep["pusher_final_error"] < 0.02, rep
+    assert abs(rep["bunny_goal"][1] - rep["plain_push_bunny_final"][1] - 1.0) < 1e-12
+    sol = np.load(out / "solution.npz")
+    assert sol["controls"].shape == (60, 6) and sol["states"].shape == (61, 26)
+    # the bunny really moved sideways, pushed: it is > 0.9 from where the plain push left it
+    assert np.linalg.norm(sol["states"][-1, 7:9] - sol["plain_states"][-1, 7:9]) > 0.9
+    log = (out / "log.csv").read_text().splitlines()
+    assert log[0].startswith("iteration,") and len(log) == rep["iterations"] + 1
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["task"] == "push-sphere" and cfg["horizon"] == 60
+    assert (out / "push-sphere.mp4").stat().st_size > 10_000 and (out / "convergence.png").stat().st_size > 10_000
+
+
+def test_trajopt_cli_bad_input(tmp_path, capsys):
+    code = main(["trajopt", "push-cube"])
+    assert code == 1 and "unknown task 'push-cube'" in capsys.readouterr().err
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text('task = "push-sphere"\nhorizont = 30\n')
+    code = main(["trajopt", str(cfg), "--out-dir", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 1 and "unknown key 'horizont'" in err and str(cfg) in err
+    cfg.write_text('task = "push-sphere"\nhorizon = 1\n')
+    code = main(["trajopt", str(cfg), "--out-dir", str(tmp_path / "o")])
+    assert code == 1 and "horizon out of range" in capsys.readouterr().err
+    code = main(["trajopt", "push-sphere", "--model-error", "-2", "--out-dir", str(tmp_path / "o")])
+    assert code == 1 and "model_error out of range" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
