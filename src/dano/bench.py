@@ -334,6 +334,40 @@ def bench_energy(repeats: int = 1, drops: int = 1000, seed: int = 0, duration: f
     return out
 
 
+def bench_trajopt(repeats: int = 3) -> dict:
+    """Trajectory optimisation, task push-sphere (T = 60, nx = 26, nu = 6; float64):
+    the parts of one iLQR iteration (``expand``: dynamics Jacobians by forward-mode AD of
+    the step, vmapped over the horizon, and the cost expansion; ``backward``: the Riccati
+    pass; ``forward``: one line-search rollout), each timed separately on the plain push,
+    and one full solve from the plain push (iterations, time to convergence, time per
+    iteration, compile time)."""
+    import jax.numpy as jnp
+
+    from .trajopt.ilqr import Multipliers, _compiled
+    from .trajopt.tasks import PushSphereConfig, push_sphere_task, solve_task
+
+    task = push_sphere_task(PushSphereConfig())
+    fns = _compiled(task.problem)
+    x0, U, p = jnp.asarray(task.x0), jnp.asarray(task.U_plain), task.params
+    lam = Multipliers(*(jnp.zeros(s, x0.dtype) for s in fns.sizes(x0, U, p)))
+    mu = jnp.asarray(10.0, x0.dtype)
+    X = fns.evaluate(x0, U, lam, mu, p)[0]
+    E = fns.expand(X, U, lam, mu, p)
+    K, k, _, _ = fns.backward(*E, jnp.asarray(0.0, x0.dtype))
+    out = {
+        "expand": _time(lambda: jax.block_until_ready(fns.expand(X, U, lam, mu, p)), repeats),
+        "backward": _time(lambda: jax.block_until_ready(fns.backward(*E, jnp.asarray(0.0, x0.dtype))), repeats),
+        "forward": _time(lambda: jax.block_until_ready(fns.forward(x0, X, U, K, k, 1.0, lam, mu, p)), repeats),
+    }
+    sol = solve_task(task)
+    per = sol.wall_time_s - sol.compile_time_s
+    out["push_sphere_solve"] = {"iterations": sol.iterations, "status": sol.status,
+                                "wall_time_s": sol.wall_time_s, "compile_time_s": sol.compile_time_s,
+                                "s_per_iteration": per / max(sol.iterations, 1),
+                                "max_violation": sol.max_violation}
+    return out
+
+
 def environment() -> dict:
     from . import __version__
 
@@ -353,6 +387,7 @@ def environment() -> dict:
 
 
 SUITES = {"build": bench_build, "sim": bench_sim, "sysid": bench_sysid, "batched": bench_batched,
+          "trajopt": bench_trajopt,
           "energy": bench_energy}
 
 

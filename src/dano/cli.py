@@ -519,7 +519,7 @@ def bench(
 
     Args:
         json_: print one JSON object.
-        suite: suites to run (default all): build, sim, sysid, batched, energy.
+        suite: suites to run (default all): build, sim, sysid, batched, trajopt, energy.
         repeats: timed repeats after the first call.
         drops: random bunny drops of the energy suite.
         seed: random seed of the energy suite's drops.
