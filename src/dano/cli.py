@@ -558,7 +558,8 @@ def trajopt(
     """Optimise a robot motion through contact (constrained iLQR with an augmented Lagrangian).
 
     Args:
-        task: a built-in task (push-sphere: the paper's sphere pushing the bunny 1.0 sideways of a plain push)
+        task: a built-in task (push-sphere: the paper's sphere pushing the bunny 1.0 sideways of a plain push;
+            push-panda: the Menagerie Panda's joint torques pushing a 15 cm bunny 10 cm, needs MENAGERIE_ROOT)
             or a TOML/JSON configuration (key task and the task's settings, e.g. the config.json a run saved).
         json_: print one JSON object (bunny_final_error, pusher_final_error, max_constraint_violation,
             iterations, converged, status, wall_time_s, compile_time_s, ...; model_error with --model-error).
@@ -593,6 +594,9 @@ def trajopt(
     for key in ("status", "iterations", "bunny_final_error", "pusher_final_error", "max_constraint_violation", "cost"):
         v = report[key]
         t.add_row(key.replace("_", " "), f"{v:.4g}" if isinstance(v, float) else str(v))
+    for key in ("max_control_ratio", "joint_limit_violation"):
+        if key in report:
+            t.add_row(key.replace("_", " "), f"{report[key]:.4g}")
     for key, v in (report.get("model_error") or {}).items():
         if isinstance(v, float):
             t.add_row(key.replace("_", " "), f"{v:.4g}")

@@ -157,7 +157,7 @@ PANDA_WAYPOINTS = np.array([
 PANDA_WAYPOINT_TIMES = np.array([0.0, 0.8, 1.2, 1.6, 2.0, 2.4, 2.8])
 
 
-def menagerie_panda() -> Path:
+def menagerie_panda(who: str = "panda-push-bunny") -> Path:
     """Path of the Menagerie Panda (``panda_nohand.xml``) under ``$MENAGERIE_ROOT``.
 
     Raises DanoError if it is not there: the Panda's meshes (33 MB, Apache-2.0) do not
@@ -167,7 +167,7 @@ def menagerie_panda() -> Path:
     path = Path(root) / "franka_emika_panda" / "panda_nohand.xml" if root else None
     if path is None or not path.is_file():
         raise DanoError(
-            "panda-push-bunny needs the MuJoCo Menagerie Franka Panda: set MENAGERIE_ROOT to a folder holding "
+            f"{who} needs the MuJoCo Menagerie Franka Panda: set MENAGERIE_ROOT to a folder holding "
             "franka_emika_panda/panda_nohand.xml (a clone of mujoco_menagerie)"
             + (f"; not found at {path}" if path else "")
         )

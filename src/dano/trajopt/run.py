@@ -12,7 +12,7 @@ import numpy as np
 
 from .._config import read_table, typed_table
 from ..errors import DanoError
-from .tasks import TASKS, final_errors, model_error_run, solve_task, unknown_task
+from .tasks import TASKS, final_errors, limit_report, model_error_run, solve_task, unknown_task
 
 
 def load_config(source: str, **overrides):
@@ -39,19 +39,23 @@ def load_config(source: str, **overrides):
 
 
 def report(task, solution, model_error=None) -> dict:
-    """The JSON report: ``bunny_final_error``, ``pusher_final_error`` [m],
-    ``max_constraint_violation``, ``iterations``, ``converged``, ``status``, ``cost``,
-    ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final``, goals and, with a model
-    error, ``model_error``: world friction, open-loop and receding-horizon final errors."""
+    """The JSON report: ``bunny_final_error``, ``pusher_final_error`` [m] (null for a
+    pusher without a goal), ``max_constraint_violation``, ``iterations``, ``converged``,
+    ``status``, ``cost``, ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final``
+    (where the initial guess leaves the bunny), goals, ``max_control_ratio`` and (arm)
+    ``joint_limit_violation`` and, with a model error, ``model_error``: world friction,
+    open-loop and receding-horizon final errors."""
     eb, ep = final_errors(task, solution.states)
     out = {
         "task": task.config.task, "bunny_final_error": eb, "pusher_final_error": ep,
         "max_constraint_violation": solution.max_violation, "iterations": solution.iterations,
         "converged": solution.converged, "status": solution.status, "cost": solution.cost,
         "wall_time_s": solution.wall_time_s, "compile_time_s": solution.compile_time_s,
-        "bunny_goal": task.bunny_goal.tolist(), "pusher_goal": task.pusher_goal.tolist(),
+        "bunny_goal": task.bunny_goal.tolist(),
+        "pusher_goal": None if task.pusher_goal is None else task.pusher_goal.tolist(),
         "plain_push_bunny_final": task.X_plain[-1, task.bunny_qpos].tolist(),
         "horizon": task.problem.horizon, "dt": task.scene.dt,
+        **limit_report(task, solution.states, solution.controls),
     }
     if model_error is not None:
         rh = model_error.receding
@@ -91,8 +95,8 @@ def run(source: str, progress=None, **overrides):
 
 def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: bool = True, progress=None) -> list:
     """Write ``report.json``, ``config.json`` (the resolved configuration), ``solution.npz``
-    (time (T+1,) [s], states (T+1, nx), controls (T, nu), qpos, qvel, gains, the plain push,
-    the goals and, with a model error, the world's open-loop and receding-horizon states),
+    (time (T+1,) [s], states (T+1, nx), controls (T, nu), qpos, qvel, gains, the plain push
+    (the initial guess), the goals and, with a model error, the world's open-loop and receding-horizon states),
     ``log.csv`` (the iteration log), ``convergence.png`` and, if ``video``, ``<task>.mp4``
     into ``out_dir``: all published together, or none. Returns the paths."""
     from .._files import atomic_path
@@ -107,7 +111,9 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
     nq = task.scene.nq
     arrays = dict(time=np.arange(len(X)) * task.scene.dt, states=X, controls=U, qpos=X[:, :nq], qvel=X[:, nq:],
                   gains=np.asarray(solution.gains), plain_states=task.X_plain, plain_controls=task.U_plain,
-                  bunny_goal=task.bunny_goal, pusher_goal=task.pusher_goal)
+                  bunny_goal=task.bunny_goal)
+    if task.pusher_goal is not None:
+        arrays["pusher_goal"] = task.pusher_goal
     if model_error is not None:
         arrays.update(open_loop_world_states=model_error.open_loop_states,
                       receding_states=model_error.receding.states, receding_controls=model_error.receding.controls)
@@ -126,9 +132,12 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
         if video:
             from ..viz.video import write_video
 
-            qfrc = np.zeros((len(U), task.scene.nv))
-            qfrc[:, task.control_dofs] = U
-            traj = rollout(task.scene, State(X[0, :nq], X[0, nq:]), None, task.params, len(U), qfrc=qfrc)
+            if task.apply == "qfrc":
+                qfrc = np.zeros((len(U), task.scene.nv))
+                qfrc[:, task.control_dofs] = U
+                traj = rollout(task.scene, State(X[0, :nq], X[0, nq:]), None, task.params, len(U), qfrc=qfrc)
+            else:
+                traj = rollout(task.scene, State(X[0, :nq], X[0, nq:]), U, task.params, len(U))
             gap = float(np.abs(traj.qpos[-1] - X[-1, :nq]).max())
             if gap > 1e-6:
                 raise DanoError(f"internal: the replayed solution ends {gap:.3g} m from the solver's states")

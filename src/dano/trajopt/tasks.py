@@ -6,6 +6,15 @@ paper's bunny DANO over the ground (sliding friction 0.05, impact spring 3e4, da
 so that the bunny ends 1.0 unit sideways (+y) of where a plain push leaves it, and the
 sphere ends equally shifted; h = 0.02 s, T = 60 steps.
 
+``push-panda`` goes beyond the paper (which replayed the sphere's path with the arm's
+kinematics): the Menagerie Franka Panda's own dynamics are optimised, joint torques as
+controls within the arm's torque limits (87 N m joints 1–4, 12 N m joints 5–7) and its
+joint limits as stage inequalities, to push the paper bunny scaled to 15 cm (0.25 kg)
+with a spherical pusher (radius 2.5 cm) on the flange to a goal 10 cm away, 30° off the
+push's straight line; h = 0.01 s, T = 80. The arm is gravity-compensated (as its real
+controller does), its own collisions are off; the initial guess is a PD controller
+tracking a scripted straight push.
+
 Decisions where the paper is silent: the sphere is gravity-compensated (it floats) and
 touches only the bunny (DANO contact), not the ground; the plain push is 80 N along +x
 for 0.5 s, then 80 N of braking for 0.5 s, and it is also the initial guess; the stage
@@ -33,8 +42,8 @@ G = 9.81
 
 
 @dataclass(frozen=True)
-class PushSphereConfig:
-    """Settings of ``push-sphere`` (the defaults are the paper's task)."""
+class PushConfig:
+    """Settings shared by the push tasks."""
 
     task: str = "push-sphere"
     """the task's name"""
@@ -42,8 +51,6 @@ class PushSphereConfig:
     """time step h [s]"""
     horizon: int = 60
     """T, steps"""
-    sideways: float = 1.0
-    """bunny goal: this far (+y) from where the plain push leaves it [m]"""
     sliding_friction: float = 0.05
     """sliding friction μ of both contact pairs"""
     impact_spring: float = 3e4
@@ -53,11 +60,14 @@ class PushSphereConfig:
     state_weight: float = 0.1
     """weight of ½|qvel|² per stage"""
     control_weight: float = 0.2
-    """weight of ½|u/u_ref|² per stage"""
+    """weight of ½|u/u_ref|² per stage (u_ref: the task's control scale)"""
     max_iterations: int = 300
     """iLQR iterations in all"""
     constraint_tolerance: float = 1e-3
-    """largest allowed terminal-constraint violation [m]"""
+    """largest allowed constraint violation [m; N m for torque bounds; rad for joint limits]"""
+    penalty_initial: float = 10.0
+    """initial augmented-Lagrangian penalty μ₀ (large enough that the goal outweighs the control cost from
+    the first iteration: with too small a μ₀ the first step drops the push and loses the contact gradient)"""
     model_error: float = 0.0
     """if > 0: also run the plan, open loop and with receding horizon, in a world whose sliding friction is
     (1 + model_error) times the model's"""
@@ -68,21 +78,59 @@ class PushSphereConfig:
     contact_model: str = "centroid"
     """DANO contact model: centroid (the paper's) or per_sample"""
 
-    def validate(self) -> "PushSphereConfig":
+    def _checks(self) -> list:
+        return [("task", self.task in TASKS and isinstance(self, TASKS[self.task][1])),
+                ("dt", self.dt > 0 and np.isfinite(self.dt)), ("horizon", 2 <= self.horizon <= 10000),
+                ("sliding_friction", 0 <= self.sliding_friction < np.inf),
+                ("impact_spring", 0 < self.impact_spring < np.inf), ("impact_damper", 0 <= self.impact_damper < np.inf),
+                ("state_weight", 0 <= self.state_weight < np.inf),
+                ("control_weight", 0 < self.control_weight < np.inf), ("max_iterations", self.max_iterations >= 1),
+                ("constraint_tolerance", 0 < self.constraint_tolerance < np.inf),
+                ("penalty_initial", 0 < self.penalty_initial < 1e8),
+                ("model_error", -1 < self.model_error < np.inf), ("replan_every", self.replan_every >= 1),
+                ("replan_iterations", self.replan_iterations >= 1)]
+
+    def validate(self):
         """Raises DanoError naming the first setting out of range."""
-        checks = [("task", self.task == "push-sphere"), ("dt", self.dt > 0 and np.isfinite(self.dt)), ("horizon", 2 <= self.horizon <= 10000),
-                  ("sideways", np.isfinite(self.sideways)),
-                  ("sliding_friction", 0 <= self.sliding_friction < np.inf),
-                  ("impact_spring", 0 < self.impact_spring < np.inf), ("impact_damper", 0 <= self.impact_damper < np.inf),
-                  ("state_weight", 0 <= self.state_weight < np.inf),
-                  ("control_weight", 0 < self.control_weight < np.inf), ("max_iterations", self.max_iterations >= 1),
-                  ("constraint_tolerance", 0 < self.constraint_tolerance < np.inf),
-                  ("model_error", -1 < self.model_error < np.inf), ("replan_every", self.replan_every >= 1),
-                  ("replan_iterations", self.replan_iterations >= 1)]
-        for name, ok in checks:
+        for name, ok in self._checks():
             if not ok:
                 raise DanoError(f"{name} out of range: {getattr(self, name)}")
         return self
+
+
+@dataclass(frozen=True)
+class PushSphereConfig(PushConfig):
+    """Settings of ``push-sphere`` (the defaults are the paper's task)."""
+
+    sideways: float = 1.0
+    """bunny goal: this far (+y) from where the plain push leaves it [m]"""
+
+    def _checks(self) -> list:
+        return super()._checks() + [("sideways", np.isfinite(self.sideways))]
+
+
+@dataclass(frozen=True)
+class PushPandaConfig(PushConfig):
+    """Settings of ``push-panda``."""
+
+    task: str = "push-panda"
+    """the task's name"""
+    dt: float = 0.01
+    """time step h [s]"""
+    horizon: int = 80
+    """T, steps"""
+    sliding_friction: float = 0.3
+    """sliding friction μ of both contact pairs"""
+    penalty_initial: float = 1000.0
+    """initial augmented-Lagrangian penalty μ₀"""
+    goal_distance: float = 0.10
+    """bunny goal: this far from its start [m]"""
+    goal_angle: float = 30.0
+    """... in this direction, degrees from the scripted push's line (+x) towards +y"""
+
+    def _checks(self) -> list:
+        return super()._checks() + [("goal_distance", 0 <= self.goal_distance <= 0.3),
+                                    ("goal_angle", np.isfinite(self.goal_angle))]
 
 
 SPHERE_MASS, SPHERE_RADIUS = 10.0, 0.25
@@ -92,10 +140,11 @@ PLAIN_FORCE = 80.0  # N
 
 @dataclass(frozen=True)
 class PushTask:
-    """A built task: scene, params (model), problem, x0 (nx,), plain-push controls
-    U_plain (T, nu), the plain push's states X_plain (T + 1, nx), goals {name: (k,)}
-    and the body indices (``bunny_qpos``, ``pusher_qpos``: slices of qpos; control_dofs
-    (nu,): the qvel indices the controls act on)."""
+    """A built task: scene, params (the model's SimParams), problem, x0 (nx,), the initial
+    guess U_plain (T, nu) (the plain push) and its states X_plain (T + 1, nx), bunny_goal
+    (2,) x–y [m], pusher_goal (3,) [m] or None, bunny_qpos (slice of qpos), apply ("ctrl"
+    or "qfrc") and control_dofs (the qvel indices a "qfrc" control acts on), u_ref (nu,)
+    the control scale of the cost, the config."""
 
     scene: object
     params: object
@@ -104,11 +153,26 @@ class PushTask:
     U_plain: np.ndarray
     X_plain: np.ndarray
     bunny_goal: np.ndarray
-    pusher_goal: np.ndarray
+    pusher_goal: np.ndarray | None
     bunny_qpos: slice
-    pusher_qpos: slice
-    control_dofs: np.ndarray
-    config: PushSphereConfig
+    apply: str
+    control_dofs: np.ndarray | None
+    u_ref: np.ndarray
+    config: PushConfig
+
+
+def _stage_cost(config: PushConfig, nq: int, u_ref):
+    wq, wu, u_ref = config.state_weight, config.control_weight, jnp.asarray(u_ref)
+
+    def stage_cost(x, u, t, p):
+        return 0.5 * wq * jnp.sum(x[nq:] ** 2) + 0.5 * wu * jnp.sum((u / u_ref) ** 2)
+
+    return stage_cost
+
+
+def _params(scene, config: PushConfig):
+    return scene.default_params(sliding_friction=config.sliding_friction, impact_spring=config.impact_spring,
+                                impact_damper=config.impact_damper)
 
 
 def push_sphere_task(config: PushSphereConfig = PushSphereConfig()) -> PushTask:
@@ -131,25 +195,20 @@ def push_sphere_task(config: PushSphereConfig = PushSphereConfig()) -> PushTask:
                   contype=2, conaffinity=2, rgba=[0.3, 0.5, 0.9, 1])
     scene = compose([DanoObject("bunny", bunny, (0, 0, z))], spec, dt=config.dt, name="push-sphere",
                     contact_model=config.contact_model)
-    params = scene.default_params(sliding_friction=config.sliding_friction, impact_spring=config.impact_spring,
-                                  impact_damper=config.impact_damper)
+    params = _params(scene, config)
     s0 = initial_state(scene, {"bunny": ((0, 0, z), (1, 0, 0, 0)), "pusher": (SPHERE_START, (1, 0, 0, 0))})
     x0 = np.r_[np.asarray(s0.qpos), np.asarray(s0.qvel)]
-    nq, T = scene.nq, config.horizon
+    T = config.horizon
     pa, ba = scene.mj_model.jnt_qposadr[0], scene.qpos_adr[0]
     pusher, bunny_q = slice(pa, pa + 3), slice(ba, ba + 3)
     dofs = np.arange(scene.mj_model.jnt_dofadr[0], scene.mj_model.jnt_dofadr[0] + 6)
     dynamics = mjx_dynamics(scene, "qfrc", dofs=dofs)
-    u_ref = jnp.asarray([SPHERE_MASS * G] * 3 + [SPHERE_MASS * G * SPHERE_RADIUS] * 3)
+    u_ref = np.array([SPHERE_MASS * G] * 3 + [SPHERE_MASS * G * SPHERE_RADIUS] * 3)
     half = T * 25 // 60  # 25 of 60 steps: 0.5 s at the paper's h
     U_plain = np.zeros((T, 6))
     U_plain[:half, 0] = PLAIN_FORCE
     U_plain[half:2 * half, 0] = -PLAIN_FORCE
-    wq, wu = config.state_weight, config.control_weight
-
-    def stage_cost(x, u, t, p):
-        return 0.5 * wq * jnp.sum(x[nq:] ** 2) + 0.5 * wu * jnp.sum((u / u_ref) ** 2)
-
+    stage_cost = _stage_cost(config, scene.nq, u_ref)
     plain = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6)
     X_plain = np.asarray(rollout(plain, x0, U_plain, params))
     bunny_goal = X_plain[-1, bunny_q][:2] + np.array([0.0, config.sideways])
@@ -160,22 +219,141 @@ def push_sphere_task(config: PushSphereConfig = PushSphereConfig()) -> PushTask:
         return jnp.concatenate([x[bunny_q][:2] - bg, x[pusher] - pg])
 
     problem = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, terminal_equality=terminal)
-    return PushTask(scene, params, problem, x0, U_plain, X_plain, bunny_goal, pusher_goal, bunny_q, pusher, dofs,
-                    config)
+    return PushTask(scene, params, problem, x0, U_plain, X_plain, bunny_goal, pusher_goal, bunny_q, "qfrc", dofs,
+                    u_ref, config)
 
 
-def solver_options(config) -> Options:
-    """The solver settings of a task: μ₀ = 10 (the terminal constraints matter from the
-    first iteration, before the push could be optimised away), the task's tolerance."""
+PANDA_TORQUE = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0])  # N m, Franka's joint torque limits
+PANDA_PUSHER_RADIUS = 0.025
+
+
+def panda_spec() -> mujoco.MjSpec:
+    """The Menagerie Panda (``$MENAGERIE_ROOT``) as a torque-controlled arm: its actuators
+    become joint motors (ctrl = torque [N m] within the torque limits), gravity compensated,
+    own collisions off, a spherical pusher (geom "pusher") 16.7 cm beyond link 7's frame.
+    Raises DanoError if the Panda is not found."""
+    from ..sim.scenes import menagerie_panda
+
+    spec = mujoco.MjSpec.from_file(str(menagerie_panda("push-panda")))
+    for g in spec.geoms:
+        g.contype, g.conaffinity = 0, 0
+    for b in spec.bodies:
+        if b.name != "world":
+            b.gravcomp = 1.0
+    actuators = list(spec.actuators)
+    if len(actuators) != 7:
+        raise DanoError(f"expected the Panda's 7 actuators, found {len(actuators)}")
+    for a, limit in zip(actuators, PANDA_TORQUE):
+        a.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+        a.gainprm[0] = 1.0
+        a.biastype = mujoco.mjtBias.mjBIAS_NONE
+        a.biasprm[:] = 0.0
+        a.ctrlrange = [-limit, limit]
+        a.forcerange = [-limit, limit]
+    spec.body("link7").add_geom(name="pusher", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[PANDA_PUSHER_RADIUS, 0, 0],
+                                pos=[0, 0, 0.167], contype=2, conaffinity=2, mass=0.1, rgba=[0.9, 0.2, 0.2, 1])
+    return spec
+
+
+def push_panda_task(config: PushPandaConfig = PushPandaConfig()) -> PushTask:
+    """Build the push-panda task: the Panda scene, the PD-tracked straight push (the
+    initial guess) and the constrained problem."""
+    import jax
+
+    from ..data import load_builtin
+    from ..sim import DanoObject, compose
+    from ..sim.scene import add_ground
+    from ..sim.scenes import PANDA_WAYPOINTS, initial_state, resting_height
+
+    config.validate()
+    spec = panda_spec()
+    add_ground(spec)
+    bunny = load_builtin("bunny").scaled(0.15).with_mass(0.25)
+    start = np.array([0.45, 0.0, resting_height(bunny) + 0.0005])
+    scene = compose([DanoObject("bunny", bunny, tuple(start))], spec, dt=config.dt, name="push-panda",
+                    contact_model=config.contact_model)
+    params = _params(scene, config)
+    free = initial_state(scene, {"bunny": (tuple(start), (1, 0, 0, 0))})
+    qpos = np.asarray(free.qpos).copy()
+    qpos[:7] = PANDA_WAYPOINTS[1]  # pusher 30 cm out, 7.5 cm up, behind the bunny
+    x0 = np.r_[qpos, np.zeros(scene.nv)]
+    nq, T = scene.nq, config.horizon
+    ba = scene.qpos_adr[0]
+    bunny_q = slice(ba, ba + 3)
+    dynamics = mjx_dynamics(scene, "ctrl")
+    # initial guess: PD tracking of a straight push (waypoint 1 -> 3: the pusher from x = 0.30
+    # to 0.48 at 7.5 cm height) over 90 % of the horizon
+    times = np.arange(T) * config.dt
+    q_ref = np.stack([np.interp(times, [0.0, 0.9 * T * config.dt], PANDA_WAYPOINTS[[1, 3], k]) for k in range(7)], 1)
+    kp = np.array([300.0] * 4 + [50.0] * 3)
+    kd = np.sqrt(kp)
+
+    def pd(x, q_r):
+        u = jnp.clip(kp * (q_r - x[:7]) - kd * x[nq:nq + 7], -PANDA_TORQUE, PANDA_TORQUE)
+        return dynamics(x, u, 0, params), u
+
+    def pd_rollout(x, q_r):
+        xn, u = pd(x, q_r)
+        return xn, (xn, u)
+
+    _, (X, U_plain) = jax.jit(lambda x: jax.lax.scan(pd_rollout, x, jnp.asarray(q_ref)))(jnp.asarray(x0))
+    X_plain = np.concatenate([x0[None], np.asarray(X)])
+    U_plain = np.asarray(U_plain)
+    angle = np.deg2rad(config.goal_angle)
+    bunny_goal = start[:2] + config.goal_distance * np.array([np.cos(angle), np.sin(angle)])
+    m = scene.mj_model
+    lo, hi = jnp.asarray(m.jnt_range[:7, 0]), jnp.asarray(m.jnt_range[:7, 1])
+    bg = jnp.asarray(bunny_goal)
+    problem = Problem(dynamics, _stage_cost(config, nq, PANDA_TORQUE), lambda x, p: 0.0, T, len(x0), 7,
+                      inequality=lambda x, u, t, p: jnp.concatenate([x[:7] - hi, lo - x[:7]]),
+                      terminal_equality=lambda x, p: x[bunny_q][:2] - bg,
+                      u_lower=-PANDA_TORQUE, u_upper=PANDA_TORQUE)
+    return PushTask(scene, params, problem, x0, U_plain, X_plain, bunny_goal, None, bunny_q, "ctrl", None,
+                    PANDA_TORQUE.copy(), config)
+
+
+def solver_options(config: PushConfig) -> Options:
+    """The solver settings of a task: its μ₀, tolerance and iteration budget."""
     return Options(max_iterations=config.max_iterations, constraint_tolerance=config.constraint_tolerance,
-                   penalty_initial=10.0)
+                   penalty_initial=config.penalty_initial)
 
 
-def final_errors(task: PushTask, X) -> tuple[float, float]:
-    """(bunny x–y distance to its goal, sphere distance to its goal) at the last state [m]."""
+def pusher_positions(task: PushTask, X) -> np.ndarray:
+    """World positions (T + 1, 3) [m] of the geom named "pusher" along states X."""
+    m = task.scene.mj_model
+    d = mujoco.MjData(m)
+    g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "pusher")
+    out = []
+    for x in np.asarray(X):
+        d.qpos[:] = x[:m.nq]
+        mujoco.mj_kinematics(m, d)
+        out.append(d.geom_xpos[g].copy())
+    return np.array(out)
+
+
+def final_errors(task: PushTask, X) -> tuple[float, float | None]:
+    """(bunny x–y distance to its goal, pusher distance to its goal or None) at the last
+    state [m]."""
     X = np.asarray(X)
-    return (float(np.linalg.norm(X[-1, task.bunny_qpos][:2] - task.bunny_goal)),
-            float(np.linalg.norm(X[-1, task.pusher_qpos] - task.pusher_goal)))
+    eb = float(np.linalg.norm(X[-1, task.bunny_qpos][:2] - task.bunny_goal))
+    if task.pusher_goal is None:
+        return eb, None
+    return eb, float(np.linalg.norm(pusher_positions(task, X[-1:])[0] - task.pusher_goal))
+
+
+def limit_report(task: PushTask, X, U) -> dict:
+    """How the controls and (for the arm) the joints sit against their limits:
+    ``max_control_ratio`` max|u|/u_max over the task's bounded controls (≤ 1 within
+    tolerance), ``joint_limit_violation`` the largest excursion beyond a joint limit
+    [rad] (0 if none; arm tasks only)."""
+    out = {}
+    if task.problem.u_upper is not None:
+        out["max_control_ratio"] = float(np.max(np.abs(np.asarray(U)) / np.asarray(task.problem.u_upper)))
+    if task.problem.inequality is not None:
+        m = task.scene.mj_model
+        q = np.asarray(X)[:, :7]
+        out["joint_limit_violation"] = float(max(0.0, np.max(q - m.jnt_range[:7, 1]), np.max(m.jnt_range[:7, 0] - q)))
+    return out
 
 
 @dataclass(frozen=True)
@@ -207,7 +385,7 @@ def model_error_run(task: PushTask, solution: Solution, callback=None) -> ModelE
     return ModelErrorResult(mu_world, X_open, rh)
 
 
-TASKS = {"push-sphere": (push_sphere_task, PushSphereConfig)}
+TASKS = {"push-sphere": (push_sphere_task, PushSphereConfig), "push-panda": (push_panda_task, PushPandaConfig)}
 
 
 def task_names() -> tuple[str, ...]:

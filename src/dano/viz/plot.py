@@ -114,17 +114,20 @@ def plot_trajopt(task, solution, model_error, path) -> Path:
     ax_viol.semilogy(it, np.maximum(log["step"], 1e-6), ".", ms=3, label="line-search step")
     ax_viol.set(xlabel="iteration", title="constraints")
     ax_viol.legend(fontsize=8)
-    runs = [("plain push", task.X_plain, ":"), ("optimised", np.asarray(solution.states), "-")]
+    runs = [("initial guess", task.X_plain, ":"), ("optimised", np.asarray(solution.states), "-")]
     if model_error is not None:
         runs += [(f"open loop, μ={model_error.friction:.3g}", model_error.open_loop_states, "--"),
                  ("receding horizon", model_error.receding.states, "-.")]
+    from ..trajopt.tasks import pusher_positions
+
     for label, X, style in runs:
-        b, p = X[:, task.bunny_qpos], X[:, task.pusher_qpos]
+        b, p = X[:, task.bunny_qpos], pusher_positions(task, X)
         line, = ax_path.plot(b[:, 0], b[:, 1], style, label=f"bunny, {label}")
         ax_path.plot(p[:, 0], p[:, 1], style, color=line.get_color(), alpha=0.4)
     ax_path.plot(*task.bunny_goal[:2], "k*", ms=12, label="bunny goal")
-    ax_path.plot(*task.pusher_goal[:2], "kx", ms=10, label="sphere goal")
-    ax_path.set(xlabel="x [m]", ylabel="y [m]", title="top view (faint: sphere)", aspect="equal")
+    if task.pusher_goal is not None:
+        ax_path.plot(*task.pusher_goal[:2], "kx", ms=10, label="pusher goal")
+    ax_path.set(xlabel="x [m]", ylabel="y [m]", title="top view (faint: pusher)", aspect="equal")
     ax_path.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     path = Path(path)
