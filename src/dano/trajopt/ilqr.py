@@ -154,7 +154,8 @@ class _Compiled:
             gi, ge, gT, hT = constraint_values(X, U, p)
             al = (jnp.sum(lam.inequality * gi) + 0.5 * jnp.sum(active(gi, lam.inequality, mu) * gi**2)
                   + jnp.sum(lam.equality * ge) + 0.5 * mu * jnp.sum(ge**2)
-                  + jnp.sum(lam.terminal_inequality * gT) + 0.5 * jnp.sum(active(gT, lam.terminal_inequality, mu) * gT**2)
+                  + jnp.sum(lam.terminal_inequality * gT)
+                  + 0.5 * jnp.sum(active(gT, lam.terminal_inequality, mu) * gT**2)
                   + jnp.sum(lam.terminal_equality * hT) + 0.5 * mu * jnp.sum(hT**2))
             viol = jnp.concatenate([jnp.maximum(gi, 0).ravel(), jnp.abs(ge).ravel(), jnp.maximum(gT, 0),
                                     jnp.abs(hT), jnp.zeros((1,), X.dtype)])
@@ -181,7 +182,10 @@ class _Compiled:
             def stage(x, u, t, li, le):
                 z = jnp.concatenate([x, u])
                 nx = x.shape[0]
-                split = (lambda f: lambda z_: f(z_[:nx], z_[nx:], t, p))
+
+                def split(f):
+                    return lambda z_: f(z_[:nx], z_[nx:], t, p)
+
                 F = jax.jacfwd(split(pr.dynamics))(z)
                 lz = jax.grad(split(pr.stage_cost))(z)
                 lzz = jax.hessian(split(pr.stage_cost))(z)
@@ -194,11 +198,15 @@ class _Compiled:
 
             F, lz, lzz = jax.vmap(stage)(X[:-1], U, ts, lam.inequality, lam.equality)
             xT = X[-1]
-            fT = (lambda x: pr.terminal_cost(x, p))
+
+            def fT(x):
+                return pr.terminal_cost(x, p)
+
             gT, JgT = pr.final_inequality(xT, p), jax.jacfwd(lambda x: pr.final_inequality(x, p))(xT)
             hT, JhT = pr.final_equality(xT, p), jax.jacfwd(lambda x: pr.final_equality(x, p))(xT)
             IgT = active(gT, lam.terminal_inequality, mu)
-            Vx = jax.grad(fT)(xT) + JgT.T @ (lam.terminal_inequality + IgT * gT) + JhT.T @ (lam.terminal_equality + mu * hT)
+            Vx = (jax.grad(fT)(xT) + JgT.T @ (lam.terminal_inequality + IgT * gT)
+                  + JhT.T @ (lam.terminal_equality + mu * hT))
             Vxx = jax.hessian(fT)(xT) + JgT.T @ (IgT[:, None] * JgT) + mu * JhT.T @ JhT
             return F, lz, lzz, Vx, Vxx
 
@@ -302,7 +310,8 @@ def solve(problem: Problem, x0, U0, params=None, options: Options = Options(),
     mu = jnp.asarray(options.penalty_initial if penalty is None else penalty, x0.dtype)
     X, cost, merit, viol = timed(fns.evaluate, x0, U, lam, mu, params)
     if not np.isfinite(float(merit)):
-        raise DanoError("the initial rollout or its cost is not finite; check x0, the initial controls and the dynamics")
+        raise DanoError("the initial rollout or its cost is not finite; check x0, the initial controls and the "
+                        "dynamics")
     rho = options.regularization_initial
     log = {k: [] for k in LOG_KEYS}
     K = jnp.zeros((problem.horizon, problem.nu, problem.nx), x0.dtype)
