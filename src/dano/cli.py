@@ -415,6 +415,20 @@ def simulate(
     return setup, traj, wall
 
 
+def _write_sysid(out_dir: Path, report: dict, resolved: dict, problem, result) -> None:
+    """result.json, config.json (the resolved configuration) and fit.png in ``out_dir``: all three or none."""
+    from contextlib import ExitStack
+
+    from ._files import atomic_path
+    from .viz import plot_sysid
+
+    with ExitStack() as stack:
+        paths = {n: stack.enter_context(atomic_path(out_dir / n)) for n in ("result.json", "config.json", "fit.png")}
+        paths["result.json"].write_text(json.dumps(report, indent=2))
+        paths["config.json"].write_text(json.dumps(resolved, indent=2, default=str))
+        plot_sysid(problem, result, paths["fit.png"])
+
+
 @_names("config")
 def sysid(
     config: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="CONFIG")],
@@ -446,11 +460,7 @@ def sysid(
         start: contactnets-cube: initial guess of the sliding friction.
         contact_model: contactnets-cube: centroid (the paper's) or per_sample.
     """
-    from contextlib import ExitStack
-
-    from ._files import atomic_path
     from .sysid.config import run
-    from .viz import plot_sysid
 
     if config.lower().endswith(".json") and Path(config).is_file():
         from ._config import read_table
@@ -476,12 +486,7 @@ def sysid(
         out_dir = out_dir or Path("sysid-contactnets-cube")
         resolved = {"example": "contactnets-cube", "data": str(Path(data).resolve()), "tosses": tosses,
                     "start": start, "contact_model": contact_model}
-        with ExitStack() as stack:  # all three files or none
-            paths = {n: stack.enter_context(atomic_path(out_dir / n)) for n in ("result.json", "config.json",
-                                                                                  "fit.png")}
-            paths["result.json"].write_text(json.dumps(report, indent=2))
-            paths["config.json"].write_text(json.dumps(resolved, indent=2))
-            plot_sysid(problem, result, paths["fit.png"])
+        _write_sysid(out_dir, report, resolved, problem, result)
         if json_:
             print(json.dumps({k: v for k, v in report.items() if k not in ("grid", "heldout_per_toss")}))
             return
@@ -505,11 +510,7 @@ def sysid(
         report["report"]["warnings"] = [note]
         err.print(f"[yellow]warning:[/] {config}: {note}", highlight=False, soft_wrap=True)
     out_dir = out_dir or Path(f"sysid-{Path(config).stem}")
-    with ExitStack() as stack:  # all three files or none
-        paths = {n: stack.enter_context(atomic_path(out_dir / n)) for n in ("result.json", "config.json", "fit.png")}
-        paths["result.json"].write_text(json.dumps(report["report"], indent=2))
-        paths["config.json"].write_text(json.dumps(report["config"], indent=2, default=str))
-        plot_sysid(problem, result, paths["fit.png"])
+    _write_sysid(out_dir, report["report"], report["config"], problem, result)
     if json_:
         print(json.dumps(report["report"]))
         return
