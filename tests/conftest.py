@@ -37,3 +37,23 @@ def sphere_voxels(path: Path, radius: float = 0.3, n: int = 33, value: float = 1
     dens = value / (1 + np.exp((r - radius) / 0.02))
     np.savez(path, density=dens, bounds=np.array([[-0.5] * 3, [0.5] * 3]))
     return path
+
+
+# the longest files (minutes of compilation and optimisation each), longest first
+LONGEST_FILES = ("test_trajopt_panda.py", "test_trajopt.py", "test_sysid.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    """The longest files first, then the other files with slow tests, then the rest (stable
+    otherwise): pytest-xdist's --dist loadfile hands files to its workers in collection
+    order, so the long files start at once on both workers instead of ending the run on
+    one of them while the other idles."""
+    slow_files = {item.path for item in items if item.get_closest_marker("slow")}
+
+    def rank(item):
+        name = item.path.name
+        if name in LONGEST_FILES:
+            return LONGEST_FILES.index(name)
+        return len(LONGEST_FILES) + (item.path not in slow_files)
+
+    items.sort(key=rank)
