@@ -16,7 +16,8 @@ def test_push_panda_cli_optimises_the_arms_own_dynamics(tmp_path, capsys, shared
     constraints) push the 15 cm bunny to a goal 10 cm away, 30° off the scripted push."""
     monkeypatch.setenv("MENAGERIE_ROOT", str(shared / "menagerie"))
     out = tmp_path / "panda"
-    code = main(["trajopt", "push-panda", "--json", "--out-dir", str(out), "--quiet"])
+    # (no video: the push-sphere test covers it; the arm's replay would compile another scan)
+    code = main(["trajopt", "push-panda", "--json", "--out-dir", str(out), "--quiet", "--no-video"])
     cap = capsys.readouterr()
     assert code == 0, cap.err
     rep = json.loads(cap.out)
@@ -25,7 +26,8 @@ def test_push_panda_cli_optimises_the_arms_own_dynamics(tmp_path, capsys, shared
     assert np.linalg.norm(np.array(rep["plain_push_bunny_final"][:2]) - rep["bunny_goal"]) > 0.04
     assert rep["max_control_ratio"] <= 1.0 + 1e-3 and rep["joint_limit_violation"] <= 1e-3
     sol = np.load(out / "solution.npz")
-    assert sol["controls"].shape == (80, 7) and (out / "push-panda.mp4").stat().st_size > 10_000
+    assert sol["controls"].shape == (80, 7) and not (out / "push-panda.mp4").exists()
+    assert (out / "convergence.png").stat().st_size > 10_000
 
 
 def test_push_panda_without_menagerie_says_how(monkeypatch, capsys, tmp_path):
