@@ -6,7 +6,8 @@
 """
 
 from .ilqr import LOG_KEYS, Multipliers, Options, Solution, rollout, solve
+from .mpc import RecedingHorizonResult, receding_horizon
 from .problem import Problem, mjx_dynamics, quadratic, quadratic_problem
 
-__all__ = ["LOG_KEYS", "Multipliers", "Options", "Problem", "Solution", "mjx_dynamics", "quadratic",
-           "quadratic_problem", "rollout", "solve"]
+__all__ = ["LOG_KEYS", "Multipliers", "Options", "Problem", "RecedingHorizonResult", "Solution", "mjx_dynamics",
+           "quadratic", "quadratic_problem", "receding_horizon", "rollout", "solve"]
