@@ -340,7 +340,7 @@ def bench_trajopt(repeats: int = 3) -> dict:
     the step, vmapped over the horizon, and the cost expansion; ``backward``: the Riccati
     pass; ``forward``: one line-search rollout), each timed separately on the plain push,
     and one full solve from the plain push (iterations, time to convergence, time per
-    iteration, compile time)."""
+    iteration, compile time); with ``$MENAGERIE_ROOT``, a full solve of push-panda too."""
     import jax.numpy as jnp
 
     from .trajopt.ilqr import Multipliers, _compiled
@@ -359,13 +359,21 @@ def bench_trajopt(repeats: int = 3) -> dict:
         "backward": _time(lambda: jax.block_until_ready(fns.backward(*E, jnp.asarray(0.0, x0.dtype))), repeats),
         "forward": _time(lambda: jax.block_until_ready(fns.forward(x0, X, U, K, k, 1.0, lam, mu, p)), repeats),
     }
-    sol = solve_task(task)
-    per = sol.wall_time_s - sol.compile_time_s
-    out["push_sphere_solve"] = {"iterations": sol.iterations, "status": sol.status,
-                                "wall_time_s": sol.wall_time_s, "compile_time_s": sol.compile_time_s,
-                                "s_per_iteration": per / max(sol.iterations, 1),
-                                "max_violation": sol.max_violation}
+    out["push_sphere_solve"] = _solve_summary(solve_task(task))
+    if os.environ.get("MENAGERIE_ROOT"):
+        from .trajopt.tasks import PushPandaConfig, push_panda_task
+
+        out["push_panda_solve"] = _solve_summary(solve_task(push_panda_task(PushPandaConfig())))
+    else:
+        out["push_panda_solve"] = "skipped: set MENAGERIE_ROOT"
     return out
+
+
+def _solve_summary(sol) -> dict:
+    per = sol.wall_time_s - sol.compile_time_s
+    return {"iterations": sol.iterations, "status": sol.status, "wall_time_s": sol.wall_time_s,
+            "compile_time_s": sol.compile_time_s, "s_per_iteration": per / max(sol.iterations, 1),
+            "max_violation": sol.max_violation}
 
 
 def environment() -> dict:
