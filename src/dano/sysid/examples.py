@@ -251,17 +251,13 @@ def contactnets_problem(path, tosses: int = 10, start: float = 0.3, substeps: in
     return problem, obs[1::2]
 
 
-def prediction_errors(problem: SysIdProblem, observations: list[Observation], theta) -> dict:
-    """Simulate ``observations`` (from their measured initial states) with the parameters θ
-    of ``problem`` (same layout; ground height included) and compare with the frames:
-    ``position_rms_mm`` (RMS of the centre-of-mass distance over all frames after the
-    first), ``rotation_rms_deg`` (RMS of the rotation angle between observed and predicted
-    orientation) and per trajectory."""
-    held = SysIdProblem(problem.scene, observations, problem.parameters, weights=problem.weights,
-                        base_params=problem.base_params, substeps=problem.substeps, fit_ground=problem.fit_ground)
-    sims = held.simulate(np.asarray(theta))
+def pose_errors(observations: list[Observation], simulated: list[np.ndarray]) -> dict:
+    """Observed vs simulated poses of the DANO "cube": ``position_rms_mm`` (RMS of the
+    centre-of-mass distance over all frames after the first), ``rotation_rms_deg`` (RMS of
+    the rotation angle between observed and simulated orientation) and per trajectory.
+    simulated: per observation, qpos (frames, nq) in the observations' frame."""
     pos_sq, rot_sq, per = [], [], []
-    for obs, q in zip(observations, sims):
+    for obs, q in zip(observations, simulated):
         o = obs.poses["cube"]
         n = min(len(o), len(q))
         dp = np.linalg.norm(q[1:n, :3] - o[1:n, :3], axis=1)
@@ -274,6 +270,14 @@ def prediction_errors(problem: SysIdProblem, observations: list[Observation], th
                     "rotation_rms_deg": float(np.sqrt(np.mean(da**2)))})
     return {"position_rms_mm": 1e3 * float(np.sqrt(np.mean(np.concatenate(pos_sq)))),
             "rotation_rms_deg": float(np.sqrt(np.mean(np.concatenate(rot_sq)))), "per_toss": per}
+
+
+def prediction_errors(problem: SysIdProblem, observations: list[Observation], theta) -> dict:
+    """:func:`pose_errors` of ``observations`` simulated from their measured initial states
+    with the parameters θ of ``problem`` (same layout; ground height included)."""
+    held = SysIdProblem(problem.scene, observations, problem.parameters, weights=problem.weights,
+                        base_params=problem.base_params, substeps=problem.substeps, fit_ground=problem.fit_ground)
+    return pose_errors(observations, held.simulate(np.asarray(theta)))
 
 
 def contactnets_identify(path, tosses: int = 10, start: float = 0.3, scan: int = 6, starts: int = 2,
@@ -292,7 +296,7 @@ def contactnets_identify(path, tosses: int = 10, start: float = 0.3, scan: int =
     problem, held = contactnets_problem(path, tosses, start, substeps, contact_model)
     result = identify(problem, scan=scan, starts=starts)
     theta = np.asarray(result.estimates)
-    fit_err = prediction_errors(problem, problem.observations, theta)
+    fit_err = pose_errors(problem.observations, result.fitted)  # the fit's own rollouts, not simulated again
     held_err = prediction_errors(problem, held, theta)
     friction_only = SysIdProblem(problem.scene, problem.observations,
                                  [FitParameter("sliding_friction", start, 0.0, 1.5)], weights=problem.weights,

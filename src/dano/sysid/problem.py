@@ -525,8 +525,11 @@ class SysIdProblem:
         params = self.sim_params(jnp.asarray(theta))
         axes, offsets = self.fit_axes, self._nuisance_offsets()
         out = []
-        for sid, seg in enumerate(self.segments):
-            data, (qadr, dadr, jadr, steps, settle) = self._segment_data(seg)
+        segments = [self._segment_data(seg) for seg in self.segments]
+        # every segment rolled out for the longest one's steps (controls and forces padded with
+        # zeros, states cut afterwards): one compilation instead of one per distinct length
+        longest = max(settle + steps for _, (_, _, _, steps, settle) in segments)
+        for sid, (data, (qadr, dadr, jadr, steps, settle)) in enumerate(segments):
             qvel0 = np.array(data["qvel0"])
             if axes:
                 block = np.asarray(theta)[offsets[sid] : offsets[sid + 1]].reshape(-1, len(axes))
@@ -535,9 +538,10 @@ class SysIdProblem:
             height = float(np.asarray(theta)[-1]) if self.fit_ground else 0.0
             qpos0 = np.array(data["qpos0"])
             qpos0[[a + 2 for a in qadr]] -= height
-            qpos, _, _ = rollout_arrays(self.scene, State(jnp.asarray(qpos0), jnp.asarray(qvel0)),
-                                        jnp.asarray(data["ctrl"]), params, settle + steps, jnp.asarray(data["qfrc"]))
-            qpos = np.array(qpos)[settle :: self.substeps]
+            ctrl, qfrc = (jnp.asarray(_pad(np.asarray(data[k]), k, 0, longest)) for k in ("ctrl", "qfrc"))
+            qpos, _, _ = rollout_arrays(self.scene, State(jnp.asarray(qpos0), jnp.asarray(qvel0)), ctrl, params,
+                                        longest, qfrc)
+            qpos = np.array(qpos)[settle : settle + steps + 1 : self.substeps]
             qpos[:, [a + 2 for a in qadr]] += height  # back in the observations' frame
             out.append(qpos)
         return out

@@ -131,7 +131,7 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
 
     scan: global start (0: off). Before the local solver, the cost is evaluated on a coarse
     scan of the global parameters' bounds (:func:`scan_points`: ``scan`` values per axis for
-    one or two parameters, ``scan``² Sobol points beyond), in vmapped batches; the local
+    one or two parameters, Sobol points beyond: the next power of two ≥ ``scan``²), in vmapped batches; the local
     solver then starts from the ``starts`` best points (and the given initial guess) and the
     lowest final cost wins. Without ``horizons`` the scan and every start share one traced
     residual and Jacobian (compiled once each). The result's ``scan`` holds the points, their costs, the starts

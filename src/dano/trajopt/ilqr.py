@@ -256,13 +256,12 @@ class _Compiled:
         self.sizes = sizes
 
 
-_CACHE: dict[Problem, _Compiled] = {}  # problems compare by identity
-
-
 def _compiled(problem: Problem) -> _Compiled:
-    if problem not in _CACHE:
-        _CACHE[problem] = _Compiled(problem)
-    return _CACHE[problem]
+    """The problem's jitted pieces, built on first use and kept on the problem (so they are
+    freed with it)."""
+    if "_ilqr" not in problem.__dict__:
+        problem.__dict__["_ilqr"] = _Compiled(problem)
+    return problem.__dict__["_ilqr"]
 
 
 def _check_inputs(problem: Problem, x0, U0):
@@ -391,9 +390,9 @@ def rollout(problem: Problem, x0, U, params=None) -> jax.Array:
     """States (T + 1, nx) of ``problem``'s dynamics from x0 (nx,) under controls U (T, nu)
     (clipped to the bounds)."""
     x0, U = _check_inputs(problem, x0, U)
-    return _compiled(problem).evaluate(x0, U, Multipliers(*(jnp.zeros(s, x0.dtype) for s in
-                                                            _compiled(problem).sizes(x0, U, params))),
-                                       jnp.asarray(1.0, x0.dtype), params)[0]
+    fns = _compiled(problem)
+    lam = Multipliers(*(jnp.zeros(s, x0.dtype) for s in fns.sizes(x0, U, params)))
+    return fns.evaluate(x0, U, lam, jnp.asarray(1.0, x0.dtype), params)[0]
 
 
 __all__ = ["LOG_KEYS", "Multipliers", "Options", "Solution", "rollout", "solve"]

@@ -57,9 +57,6 @@ def shifted(problem: Problem) -> Problem:
         u_lower=problem.u_lower, u_upper=problem.u_upper)
 
 
-_SHIFTED: dict[Problem, Problem] = {}  # one shifted problem (one compilation) per problem
-
-
 @dataclass(frozen=True)
 class RecedingHorizonResult:
     """states (T + 1, nx) and controls (T, nu) as executed in the world; solves: the
@@ -91,9 +88,9 @@ def receding_horizon(problem: Problem, x0, world: Callable, U0, params=None, *, 
         raise DanoError(f"every must be at least 1 step, got {every}")
     start = time.perf_counter()
     T = problem.horizon
-    if problem not in _SHIFTED:
-        _SHIFTED[problem] = shifted(problem)
-    pr = _SHIFTED[problem]
+    if "_shifted" not in problem.__dict__:  # one shifted problem (one compilation) per problem, kept on it
+        problem.__dict__["_shifted"] = shifted(problem)
+    pr = problem.__dict__["_shifted"]
     x = jnp.asarray(x0)
     U = jnp.asarray(U0, x.dtype)
     lam, mu = None, None

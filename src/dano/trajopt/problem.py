@@ -33,8 +33,8 @@ class Problem:
     Minimise Σ_t stage_cost(x_t, u_t, t) + terminal_cost(x_T) subject to
     x_{t+1} = dynamics(x_t, u_t, t), inequality ≤ 0, equality = 0 at every stage,
     terminal_inequality ≤ 0 and terminal_equality = 0 at x_T, u_lower ≤ u_t ≤ u_upper.
-    nx, nu: state and control sizes. Compared by identity, so a problem's compiled
-    functions are reused by every solve with it.
+    nx, nu: state and control sizes. The solver's compiled functions are kept on the
+    problem: every solve with the same problem reuses them.
     """
 
     dynamics: Callable[..., jax.Array]
