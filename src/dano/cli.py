@@ -8,7 +8,7 @@ import json
 import math
 import signal
 import sys
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
@@ -116,6 +116,9 @@ def build(
     edge_width: float | None = None,
     normals_mesh: Path | None = None,
     visual_mesh: Path | None = None,
+    density_rule: str = "solid",
+    field_scale: float = 1.0,
+    voxels: Path | None = None,
     quiet: bool = False,
 ) -> None:
     """Build a DANO asset (.dano) from a density source.
@@ -133,6 +136,10 @@ def build(
         edge_width: mesh sources: width of the smooth surface edge [m] (default a quarter grid cell).
         normals_mesh: .jld2 sources: level-set mesh to recompute degenerate (zero) normals from.
         visual_mesh: .jld2 sources: mesh (collider frame) stored for rendering.
+        density_rule: field folders: how sigma becomes density: solid (the seen surface filled, uniform inside),
+            occupancy (1 - exp(-sigma*step)) or sigma (the paper's); see docs/fields-from-images.md.
+        field_scale: field folders: metres per field unit (1 for fields trained on `dano render-dataset` views).
+        voxels: field folders: also write the density grid as a voxel .npz (density, bounds), loadable anywhere.
         quiet: no progress bar.
     """
     from .asset import build as build_asset
@@ -141,8 +148,10 @@ def build(
     from .io import load_paper_collider, source_kind
 
     kind = source_kind(source)
-    if not source.is_file():
+    if not source.is_file() and kind != "field":
         raise FileNotFoundError(f"{source}: no such file")
+    if kind != "field" and (voxels is not None or density_rule != "solid" or field_scale != 1.0):
+        raise ValueError("--density-rule, --field-scale and --voxels apply to trained-field folders only")
     _check_resolution(resolution)
     if not 1 <= samples <= MAX_SAMPLES:
         raise ValueError(f"--samples {samples}: must be 1 to {MAX_SAMPLES}")
@@ -156,7 +165,9 @@ def build(
             if mass is not None or alpha is not None:
                 asset = asset.with_mass(mass if mass is not None else asset.mass * alpha / asset.alpha)
         else:
-            if kind == "mesh":
+            if kind == "field":
+                field = _field_density(source, density_rule, resolution, field_scale)
+            elif kind == "mesh":
                 field = mesh_field(source, resolution=resolution, edge_width=edge_width,
                                    progress=(lambda d, t: progress(d, t, "signed distance")) if progress else None)
             else:
@@ -164,7 +175,21 @@ def build(
             asset = build_asset(field, alpha=alpha, mass=mass, num_samples=samples, band=band, seed=seed,
                                 name=source.stem, source=str(source.name), progress=progress)
     save(asset, out)
+    if voxels is not None:
+        import numpy as np
+
+        atomic_write(voxels, lambda f: np.savez(f, density=np.asarray(field.values), bounds=field.node_bounds))
     err.print(f"wrote {out} ({asset.num_samples} samples, mass {asset.mass:.6g})")
+
+
+def _field_density(source: Path, rule: str, resolution: int, scale: float):
+    """A trained field's folder -> the VoxelField a DANO is built from."""
+    from .nerf import load_field
+    from .nerf.density import density_grid
+
+    field, _, meta = load_field(source)
+    return density_grid(field, rule, resolution=resolution, step=meta.get("training", {}).get("sample_step"),
+                        scale=scale)
 
 
 def _summary_table(asset) -> Table:
@@ -662,6 +687,143 @@ def trajopt(
     out.print(t)
 
 
+def _train_progress(enabled: bool, config):
+    """A rich progress bar over the run's clock (or steps) showing loss and training PSNR."""
+    if not enabled:
+        return nullcontext()
+
+    @contextmanager
+    def bar():
+        with Progress(TextColumn("training"), BarColumn(), TextColumn("{task.fields[info]}"), TimeElapsedColumn(),
+                      console=err, transient=True) as p:
+            task = p.add_task("training", total=1000, info="")
+
+            def update(record):
+                if record["step"] % 10 == 0 or record["step"] < 3:
+                    p.update(task, completed=int(1000 * record["fraction"]),
+                             info=f"step {record['step']}  loss {record['loss']:.4g}  PSNR {record['psnr_train']:.2f} dB")
+
+            yield update
+
+    return bar()
+
+
+@_names("data")
+def train_field(
+    data: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="DATA")],
+    out: Annotated[Path, tyro.conf.arg(aliases=("-o",))],
+    minutes: float = 3.0,
+    steps: int = 0,
+    holdout: int = 10,
+    bounds: tuple[float, float, float, float, float, float] | None = None,
+    background: str = "white",
+    mask_weight: float = 0.0,
+    rays_per_step: int = 4096,
+    eval_at: tuple[float, ...] = (),
+    seed: int = 0,
+    resume: bool = False,
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False,
+    quiet: bool = False,
+) -> None:
+    """Train a density (radiance) field from posed images; `dano build DIR` makes it a DANO.
+
+    Args:
+        data: a transforms.json (Blender/nerfstudio; or its folder) or an .npz image set (images, poses, focal).
+        out: the field directory to write (field.json, field.npz, optimizer.npz, config.json, report.json,
+            log.csv, heldout.png). Checkpoints are written every 2 minutes of training; an interrupted run
+            keeps its last checkpoint (continue it with --resume).
+        minutes: training time (compilation included, evaluation excluded).
+        steps: also stop after this many steps (0: only the clock stops).
+        holdout: views held out for the PSNR (evenly spread over the set).
+        bounds: the object box XLO YLO ZLO XHI YHI ZHI [data units] (default: the data's, else +-1.5).
+        background: white, black or random (random needs RGBA images).
+        mask_weight: weight of an alpha (mask) loss; needs RGBA images.
+        rays_per_step: rays per Adam step.
+        eval_at: also measure held-out PSNR when training passes these minutes (e.g. 1 3).
+        seed: random seed.
+        resume: continue the run checkpointed in OUT.
+        json_: print one JSON object (psnr_heldout, wall_time_s, rays_per_s, steps, psnr_at_minutes, ...).
+        quiet: no progress bar.
+    """
+    import csv
+    import io
+
+    import numpy as np
+
+    from .nerf import TrainConfig, load_dataset, train
+    from .nerf.train import evaluate
+    from .viz.plot import plot_heldout
+
+    if out.exists() and not resume and (not out.is_dir() or any(out.iterdir())):
+        hint = " (a field directory: --resume continues it)" if (out / "field.json").exists() else ""
+        raise ValueError(f"{out}: exists and is not empty{hint}; choose a new output folder")
+    if resume and not (out / "field.json").exists():
+        raise ValueError(f"{out}: --resume needs a field directory written by `dano train-field`")
+    box = None if bounds is None else np.asarray(bounds, dtype=np.float64).reshape(2, 3)
+    dataset = load_dataset(data, bounds=box)
+    config = TrainConfig(minutes=minutes, steps=steps, holdout=holdout, background=background,
+                         mask_weight=mask_weight, rays_per_step=rays_per_step, eval_at_minutes=tuple(eval_at),
+                         seed=seed).check(dataset)
+    train_set, held = dataset.split(holdout)
+    with _train_progress(not quiet and not json_, config) as progress:
+        result = train(train_set, config, heldout=held, out_dir=out, resume=resume, progress=progress)
+    score, renders = evaluate(result.field, result.occupancy, held, config)
+    report = {
+        "psnr_heldout": score,
+        "wall_time_s": result.wall_time_s,
+        "rays_per_s": result.rays_per_s,
+        "steps": result.steps,
+        "psnr_at_minutes": result.psnr_at,
+        "train_views": train_set.num_images,
+        "heldout_views": held.num_images,
+        "image_size": [dataset.cameras.width, dataset.cameras.height],
+        "occupied_fraction": result.occupancy.fraction_occupied(),
+        "data": str(data),
+        "field": str(out),
+    }
+    resolved = dataclasses.asdict(config) | {"data": str(data), "bounds": dataset.bounds.tolist()}
+    atomic_write(out / "config.json", lambda f: f.write((json.dumps(resolved, indent=2) + "\n").encode()))
+    atomic_write(out / "report.json", lambda f: f.write((json.dumps(report, indent=2) + "\n").encode()))
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=["step", "elapsed_s", "loss", "psnr_train", "lr", "complete"])
+    writer.writeheader()
+    writer.writerows(result.log)
+    atomic_write(out / "log.csv", lambda f: f.write(buffer.getvalue().encode()))
+    plot_heldout(renders, held, out / "heldout.png")
+    if json_:
+        print(json.dumps(report))
+        return
+    err.print(f"held-out PSNR {score:.2f} dB after {result.steps} steps, {result.wall_time_s:.0f} s "
+              f"({result.rays_per_s:.0f} rays/s); wrote {out}/")
+
+
+@_names("mesh")
+def render_dataset(
+    mesh: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="MESH")],
+    out: Annotated[Path, tyro.conf.arg(aliases=("-o",))],
+    views: int = 100,
+    size: int = 100,
+    quiet: bool = False,
+) -> None:
+    """Render RGBA views of a mesh at known cameras with MuJoCo's renderer (headless) as a
+    transforms.json image set: training data with exact ground truth.
+
+    Args:
+        mesh: a mesh file (.obj/.stl/.ply/...; its frame and units, taken as metres).
+        out: the folder to write (transforms.json, images/r_NNN.png); must not exist or be empty.
+        views: number of views (cameras on a Fibonacci sphere around the mesh).
+        size: image width and height [px].
+        quiet: no progress bar.
+    """
+    from .nerf.synthetic import render_dataset as render
+
+    if not 1 <= views <= 10_000 or not 8 <= size <= 4096:
+        raise ValueError(f"--views must be 1 to 10000 and --size 8 to 4096, got {views} and {size}")
+    with _progress(not quiet) as progress:
+        render(mesh, out, views=views, size=size, progress=progress)
+    err.print(f"wrote {out}/transforms.json and {views} images of {size}x{size} px")
+
+
 Collision = Literal["hull", "decomposition", "none"]
 
 
@@ -839,7 +1001,8 @@ def _check_contact_model(name: str) -> None:
 
 
 COMMANDS = {"build": build, "inspect": inspect, "simulate": simulate, "sysid": sysid, "export": export,
-            "compare-mesh": compare_mesh, "trajopt": trajopt, "demo": demo, "bench": bench}
+            "compare-mesh": compare_mesh, "trajopt": trajopt, "train-field": train_field,
+            "render-dataset": render_dataset, "demo": demo, "bench": bench}
 
 
 def _terminate(signum, frame):
@@ -847,7 +1010,7 @@ def _terminate(signum, frame):
 
 
 # options that take several values after one flag; tyro would keep only the last repetition
-_MULTI_VALUE_FLAGS = ("--object", "--param", "--levels", "--collision", "--suite")
+_MULTI_VALUE_FLAGS = ("--object", "--param", "--levels", "--collision", "--suite", "--eval-at", "--bounds")
 
 
 def _configure_process() -> None:

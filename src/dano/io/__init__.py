@@ -15,7 +15,10 @@ __all__ = ["PAPER_ALPHA", "MESH_SUFFIXES", "Decomposition", "add_to_spec", "body
 
 
 def source_kind(path: str | Path) -> str:
-    """'mesh', 'voxel' or 'jld2' from the file suffix; raises FileFormatError otherwise."""
+    """'mesh', 'voxel', 'jld2' from the file suffix, or 'field' for a folder (a field
+    directory written by ``dano train-field``); raises FileFormatError otherwise."""
+    if Path(path).is_dir():
+        return "field"
     suffix = Path(path).suffix.lower()
     if suffix in MESH_SUFFIXES:
         return "mesh"
@@ -25,5 +28,5 @@ def source_kind(path: str | Path) -> str:
         return "jld2"
     raise FileFormatError(
         f"{path}: unknown source type {suffix!r}; expected a mesh ({', '.join(MESH_SUFFIXES)}), "
-        "a voxel grid (.npy/.npz) or a paper collider (.jld2)"
+        "a voxel grid (.npy/.npz), a paper collider (.jld2) or a trained field's folder"
     )

@@ -1,5 +1,5 @@
 """Plots and (later) videos."""
 
-from .plot import plot_samples, plot_sysid, plot_trajopt
+from .plot import plot_heldout, plot_samples, plot_sysid, plot_trajopt
 
-__all__ = ["plot_samples", "plot_sysid", "plot_trajopt"]
+__all__ = ["plot_heldout", "plot_samples", "plot_sysid", "plot_trajopt"]

@@ -133,3 +133,31 @@ def plot_trajopt(task, solution, model_error, path) -> Path:
     path = Path(path)
     atomic_write(path, lambda f: fig.savefig(f, format=path.suffix.lstrip(".") or "png", dpi=110))
     return path
+
+
+def plot_heldout(renders, data, path, max_views: int = 4) -> Path:
+    """Held-out views: the field's renders (top row) over the images (bottom row), with each
+    view's PSNR, to an image file. ``renders``: list of (H, W, 3) in [0, 1]; ``data``: the
+    held-out :class:`~dano.nerf.Dataset`. Written atomically."""
+    from matplotlib.figure import Figure
+
+    from ..render import psnr
+
+    n = min(max_views, len(renders))
+    fig = Figure(figsize=(2.6 * n, 5.4))
+    axes = fig.subplots(2, n, squeeze=False)
+    for k in range(n):
+        ref = data.images[k]
+        if data.alpha is not None:
+            ref = ref * data.alpha[k][..., None] + (1.0 - data.alpha[k][..., None])
+        image = np.clip(renders[k], 0.0, 1.0)
+        axes[0, k].imshow(image)
+        axes[0, k].set_title(f"{data.names[k]}\n{psnr(image, ref):.2f} dB", fontsize=8)
+        axes[1, k].imshow(ref)
+        for ax in axes[:, k]:
+            ax.set_axis_off()
+    axes[1, 0].set_title("images", fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    atomic_write(path, lambda f: fig.savefig(f, format=path.suffix.lstrip(".") or "png", dpi=100))
+    return path

@@ -1,0 +1,260 @@
+"""Training a :class:`~dano.nerf.HashGridField` from posed images.
+
+Each step draws ``rays_per_step`` random pixels of the training views, renders them with
+the occupancy grid skipping empty space (:func:`dano.render.render_rays`, a fixed budget of
+field evaluations) and takes an Adam step (optax) on the mean squared colour error (plus,
+optionally, the squared alpha error against the images' masks). The learning rate decays
+log-linearly from ``learning_rate`` to ``final_learning_rate`` over the run (by steps or by
+the clock, whichever ends it). The occupancy grid is refreshed every ``occupancy_every``
+steps. The clock counts compilation and training, not evaluation or checkpoint writing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ..errors import DanoError
+from ..render.cameras import pixel_rays
+from ..render.volume import OccupancyGrid, RenderOptions, psnr, render_image, render_rays, update_occupancy
+from .checkpoint import load_field, load_optimizer_state, save_field
+from .data import Dataset
+from .field import FieldConfig, HashGridField
+
+BACKGROUNDS = ("white", "black", "random")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """How a field is trained (saved as ``config.json`` beside every trained field)."""
+
+    minutes: float = 3.0
+    """Training time [min] (compilation included, evaluation excluded)."""
+    steps: int = 0
+    """Stop after this many steps (0: only the clock stops training)."""
+    rays_per_step: int = 4096
+    """Rays (pixels) per Adam step."""
+    samples_per_ray: int = 48
+    """Field evaluations per ray on average (the packed budget is rays_per_step times this)."""
+    samples_across: int = 384
+    """Sample spacing = the box diagonal / this."""
+    learning_rate: float = 1e-2
+    """Adam's initial learning rate."""
+    final_learning_rate: float = 3e-4
+    """Learning rate at the end of the run (log-linear decay)."""
+    holdout: int = 10
+    """Views held out for evaluation (evenly spread over the set)."""
+    background: str = "white"
+    """Background behind the object: white, black or random (random needs RGBA images)."""
+    mask_weight: float = 0.0
+    """Weight of the alpha (mask) loss; needs RGBA images."""
+    occupancy_resolution: int = 64
+    """Cells across the box of the occupancy grid."""
+    occupancy_every: int = 16
+    """Steps between occupancy-grid refreshes."""
+    occupancy_alpha: float = 0.01
+    """A cell is empty when its opacity per sample step stays below this."""
+    eval_at_minutes: tuple[float, ...] = ()
+    """Also measure held-out PSNR when the clock passes these minutes."""
+    checkpoint_minutes: float = 2.0
+    """Minutes between checkpoints (and one at the end)."""
+    seed: int = 0
+    """Random seed (initial parameters, rays, jitter)."""
+    field: FieldConfig = dataclasses.field(default_factory=FieldConfig)
+    """Architecture of the hash-grid field."""
+
+    def check(self, data: Dataset | None = None) -> "TrainConfig":
+        """Raises DanoError naming the option for values that cannot train."""
+        if not (self.minutes > 0 and math.isfinite(self.minutes)):
+            raise DanoError(f"--minutes must be a positive number, got {self.minutes}")
+        for name in ("rays_per_step", "samples_per_ray", "samples_across", "occupancy_resolution", "occupancy_every"):
+            if getattr(self, name) < 1:
+                raise DanoError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        if self.steps < 0:
+            raise DanoError(f"--steps must be >= 0, got {self.steps}")
+        if not (0 < self.final_learning_rate <= self.learning_rate):
+            raise DanoError("learning rates must satisfy 0 < final-learning-rate <= learning-rate")
+        if self.background not in BACKGROUNDS:
+            raise DanoError(f"--background must be one of {BACKGROUNDS}, got {self.background!r}")
+        if data is not None and data.alpha is None and (self.background == "random" or self.mask_weight > 0):
+            raise DanoError(f"{data.source}: --background random and --mask-weight need RGBA images (alpha masks)")
+        self.field.check()
+        return self
+
+
+@dataclass
+class TrainResult:
+    """What :func:`train` returns: the field, its occupancy grid, and the run's record."""
+
+    field: HashGridField
+    occupancy: OccupancyGrid
+    steps: int
+    wall_time_s: float
+    rays_per_s: float
+    psnr_heldout: float | None
+    psnr_at: dict = field(default_factory=dict)
+    log: list = field(default_factory=list)
+
+
+def render_options(bounds, config: TrainConfig, chunk: int | None = None) -> RenderOptions:
+    """The sampling used for training (``chunk`` rays per call; default rays_per_step)."""
+    rays = chunk or config.rays_per_step
+    opts = RenderOptions.for_bounds(bounds, config.samples_across)
+    return dataclasses.replace(opts, budget=max(rays * config.samples_per_ray, opts.num_samples))
+
+
+def _background(config: TrainConfig, key, n):
+    if config.background == "random":
+        return jax.random.uniform(key, (n, 3), jnp.float32)
+    return jnp.full((n, 3), 1.0 if config.background == "white" else 0.0, jnp.float32)
+
+
+def _make_step(config: TrainConfig, options: RenderOptions, optimizer, height: int, width: int):
+    n = config.rays_per_step
+
+    def step(field, opt_state, occupancy, images, alpha, cameras, key, lr):
+        k_ray, k_jit, k_bg = jax.random.split(key, 3)
+        idx = jax.random.randint(k_ray, (n,), 0, images.shape[0] * height * width)
+        cam = idx // (height * width)
+        pix = idx % (height * width)
+        v, u = pix // width, pix % width
+        origins, dirs = pixel_rays(cameras, cam, u.astype(jnp.float32) + 0.5, v.astype(jnp.float32) + 0.5)
+        rgb = images.reshape(-1, 3)[idx]
+        bg = _background(config, k_bg, n)
+        if alpha is not None:
+            a = alpha.reshape(-1)[idx]
+            target = rgb * a[:, None] + bg * (1.0 - a[:, None])
+        else:
+            target = rgb
+
+        def loss_fn(params):
+            out = render_rays(dataclasses.replace(field, params=params), origins, dirs, options, occupancy=occupancy,
+                              background=bg, key=k_jit)
+            w = out.complete.astype(jnp.float32)
+            count = jnp.maximum(w.sum(), 1.0)
+            mse = jnp.sum(w * jnp.mean((out.rgb - target) ** 2, axis=-1)) / count
+            loss = mse
+            if alpha is not None and config.mask_weight > 0:
+                loss = loss + config.mask_weight * jnp.sum(w * (out.alpha - a) ** 2) / count
+            return loss, (mse, w.mean())
+
+        (loss, (mse, complete)), grads = jax.value_and_grad(loss_fn, has_aux=True)(field.params)
+        opt_state.hyperparams["learning_rate"] = lr
+        updates, opt_state = optimizer.update(grads, opt_state, field.params)
+        params = optax.apply_updates(field.params, updates)
+        return dataclasses.replace(field, params=params), opt_state, loss, mse, complete
+
+    return jax.jit(step)
+
+
+def evaluate(field: HashGridField, occupancy: OccupancyGrid, data: Dataset, config: TrainConfig,
+             chunk: int = 4096) -> tuple[float, list[np.ndarray]]:
+    """Mean held-out PSNR [dB] over ``data``'s views (images composited on the configured
+    background, white for ``random``) and the rendered images (H, W, 3)."""
+    options = render_options(field.bounds(), config, chunk)
+    bg = 0.0 if config.background == "black" else 1.0
+    scores, renders = [], []
+    for i in range(data.num_images):
+        out = render_image(field, data.cameras, i, options, occupancy=occupancy, background=bg, chunk=chunk)
+        ref = data.images[i]
+        if data.alpha is not None:
+            ref = ref * data.alpha[i][..., None] + bg * (1.0 - data.alpha[i][..., None])
+        scores.append(psnr(np.clip(out.rgb, 0.0, 1.0), ref))
+        renders.append(out.rgb)
+    return float(np.mean(scores)), renders
+
+
+def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None, out_dir: str | Path | None = None,
+          resume: bool = False, progress: Callable[[dict], None] | None = None) -> TrainResult:
+    """Train a field on ``data`` (already split: pass the held-out views as ``heldout``).
+
+    out_dir: field directory for checkpoints (every ``checkpoint_minutes`` and at the end);
+    resume: continue from the checkpoint in ``out_dir`` (parameters, Adam state, occupancy
+    grid, step and clock); progress: called after every step with a dict (step, elapsed_s,
+    loss, psnr_train, lr, complete, occupied).
+
+    Raises DanoError for an inconsistent configuration, FileFormatError for a bad checkpoint.
+    """
+    config.check(data)
+    bounds = data.bounds
+    options = render_options(bounds, config)
+    threshold = -math.log1p(-config.occupancy_alpha) / options.step
+    optimizer = optax.inject_hyperparams(optax.adam)(learning_rate=config.learning_rate, b1=0.9, b2=0.99, eps=1e-15)
+    field = HashGridField.create(bounds, config.field, seed=config.seed)
+    occupancy = OccupancyGrid.create(bounds, config.occupancy_resolution, threshold)
+    opt_state = optimizer.init(field.params)
+    start_step, clock0, log = 0, 0.0, []
+    if resume:
+        field, occupancy, meta = load_field(out_dir)
+        opt_state = load_optimizer_state(out_dir, opt_state)
+        if field.config != config.field or not np.allclose(field.bounds(), bounds, atol=1e-6):
+            raise DanoError(f"{out_dir}: the checkpoint's field architecture or box differs from this run's")
+        start_step = int(meta["training"].get("step", 0))
+        clock0 = float(meta["training"].get("elapsed_s", 0.0))
+    cameras = data.cameras
+    images = jnp.asarray(data.images, jnp.float32)
+    alpha = None if data.alpha is None else jnp.asarray(data.alpha, jnp.float32)
+    step_fn = _make_step(config, options, optimizer, cameras.height, cameras.width)
+    occ_fn = jax.jit(lambda f, g, k: update_occupancy(g, f.density, k))
+    key = jax.random.fold_in(jax.random.PRNGKey(config.seed), start_step)
+    budget_s = config.minutes * 60.0
+    psnr_at: dict = {}
+    pending = sorted(m for m in config.eval_at_minutes if m * 60.0 > clock0)
+    elapsed = clock0
+    tic = time.perf_counter() - clock0
+    paused = 0.0
+    last_checkpoint = clock0
+    step = start_step
+
+    def info(extra=None):
+        return {"step": step, "elapsed_s": elapsed, "rays_per_step": config.rays_per_step, "data": data.source,
+                "sample_step": options.step,
+                "psnr_at_minutes": psnr_at, **(extra or {})}
+
+    while True:
+        fraction = min(1.0, max(elapsed / budget_s, step / config.steps if config.steps else 0.0))
+        if fraction >= 1.0:
+            break
+        lr = config.learning_rate * (config.final_learning_rate / config.learning_rate) ** fraction
+        key, k_step, k_occ = jax.random.split(key, 3)
+        if step % config.occupancy_every == 0:
+            occupancy = occ_fn(field, occupancy, k_occ)
+        field, opt_state, loss, mse, complete = step_fn(field, opt_state, occupancy, images, alpha, cameras, k_step,
+                                                        jnp.float32(lr))
+        loss = float(loss)
+        if not math.isfinite(loss):
+            raise DanoError(f"training diverged at step {step} (loss {loss}); try a smaller --learning-rate")
+        step += 1
+        elapsed = time.perf_counter() - tic - paused
+        record = {"step": step, "elapsed_s": elapsed, "loss": loss, "psnr_train": -10.0 * math.log10(max(float(mse),
+                  1e-12)), "lr": lr, "complete": float(complete)}
+        log.append(record)
+        while pending and elapsed >= pending[0] * 60.0 and heldout is not None:
+            t0 = time.perf_counter()
+            psnr_at[f"{pending.pop(0):g}"] = evaluate(field, occupancy, heldout, config)[0]
+            paused += time.perf_counter() - t0
+        if out_dir is not None and elapsed - last_checkpoint >= config.checkpoint_minutes * 60.0:
+            t0 = time.perf_counter()
+            save_field(out_dir, field, occupancy, info(), opt_state)
+            paused += time.perf_counter() - t0
+            last_checkpoint = elapsed
+        if progress is not None:
+            progress({**record, "fraction": fraction, "occupied": None})
+    occupancy = occ_fn(field, occupancy, key)
+    score = evaluate(field, occupancy, heldout, config)[0] if heldout is not None else None
+    trained = step - start_step
+    wall = elapsed - clock0
+    result = TrainResult(field, occupancy, step, elapsed, trained * config.rays_per_step / max(wall, 1e-9), score,
+                         psnr_at, log)
+    if out_dir is not None:
+        save_field(out_dir, field, occupancy, info({"psnr_heldout": score}), opt_state)
+    return result
