@@ -8,6 +8,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+import numpy as np
+
 
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
@@ -47,3 +49,23 @@ def atomic_write(path: str | Path, writer: Callable[[Any], None]) -> None:
     """Call ``writer(binary file object)`` and atomically publish the result at ``path``."""
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         writer(f)
+
+
+def read_npz(path: str | Path, required=(), what: str = "") -> dict:
+    """All arrays of an ``.npz`` file (no pickles) as ``{name: array}``.
+
+    Raises FileFormatError naming ``path`` if it cannot be read (``what`` says what it was
+    meant to be) or lacks any of the ``required`` arrays.
+    """
+    from .errors import FileFormatError
+
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except Exception as exc:
+        raise FileFormatError(f"{path}: cannot read{' ' + what if what else ''} ({exc})") from exc
+    missing = sorted(set(required) - set(arrays))
+    if missing:
+        raise FileFormatError(f"{path}: missing arrays {missing}; expected {', '.join(required)}")
+    return arrays

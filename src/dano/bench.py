@@ -3,10 +3,12 @@ compiling run reported separately). Machines are noisy: compare ratios measured 
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import platform
 import statistics
 import time
+from pathlib import Path
 from typing import Callable
 
 import jax
@@ -394,9 +396,42 @@ def environment() -> dict:
     }
 
 
+def _shared_data() -> Path | None:
+    """``$DANO_SHARED_DATA`` or ``../shared/data`` beside the working folder, if present."""
+    path = Path(os.environ.get("DANO_SHARED_DATA", Path.cwd().parent / "shared" / "data"))
+    return path if path.is_dir() else None
+
+
+def bench_nerf(repeats: int = 1, minutes: float = 3.0, eval_at: tuple[float, ...] = (1.0,),
+               loop_minutes: float = 3.0) -> dict:
+    """Fields from images: training on the real ``lego_100px.npz`` (90 views, 10 held out)
+    for ``minutes`` (held-out PSNR at ``eval_at`` minutes and at the end, rays/s, one process
+    with XLA's default threads), and the ground-truth loop (:mod:`dano.nerf.validate`) on
+    ``bunny_lowpoly.obj`` and ``spot.obj`` with ``loop_minutes`` of training each. Needs
+    the shared data (``$DANO_SHARED_DATA`` or ``../shared/data``). 0 minutes skips a part."""
+    from .nerf import TrainConfig, load_dataset, train
+    from .nerf.validate import ground_truth_loop
+
+    data_dir = _shared_data()
+    if data_dir is None:
+        return {"skipped": "set DANO_SHARED_DATA to the folder holding nerf/ and meshes/"}
+    out = {}
+    if minutes > 0:
+        data = load_dataset(data_dir / "nerf" / "lego_100px.npz")
+        train_set, held = data.split(10)
+        config = TrainConfig(minutes=minutes, eval_at_minutes=tuple(eval_at))
+        result = train(train_set, config, heldout=held)
+        out["lego"] = {"minutes": minutes, "psnr_heldout": result.psnr_heldout, "psnr_at_minutes": result.psnr_at,
+                       "rays_per_s": result.rays_per_s, "steps": result.steps, "wall_time_s": result.wall_time_s,
+                       "config": dataclasses.asdict(config)}
+    if loop_minutes > 0:
+        out["ground_truth_loop"] = [ground_truth_loop(data_dir / "meshes" / name, minutes=loop_minutes)
+                                    for name in ("bunny_lowpoly.obj", "spot.obj")]
+    return out
+
+
 SUITES = {"build": bench_build, "sim": bench_sim, "sysid": bench_sysid, "batched": bench_batched,
-          "trajopt": bench_trajopt,
-          "energy": bench_energy}
+          "trajopt": bench_trajopt, "energy": bench_energy, "nerf": bench_nerf}
 
 
 def run(suites: list[str] | None = None, repeats: int = 3, options: dict | None = None) -> dict:

@@ -117,6 +117,7 @@ def build(
     normals_mesh: Path | None = None,
     visual_mesh: Path | None = None,
     density_rule: str = "solid",
+    surface_opacity: float = 0.5,
     field_scale: float = 1.0,
     voxels: Path | None = None,
     quiet: bool = False,
@@ -138,6 +139,8 @@ def build(
         visual_mesh: .jld2 sources: mesh (collider frame) stored for rendering.
         density_rule: field folders: how sigma becomes density: solid (the seen surface filled, uniform inside),
             occupancy (1 - exp(-sigma*step)) or sigma (the paper's); see docs/fields-from-images.md.
+        surface_opacity: field folders, solid rule: the surface is where the opacity accumulated from outside
+            reaches this (0.5: a render's median depth).
         field_scale: field folders: metres per field unit (1 for fields trained on `dano render-dataset` views).
         voxels: field folders: also write the density grid as a voxel .npz (density, bounds), loadable anywhere.
         quiet: no progress bar.
@@ -150,8 +153,10 @@ def build(
     kind = source_kind(source)
     if not source.is_file() and kind != "field":
         raise FileNotFoundError(f"{source}: no such file")
-    if kind != "field" and (voxels is not None or density_rule != "solid" or field_scale != 1.0):
-        raise ValueError("--density-rule, --field-scale and --voxels apply to trained-field folders only")
+    if kind != "field" and (voxels is not None or density_rule != "solid" or field_scale != 1.0
+                            or surface_opacity != 0.5):
+        raise ValueError("--density-rule, --surface-opacity, --field-scale and --voxels apply to trained-field "
+                         "folders only")
     _check_resolution(resolution)
     if not 1 <= samples <= MAX_SAMPLES:
         raise ValueError(f"--samples {samples}: must be 1 to {MAX_SAMPLES}")
@@ -166,7 +171,7 @@ def build(
                 asset = asset.with_mass(mass if mass is not None else asset.mass * alpha / asset.alpha)
         else:
             if kind == "field":
-                field = _field_density(source, density_rule, resolution, field_scale)
+                field = _field_density(source, density_rule, resolution, field_scale, surface_opacity)
             elif kind == "mesh":
                 field = mesh_field(source, resolution=resolution, edge_width=edge_width,
                                    progress=(lambda d, t: progress(d, t, "signed distance")) if progress else None)
@@ -182,14 +187,14 @@ def build(
     err.print(f"wrote {out} ({asset.num_samples} samples, mass {asset.mass:.6g})")
 
 
-def _field_density(source: Path, rule: str, resolution: int, scale: float):
+def _field_density(source: Path, rule: str, resolution: int, scale: float, surface_opacity: float):
     """A trained field's folder -> the VoxelField a DANO is built from."""
     from .nerf import load_field
     from .nerf.density import density_grid
 
     field, _, meta = load_field(source)
     return density_grid(field, rule, resolution=resolution, step=meta.get("training", {}).get("sample_step"),
-                        scale=scale)
+                        scale=scale, surface_opacity=surface_opacity)
 
 
 def _summary_table(asset) -> Table:
@@ -595,17 +600,22 @@ def bench(
     drops: int = 1000,
     seed: int = 0,
     contact_model: str = "centroid",
+    nerf_minutes: float = 3.0,
+    nerf_loop_minutes: float = 3.0,
     out: Path | None = None,
 ) -> None:
     """Run the benchmarks (wall times; medians of repeats, first compiling call separate).
 
     Args:
         json_: print one JSON object.
-        suite: suites to run (default all): build, sim, sysid, batched, trajopt, energy.
+        suite: suites to run (default all): build, sim, sysid, batched, trajopt, energy, nerf (fields from
+            images; needs the shared data, see benchmarks/README.md).
         repeats: timed repeats after the first call.
         drops: random bunny drops of the energy suite.
         seed: random seed of the energy suite's drops.
         contact_model: contact model of the energy suite (centroid or per_sample).
+        nerf_minutes: training time of the nerf suite's lego run (PSNR also at 1 minute).
+        nerf_loop_minutes: training time per mesh of the nerf suite's ground-truth loop (0: skip it).
         out: also write the JSON here.
     """
     from .bench import SUITES, run
@@ -619,7 +629,9 @@ def bench(
         raise ValueError(f"--repeats must be 1 to 1000, got {repeats}")
     _check_contact_model(contact_model)
     result = run(list(suite) or None, repeats=repeats,
-                 options={"energy": {"drops": drops, "seed": seed, "contact_model": contact_model}})
+                 options={"energy": {"drops": drops, "seed": seed, "contact_model": contact_model},
+                          "nerf": {"minutes": nerf_minutes, "loop_minutes": nerf_loop_minutes,
+                                   "eval_at": tuple(m for m in (1.0, 3.0) if m < nerf_minutes)}})
     text = json.dumps(result, indent=None if json_ else 2)
     if out is not None:
         atomic_write(out, lambda f: f.write(text.encode()))
@@ -701,7 +713,8 @@ def _train_progress(enabled: bool, config):
             def update(record):
                 if record["step"] % 10 == 0 or record["step"] < 3:
                     p.update(task, completed=int(1000 * record["fraction"]),
-                             info=f"step {record['step']}  loss {record['loss']:.4g}  PSNR {record['psnr_train']:.2f} dB")
+                             info=f"step {record['step']}  loss {record['loss']:.4g}  "
+                                  f"PSNR {record['psnr_train']:.2f} dB")
 
             yield update
 
@@ -718,7 +731,7 @@ def train_field(
     bounds: tuple[float, float, float, float, float, float] | None = None,
     background: str = "white",
     mask_weight: float = 0.0,
-    rays_per_step: int = 4096,
+    rays_per_step: int = 4096,  # TrainConfig's default (a test checks they agree)
     eval_at: tuple[float, ...] = (),
     seed: int = 0,
     resume: bool = False,
@@ -785,7 +798,8 @@ def train_field(
     atomic_write(out / "config.json", lambda f: f.write((json.dumps(resolved, indent=2) + "\n").encode()))
     atomic_write(out / "report.json", lambda f: f.write((json.dumps(report, indent=2) + "\n").encode()))
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=["step", "elapsed_s", "loss", "psnr_train", "lr", "complete"])
+    writer = csv.DictWriter(buffer, fieldnames=["step", "elapsed_s", "loss", "psnr_train", "lr", "complete",
+                                                "samples_per_ray"])
     writer.writeheader()
     writer.writerows(result.log)
     atomic_write(out / "log.csv", lambda f: f.write(buffer.getvalue().encode()))
@@ -1013,7 +1027,14 @@ def _terminate(signum, frame):
 _MULTI_VALUE_FLAGS = ("--object", "--param", "--levels", "--collision", "--suite", "--eval-at", "--bounds")
 
 
-def _configure_process() -> None:
+def _wide(args: list[str]) -> bool:
+    """Verbs made of large array operations (training fields), which XLA's thread pool speeds
+    up: on the 2-core machine one lego minute trained 11.6k rays/s with it, 7.2k with one thread."""
+    return bool(args) and (args[0] == "train-field" or (args[0] == "bench" and "nerf" in args
+                                                                 and not {"sim", "batched", "energy"} & set(args)))
+
+
+def _configure_process(args: list[str] | None = None) -> None:
     """The command line's own process: one XLA CPU thread unless NPROC is set (dano's
     steps are many small operations; on the 2-core machine XLA's thread pool made single
     and batched rollouts about 2x slower), JAX's 64-bit mode and the persistent compilation
@@ -1024,7 +1045,7 @@ def _configure_process() -> None:
 
     from . import _jax_setup
 
-    if "NPROC" not in os.environ and not _jax_setup._backend_started():
+    if "NPROC" not in os.environ and not _jax_setup._backend_started() and not _wide(args):
         os.environ["NPROC"] = "1"
     _jax_setup.enable_float64()
     _jax_setup.enable_compilation_cache()
@@ -1055,7 +1076,7 @@ def main(argv: list[str] | None = None) -> int:
     if args and args[0] in ("--version", "-V"):
         print(f"dano {__version__}")
         return 0
-    _configure_process()
+    _configure_process(args)
     for flag in _MULTI_VALUE_FLAGS:
         if sum(a == flag or a.startswith(flag + "=") for a in args) > 1:
             err.print(f"[bold red]error:[/] {flag} is given more than once; give all its values after one {flag} "

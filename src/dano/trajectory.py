@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ._files import atomic_write
+from ._files import atomic_write, read_npz
 from .errors import DanoError, FileFormatError
 
 
@@ -69,14 +69,7 @@ def save_trajectory(traj: Trajectory, path: str | Path) -> Path:
 def load_trajectory(path: str | Path) -> Trajectory:
     """Read a trajectory written by :func:`save_trajectory`. Raises FileFormatError."""
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            a = {k: z[k] for k in z.files}
-    except Exception as exc:
-        raise FileFormatError(f"{path}: cannot read trajectory ({exc})") from exc
-    missing = {"time", "qpos", "qvel"} - set(a)
-    if missing:
-        raise FileFormatError(f"{path}: missing arrays {sorted(missing)}")
+    a = read_npz(path, ("time", "qpos", "qvel"), "trajectory")
     try:
         meta = json.loads(str(a["metadata"])) if "metadata" in a else {}
     except ValueError as exc:

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._files import atomic_write
+from .._files import atomic_write, read_npz
 from .._version import __version__
 from ..errors import FileFormatError
 from ..render.volume import OccupancyGrid
@@ -80,7 +80,8 @@ def read_meta(directory: str | Path) -> dict:
     except Exception as exc:
         raise FileFormatError(f"{path}: cannot read JSON ({exc})") from exc
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise FileFormatError(f"{path}: not a dano field (format {meta.get('format') if isinstance(meta, dict) else None!r})")
+        found = meta.get("format") if isinstance(meta, dict) else None
+        raise FileFormatError(f"{path}: not a dano field (format {found!r})")
     if meta.get("version") != VERSION:
         raise FileFormatError(f"{path}: field format version {meta.get('version')!r} (written by dano "
                               f"{meta.get('dano_version', '?')}); this dano reads version {VERSION}")
@@ -118,11 +119,7 @@ def load_optimizer_state(directory: str | Path, template):
 
 
 def _read_npz(path: Path, expected) -> dict[str, np.ndarray]:
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except Exception as exc:
-        raise FileFormatError(f"{path}: cannot read ({exc})") from exc
+    arrays = read_npz(path)
     if expected is not None and sorted(arrays) != sorted(expected):
         raise FileFormatError(f"{path}: holds arrays other than field.json lists (an interrupted write?)")
     return arrays
@@ -137,7 +134,7 @@ def _restore(template, arrays: dict[str, np.ndarray], path: Path):
         value = arrays[f"{i:04d}"]
         if value.shape != np.shape(leaf):
             raise FileFormatError(f"{path}: array {i} has shape {value.shape}, expected {np.shape(leaf)}")
-        if not np.all(np.isfinite(value)) if np.issubdtype(value.dtype, np.floating) else False:
+        if np.issubdtype(value.dtype, np.floating) and not np.all(np.isfinite(value)):
             raise FileFormatError(f"{path}: array {i} holds NaN or inf")
         out.append(jnp.asarray(value, dtype=jnp.asarray(leaf).dtype))
     return jax.tree_util.tree_unflatten(treedef, out)

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._files import read_npz
 from ..errors import DanoError, FileFormatError
 from ..fields.base import check_bounds
 from ..render.cameras import Cameras
@@ -114,14 +115,7 @@ def _split_alpha(images: np.ndarray):
 
 
 def _from_npz(path: Path) -> Dataset:
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except Exception as exc:
-        raise FileFormatError(f"{path}: cannot read ({exc})") from exc
-    missing = {"images", "poses", "focal"} - set(arrays)
-    if missing:
-        raise FileFormatError(f"{path}: missing array(s) {sorted(missing)}; expected images, poses, focal")
+    arrays = read_npz(path, ("images", "poses", "focal"), "image set")
     images = arrays["images"]
     if images.ndim != 4:
         raise DanoError(f"images must have shape (C, H, W, 3|4), got {images.shape}")

@@ -42,10 +42,10 @@ class TrainConfig:
     steps: int = 0
     """Stop after this many steps (0: only the clock stops training)."""
     rays_per_step: int = 4096
-    """Rays (pixels) per Adam step."""
-    samples_per_ray: int = 48
-    """Field evaluations per ray on average (the packed budget is rays_per_step times this)."""
-    samples_across: int = 384
+    """Rays (pixels) drawn per Adam step; those whose samples do not fit the budget are left out."""
+    samples_per_ray: int = 12
+    """Field evaluations per step = rays_per_step times this (the packed budget)."""
+    samples_across: int = 256
     """Sample spacing = the box diagonal / this."""
     learning_rate: float = 1e-2
     """Adam's initial learning rate."""
@@ -63,6 +63,9 @@ class TrainConfig:
     """Steps between occupancy-grid refreshes."""
     occupancy_alpha: float = 0.01
     """A cell is empty when its opacity per sample step stays below this."""
+    carve: bool = True
+    """Start the occupancy grid from the images: cells seen as background in any view stay empty
+    (alpha masks, or the plain white/black background of RGB images)."""
     eval_at_minutes: tuple[float, ...] = ()
     """Also measure held-out PSNR when the clock passes these minutes."""
     checkpoint_minutes: float = 2.0
@@ -112,6 +115,43 @@ def render_options(bounds, config: TrainConfig, chunk: int | None = None) -> Ren
     return dataclasses.replace(opts, budget=max(rays * config.samples_per_ray, opts.num_samples))
 
 
+def carve(data: Dataset, occupancy: OccupancyGrid, background: str, margin_px: int = 2) -> np.ndarray:
+    """Cells of ``occupancy`` that can hold the object: (n, n, n) bool, False where a cell's
+    centre projects onto background in some view (the visual hull).
+
+    Background: alpha < 0.01 with masks; else every channel >= 0.99 (white) or <= 0.01 (black).
+    The background is shrunk by ``margin_px`` pixels first, so cells across the silhouette stay.
+    """
+    from scipy import ndimage
+
+    if data.alpha is not None:
+        back = data.alpha < 0.01
+    elif background == "white":
+        back = np.all(data.images >= 0.99, axis=-1)
+    elif background == "black":
+        back = np.all(data.images <= 0.01, axis=-1)
+    else:
+        return np.ones(occupancy.density.shape, bool)
+    structure = np.ones((1, 2 * margin_px + 1, 2 * margin_px + 1), bool)
+    back = ndimage.binary_erosion(back, structure=structure, border_value=1)
+    centres = np.asarray(occupancy.cell_centres(), np.float64)
+    keep = np.ones(len(centres), bool)
+    pose = np.asarray(data.cameras.camera_to_world, np.float64)
+    focal = np.asarray(data.cameras.focal, np.float64)
+    principal = np.asarray(data.cameras.principal, np.float64)
+    h, w = data.cameras.height, data.cameras.width
+    sign = np.array([1.0, -1.0, -1.0]) if data.cameras.convention == "blender" else np.ones(3)
+    for k in range(data.num_images):
+        p = (centres - pose[k, :3, 3]) @ pose[k, :3, :3] * sign  # OpenCV camera frame: +z ahead, +y down
+        ahead = p[:, 2] > 1e-9
+        z = np.where(ahead, p[:, 2], 1.0)
+        u = np.floor(focal[k, 0] * p[:, 0] / z + principal[k, 0]).astype(np.int64)
+        v = np.floor(focal[k, 1] * p[:, 1] / z + principal[k, 1]).astype(np.int64)
+        seen = ahead & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        keep[seen] &= ~back[k][v[seen], u[seen]]
+    return keep.reshape(occupancy.density.shape)
+
+
 def _background(config: TrainConfig, key, n):
     if config.background == "random":
         return jax.random.uniform(key, (n, 3), jnp.float32)
@@ -145,13 +185,14 @@ def _make_step(config: TrainConfig, options: RenderOptions, optimizer, height: i
             loss = mse
             if alpha is not None and config.mask_weight > 0:
                 loss = loss + config.mask_weight * jnp.sum(w * (out.alpha - a) ** 2) / count
-            return loss, (mse, w.mean())
+            fitted = jnp.sum(jnp.where(out.complete, out.samples, 0))
+            return loss, (mse, w.sum(), fitted / jnp.maximum(w.sum(), 1.0))
 
-        (loss, (mse, complete)), grads = jax.value_and_grad(loss_fn, has_aux=True)(field.params)
+        (loss, (mse, complete, samples)), grads = jax.value_and_grad(loss_fn, has_aux=True)(field.params)
         opt_state.hyperparams["learning_rate"] = lr
         updates, opt_state = optimizer.update(grads, opt_state, field.params)
         params = optax.apply_updates(field.params, updates)
-        return dataclasses.replace(field, params=params), opt_state, loss, mse, complete
+        return dataclasses.replace(field, params=params), opt_state, loss, mse, complete, samples
 
     return jax.jit(step)
 
@@ -180,7 +221,9 @@ def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None,
     out_dir: field directory for checkpoints (every ``checkpoint_minutes`` and at the end);
     resume: continue from the checkpoint in ``out_dir`` (parameters, Adam state, occupancy
     grid, step and clock); progress: called after every step with a dict (step, elapsed_s,
-    loss, psnr_train, lr, complete, occupied).
+    loss, psnr_train, lr, complete: the fraction of the step's rays trained, samples_per_ray
+    of those, fraction: of the run done). ``rays_per_s`` of the result counts trained
+    (complete) rays over the run's clock, compilation included.
 
     Raises DanoError for an inconsistent configuration, FileFormatError for a bad checkpoint.
     """
@@ -204,7 +247,8 @@ def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None,
     images = jnp.asarray(data.images, jnp.float32)
     alpha = None if data.alpha is None else jnp.asarray(data.alpha, jnp.float32)
     step_fn = _make_step(config, options, optimizer, cameras.height, cameras.width)
-    occ_fn = jax.jit(lambda f, g, k: update_occupancy(g, f.density, k))
+    keep = jnp.asarray(carve(data, occupancy, config.background)) if config.carve else None
+    occ_fn = jax.jit(lambda f, g, k: update_occupancy(g, f.density, k, keep=keep))
     key = jax.random.fold_in(jax.random.PRNGKey(config.seed), start_step)
     budget_s = config.minutes * 60.0
     psnr_at: dict = {}
@@ -214,6 +258,7 @@ def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None,
     paused = 0.0
     last_checkpoint = clock0
     step = start_step
+    trained_rays = 0
 
     def info(extra=None):
         return {"step": step, "elapsed_s": elapsed, "rays_per_step": config.rays_per_step, "data": data.source,
@@ -228,15 +273,17 @@ def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None,
         key, k_step, k_occ = jax.random.split(key, 3)
         if step % config.occupancy_every == 0:
             occupancy = occ_fn(field, occupancy, k_occ)
-        field, opt_state, loss, mse, complete = step_fn(field, opt_state, occupancy, images, alpha, cameras, k_step,
-                                                        jnp.float32(lr))
+        field, opt_state, loss, mse, complete, samples = step_fn(field, opt_state, occupancy, images, alpha, cameras,
+                                                                 k_step, jnp.float32(lr))
         loss = float(loss)
         if not math.isfinite(loss):
             raise DanoError(f"training diverged at step {step} (loss {loss}); try a smaller --learning-rate")
         step += 1
         elapsed = time.perf_counter() - tic - paused
+        trained_rays += int(complete)
         record = {"step": step, "elapsed_s": elapsed, "loss": loss, "psnr_train": -10.0 * math.log10(max(float(mse),
-                  1e-12)), "lr": lr, "complete": float(complete)}
+                  1e-12)), "lr": lr, "complete": float(complete) / config.rays_per_step,
+                  "samples_per_ray": float(samples)}
         log.append(record)
         while pending and elapsed >= pending[0] * 60.0 and heldout is not None:
             t0 = time.perf_counter()
@@ -248,13 +295,11 @@ def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None,
             paused += time.perf_counter() - t0
             last_checkpoint = elapsed
         if progress is not None:
-            progress({**record, "fraction": fraction, "occupied": None})
+            progress({**record, "fraction": fraction})
     occupancy = occ_fn(field, occupancy, key)
     score = evaluate(field, occupancy, heldout, config)[0] if heldout is not None else None
-    trained = step - start_step
     wall = elapsed - clock0
-    result = TrainResult(field, occupancy, step, elapsed, trained * config.rays_per_step / max(wall, 1e-9), score,
-                         psnr_at, log)
+    result = TrainResult(field, occupancy, step, elapsed, trained_rays / max(wall, 1e-9), score, psnr_at, log)
     if out_dir is not None:
         save_field(out_dir, field, occupancy, info({"psnr_heldout": score}), opt_state)
     return result

@@ -56,12 +56,14 @@ class RenderOptions:
 class RenderOutput(NamedTuple):
     """Per ray: rgb (R, 3) in [0, 1] with the background; alpha (R,) = 1 − final
     transmittance; depth (R,) [m] along the ray (expected termination, 0 where alpha = 0);
-    complete (R,) bool, False where the budget cut the ray's samples short."""
+    complete (R,) bool, False where the budget cut the ray's samples short; samples (R,)
+    int, the ray's samples in occupied space (evaluated where complete)."""
 
     rgb: jax.Array
     alpha: jax.Array
     depth: jax.Array
     complete: jax.Array
+    samples: jax.Array | None = None
 
 
 @jax.tree_util.register_dataclass
@@ -110,13 +112,17 @@ class OccupancyGrid:
         return float(jnp.mean(self.density > self.cutoff))
 
 
-def update_occupancy(grid: OccupancyGrid, density_fn, key: jax.Array, decay: float = 0.95) -> OccupancyGrid:
+def update_occupancy(grid: OccupancyGrid, density_fn, key: jax.Array, decay: float = 0.95,
+                     keep: jax.Array | None = None) -> OccupancyGrid:
     """One update: σ at a random point in every cell (``density_fn``: (N, 3) -> (N,)),
-    kept as max(decay·old, new) so that cells empty for a while are dropped."""
+    kept as max(decay·old, new) so that cells empty for a while are dropped. ``keep``:
+    (n, n, n) bool, cells that may be occupied at all (e.g. not carved away by images)."""
     n = grid.density.shape[0]
     cell = (grid.upper - grid.lower) / n
     pts = grid.cell_centres() + (jax.random.uniform(key, (n ** 3, 3), grid.lower.dtype) - 0.5) * cell
     sigma = jax.lax.stop_gradient(density_fn(pts)).reshape(grid.density.shape)
+    if keep is not None:
+        sigma = jnp.where(keep, sigma, 0.0)
     old = jnp.where(jnp.isfinite(grid.density), grid.density, 0.0)
     density = jnp.maximum(decay * old, sigma)
     cutoff = jnp.minimum(grid.threshold, jnp.mean(density))
@@ -196,12 +202,13 @@ def render_rays(field, origins: jax.Array, directions: jax.Array, options: Rende
     alpha = jax.ops.segment_sum(weights, ray, num_segments=num_rays)
     colour = jax.ops.segment_sum(weights[:, None] * rgb, ray, num_segments=num_rays)
     depth_sum = jax.ops.segment_sum(weights * t_packed, ray, num_segments=num_rays)
-    complete = jnp.cumsum(valid.sum(axis=1)) <= budget  # every valid sample of the ray fitted
+    per_ray = valid.sum(axis=1)
+    complete = jnp.cumsum(per_ray) <= budget  # every valid sample of the ray fitted
     bg = jnp.broadcast_to(jnp.asarray(background, dtype), (num_rays, 3))
     colour = colour + (1.0 - alpha)[:, None] * bg
     positive = alpha > 1e-10
     depth = jnp.where(positive, depth_sum / jnp.where(positive, alpha, 1.0), 0.0)
-    return RenderOutput(colour, alpha, depth, complete)
+    return RenderOutput(colour, alpha, depth, complete, per_ray)
 
 
 def _segmented_cumsum(x: jax.Array, start: jax.Array) -> jax.Array:
@@ -248,7 +255,7 @@ def render_image(field, cameras, camera: int, options: RenderOptions, *, pose=No
         todo = np.concatenate([take[~done], todo[chunk:]])
     h, w = cameras.height, cameras.width
     return RenderOutput(out["rgb"].reshape(h, w, 3), out["alpha"].reshape(h, w), out["depth"].reshape(h, w),
-                        np.ones((h, w), bool))
+                        np.ones((h, w), bool), None)
 
 
 def psnr(image: Any, reference: Any) -> float:
