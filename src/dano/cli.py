@@ -699,7 +699,7 @@ def trajopt(
     out.print(t)
 
 
-def _train_progress(enabled: bool, config):
+def _train_progress(enabled: bool):
     """A rich progress bar over the run's clock (or steps) showing loss and training PSNR."""
     if not enabled:
         return nullcontext()
@@ -778,7 +778,7 @@ def train_field(
                          mask_weight=mask_weight, rays_per_step=rays_per_step, eval_at_minutes=tuple(eval_at),
                          seed=seed).check(dataset)
     train_set, held = dataset.split(holdout)
-    with _train_progress(not quiet and not json_, config) as progress:
+    with _train_progress(not quiet and not json_) as progress:
         result = train(train_set, config, heldout=held, out_dir=out, resume=resume, progress=progress)
     score, renders = evaluate(result.field, result.occupancy, held, config)
     report = {
