@@ -764,7 +764,6 @@ def train_field(
     import numpy as np
 
     from .nerf import TrainConfig, load_dataset, train
-    from .nerf.train import evaluate
     from .viz.plot import plot_heldout
 
     if out.exists() and not resume and (not out.is_dir() or any(out.iterdir())):
@@ -780,7 +779,7 @@ def train_field(
     train_set, held = dataset.split(holdout)
     with _train_progress(not quiet and not json_) as progress:
         result = train(train_set, config, heldout=held, out_dir=out, resume=resume, progress=progress)
-    score, renders = evaluate(result.field, result.occupancy, held, config)
+    score, renders = result.psnr_heldout, result.heldout_renders
     report = {
         "psnr_heldout": score,
         "wall_time_s": result.wall_time_s,

@@ -19,7 +19,7 @@ implements :class:`dano.fields.DensityField` with σ [1/m] as its density.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import jax
 import jax.numpy as jnp
@@ -206,6 +206,3 @@ class HashGridField:
         sh = spherical_harmonics(directions.astype(jnp.float32))
         rgb = jax.nn.sigmoid(_mlp(self.params["color"], jnp.concatenate([geo, sh], axis=-1)))
         return sigma, rgb
-
-    def config_dict(self) -> dict:
-        return asdict(self.config)

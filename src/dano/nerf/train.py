@@ -106,6 +106,8 @@ class TrainResult:
     psnr_heldout: float | None
     psnr_at: dict = field(default_factory=dict)
     log: list = field(default_factory=list)
+    heldout_renders: list = field(default_factory=list)
+    """The final field's renders (H, W, 3) of the held-out views (empty without them)."""
 
 
 def render_options(bounds, config: TrainConfig, chunk: int | None = None) -> RenderOptions:
@@ -297,9 +299,10 @@ def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None,
         if progress is not None:
             progress({**record, "fraction": fraction})
     occupancy = occ_fn(field, occupancy, key)
-    score = evaluate(field, occupancy, heldout, config)[0] if heldout is not None else None
+    score, renders = evaluate(field, occupancy, heldout, config) if heldout is not None else (None, [])
     wall = elapsed - clock0
-    result = TrainResult(field, occupancy, step, elapsed, trained_rays / max(wall, 1e-9), score, psnr_at, log)
+    result = TrainResult(field, occupancy, step, elapsed, trained_rays / max(wall, 1e-9), score, psnr_at, log,
+                         renders)
     if out_dir is not None:
         save_field(out_dir, field, occupancy, info({"psnr_heldout": score}), opt_state)
     return result

@@ -69,13 +69,19 @@ def _final_pose(asset, kind: str, scale: float, duration: float = 2.0):
     return p[-1], q[-1]
 
 
-def simulation_difference(asset, reference, scale: float, size: float) -> dict:
-    """Final-pose differences (drop, slide) between two DANOs of one object, both scaled by
-    ``scale`` to 1 kg: position / (size·scale) and rotation angle [deg]."""
+def final_poses(asset, scale: float) -> dict:
+    """{"drop"|"slide": (CoM position (3,) [m], quaternion (4,) wxyz)} at the end of
+    :func:`_final_pose`'s two runs."""
+    return {kind: _final_pose(asset, kind, scale) for kind in ("drop", "slide")}
+
+
+def simulation_difference(asset, reference: dict, scale: float, size: float) -> dict:
+    """Final-pose differences (drop, slide) of ``asset`` scaled by ``scale`` to 1 kg from
+    ``reference`` (:func:`final_poses` of the mesh DANO): position / (size·scale) and rotation
+    angle [deg]."""
     out = {}
-    for kind in ("drop", "slide"):
+    for kind, (pb, qb) in reference.items():
         pa, qa = _final_pose(asset, kind, scale)
-        pb, qb = _final_pose(reference, kind, scale)
         out[f"{kind}_position_error"] = float(np.linalg.norm(pa - pb)) / (size * scale)
         out[f"{kind}_rotation_error_deg"] = float(np.degrees(2 * np.arccos(np.clip(abs(np.dot(qa, qb)), 0, 1))))
     return out
@@ -104,11 +110,12 @@ def ground_truth_loop(mesh_path: str | Path, minutes: float = 3.0, views: int = 
               "rays_per_s": result.rays_per_s, "mesh_field_dano": mass_property_errors(reference, mesh, "solid"),
               "rules": {}}
     step = float(np.linalg.norm(data.bounds[1] - data.bounds[0])) / config.samples_across
+    reference_poses = final_poses(reference, sim_size / diag)
     for rule in DENSITY_RULES:
         grid = density_grid(result.field, rule, resolution=resolution, step=step)
         asset = build(grid, alpha=1.0, num_samples=5000, seed=0, name=f"images-{rule}")
         entry = mass_property_errors(asset, mesh, rule)
-        entry.update(simulation_difference(asset, reference, sim_size / diag, diag))
+        entry.update(simulation_difference(asset, reference_poses, sim_size / diag, diag))
         report["rules"][rule] = entry
     for opacity in (0.3, 0.7):  # how much the solid rule's surface level matters
         grid = density_grid(result.field, "solid", resolution=resolution, step=step, surface_opacity=opacity)
