@@ -430,8 +430,55 @@ def bench_nerf(repeats: int = 1, minutes: float = 3.0, eval_at: tuple[float, ...
     return out
 
 
+def tracking_success_curve(folder, translations=(0.01, 0.02, 0.04, 0.06, 0.08, 0.10),
+                           rotations=(2.0, 5.0, 10.0, 15.0, 20.0, 30.0), seeds: int = 4, frames: int = 10) -> list:
+    """Silhouette tracking of the first ``frames`` frames of the synthetic-slide video in
+    ``folder`` from the true first pose perturbed by (translation · object size, rotation
+    [deg]) about ``seeds`` random directions per size: per size, the success rate (final frame
+    within 2 % of the size and 5°) and the final errors."""
+    from .tracking import TrackConfig, TrackedObject, load_video, pose_errors, track
+    from .tracking.real2sim import perturb
+    from .tracking.synthetic import slide_scene
+    from .trajectory import load_trajectory
+
+    video = load_video(folder, subtract_background=True)
+    truth = load_trajectory(Path(folder) / "truth.npz").qpos[:, :7]
+    asset = slide_scene()[0].assets[0]
+    size = float(np.linalg.norm(np.ptp(asset.mesh_vertices, axis=0)))
+    obj = TrackedObject.from_asset(asset)
+    curve = []
+    for dt, dr in zip(translations, rotations):
+        runs = []
+        for seed in range(seeds):
+            result = track(video, obj, perturb(truth[0], dt * size, dr, seed + 1), TrackConfig(),
+                           frames=slice(0, frames))
+            ep, er = pose_errors(result.poses[-1:], truth[frames - 1 : frames])
+            runs.append({"translation_error_percent": float(ep[0] / size * 100), "rotation_error_deg": float(er[0]),
+                         "success": bool(ep[0] < 0.02 * size and er[0] < 5.0)})
+        curve.append({"start_translation_percent": dt * 100, "start_rotation_deg": dr,
+                      "success_rate": float(np.mean([r["success"] for r in runs])), "runs": runs})
+    return curve
+
+
+def bench_tracking(repeats: int = 1, curve: bool = True) -> dict:
+    """From video to physics (``dano real2sim synthetic-slide``): tracking time per frame, the
+    two identifications' results and wall times; and the tracking success rate against the
+    size of the initial pose error (:func:`tracking_success_curve`, 24 starts)."""
+    import tempfile
+
+    from .tracking.real2sim import synthetic_slide_real2sim
+
+    with tempfile.TemporaryDirectory() as tmp:
+        report = synthetic_slide_real2sim(Path(tmp) / "run", video_file=False)
+        out = {k: v for k, v in report.items() if k not in ("per_frame", "pixels_fit", "track_config")}
+        out["per_frame"] = report["per_frame"]
+        if curve:
+            out["success_curve"] = tracking_success_curve(Path(tmp) / "run" / "video")
+    return out
+
+
 SUITES = {"build": bench_build, "sim": bench_sim, "sysid": bench_sysid, "batched": bench_batched,
-          "trajopt": bench_trajopt, "energy": bench_energy, "nerf": bench_nerf}
+          "trajopt": bench_trajopt, "energy": bench_energy, "nerf": bench_nerf, "tracking": bench_tracking}
 
 
 def run(suites: list[str] | None = None, repeats: int = 3, options: dict | None = None) -> dict:

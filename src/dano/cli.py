@@ -837,6 +837,120 @@ def render_dataset(
     err.print(f"wrote {out}/transforms.json and {views} images of {size}x{size} px")
 
 
+def _check_new_folder(out: Path) -> None:
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ValueError(f"{out}: exists and is not an empty folder; choose a new output folder")
+
+
+@_names("video")
+def track(
+    video: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="VIDEO")],
+    object: Annotated[str, tyro.conf.arg(metavar="FILE.dano|builtin:NAME")],
+    pose: Annotated[tuple[float, float, float, float, float, float, float], tyro.conf.arg(metavar="X Y Z QW QX QY QZ")],
+    out: Annotated[Path, tyro.conf.arg(aliases=("-o",))],
+    camera: Path | None = None,
+    masks: Path | None = None,
+    background: Path | None = None,
+    subtract_background: bool = False,
+    threshold: float = 0.08,
+    fps: float | None = None,
+    field: Path | None = None,
+    colour_weight: float = 0.0,
+    iterations: int = 60,
+    stride: int = 2,
+    smoothness_weight: float = 0.0,
+    no_video: bool = False,
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False,
+    quiet: bool = False,
+) -> None:
+    """Track a DANO's pose through a video by fitting rendered silhouettes to masks (and colours).
+
+    Args:
+        video: a video folder (camera.json, frames/, optional masks/ and background.png), a folder of
+            frames or a video file (then give --camera).
+        object: the DANO tracked (a .dano file that stores its field, or builtin:NAME).
+        pose: its body pose in the first frame (centre of mass [m], wxyz quaternion; world frame).
+        out: folder to write poses.npz (a dano trajectory, ready for `dano sysid`), track.csv, overlay.mp4,
+            report.json.
+        camera: camera.json (intrinsics, transform_matrix camera-to-world, convention, fps).
+        masks: folder of mask images (one per frame; white = object).
+        background: the background frame (no object) for background subtraction.
+        subtract_background: make masks from the background even where mask images exist.
+        threshold: background subtraction's colour difference (0-1).
+        fps: frames per second (default: camera.json's).
+        field: a trained field directory (dano train-field) in the DANO's object frame, for the colour term.
+        colour_weight: weight of the colour (photometric) term; needs --field.
+        iterations: Adam steps per frame.
+        stride: pixels per ray along each axis.
+        smoothness_weight: weight of a prior toward the constant-velocity prediction.
+        no_video: skip overlay.mp4.
+        json_: print one JSON object (frames, poor_frames, mean_iou, time_per_frame_s, ...).
+        quiet: no progress bar.
+    """
+    from .tracking import TrackConfig, TrackedObject, load_video, track as run_track, write_track_outputs
+
+    _check_new_folder(out)
+    config = TrackConfig(iterations=iterations, stride=stride, colour_weight=colour_weight,
+                         smoothness_weight=smoothness_weight)
+    config.check()
+    radiance = None
+    if field is not None:
+        from .nerf import load_field
+
+        radiance = load_field(field)[0]
+    obj = TrackedObject.from_asset(_load_asset(object), radiance)
+    data = load_video(video, camera=camera, masks=masks, background=background, fps=fps, threshold=threshold,
+                      subtract_background=subtract_background)
+    with _progress(not quiet and not json_) as progress:
+        result = run_track(data, obj, pose, config, progress=progress)
+    report = {**result.summary(), "video": str(video), "object": object, "initial_pose": list(pose)}
+    rate = 1.0 / float(data.time[1] - data.time[0]) if data.num_frames > 1 else 1.0
+    files = write_track_outputs(out, data, result, obj.name, report, rate, video_file=not no_video)
+    if json_:
+        print(json.dumps(report))
+    else:
+        err.print(f"tracked {report['frames']} frames ({report['poor_frames']} poor, mean IoU "
+                  f"{report['mean_iou']:.3f}, {report['time_per_frame_s']:.2f} s per frame); wrote "
+                  f"{', '.join(files)} in {out}")
+
+
+def real2sim(
+    task: Annotated[Literal["synthetic-slide"], tyro.conf.Positional, tyro.conf.arg(metavar="TASK")],
+    out: Annotated[Path, tyro.conf.arg(aliases=("-o",))] = Path("dano-real2sim"),
+    friction: float = 0.35,
+    no_video: bool = False,
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False,
+    quiet: bool = False,
+) -> None:
+    """From video to physics on a video with a known answer: poses -> friction and pixels -> friction.
+
+    Args:
+        task: synthetic-slide: the low-poly bunny slides and tumbles (MuJoCo renders the video from its mesh).
+        out: folder to write video/ (frames, masks, background, camera.json, truth.npz) and track/ (poses.npz,
+            track.csv, overlay.mp4, report.json).
+        friction: the true sliding friction of the video.
+        no_video: skip overlay.mp4.
+        json_: print one JSON object (mu_true, mu_two_stage, mu_pixels, track_rms_mm, track_rms_deg,
+            wall_time_s, ...).
+        quiet: no progress bar.
+    """
+    from .tracking.real2sim import synthetic_slide_real2sim
+
+    _check_new_folder(out)
+    if not 0 < friction <= 1.5:
+        raise ValueError(f"--friction must be in (0, 1.5], got {friction}")
+    with _progress(not quiet and not json_) as progress:
+        report = synthetic_slide_real2sim(out, friction, video_file=not no_video, progress=progress)
+    brief = {k: v for k, v in report.items() if k != "per_frame"}
+    if json_:
+        print(json.dumps(_json_safe(brief)[0]))
+    else:
+        out.mkdir(exist_ok=True)
+        err.print(f"mu: true {report['mu_true']:.4f}, two-stage {report['mu_two_stage']:.4f}, pixels "
+                  f"{report['mu_pixels']:.4f}; tracking RMS {report['track_rms_mm']:.1f} mm, "
+                  f"{report['track_rms_deg']:.2f} deg; {report['wall_time_s']:.0f} s; wrote {out}")
+
+
 Collision = Literal["hull", "decomposition", "none"]
 
 
@@ -1015,7 +1129,7 @@ def _check_contact_model(name: str) -> None:
 
 COMMANDS = {"build": build, "inspect": inspect, "simulate": simulate, "sysid": sysid, "export": export,
             "compare-mesh": compare_mesh, "trajopt": trajopt, "train-field": train_field,
-            "render-dataset": render_dataset, "demo": demo, "bench": bench}
+            "render-dataset": render_dataset, "track": track, "real2sim": real2sim, "demo": demo, "bench": bench}
 
 
 def _terminate(signum, frame):
@@ -1023,7 +1137,7 @@ def _terminate(signum, frame):
 
 
 # options that take several values after one flag; tyro would keep only the last repetition
-_MULTI_VALUE_FLAGS = ("--object", "--param", "--levels", "--collision", "--suite", "--eval-at", "--bounds")
+_MULTI_VALUE_FLAGS = ("--object", "--param", "--levels", "--collision", "--suite", "--eval-at", "--bounds", "--pose")
 
 
 def _wide(args: list[str]) -> bool:

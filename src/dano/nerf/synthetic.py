@@ -32,6 +32,22 @@ def fibonacci_directions(n: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
 
 
+def add_lights(spec, centre, radius: float) -> None:
+    """Three fixed directional lights (diffuse 0.6, ambient 0.12, no specular, no shadows)
+    aimed at ``centre`` [m] from 4·``radius`` away: the lighting of dano's synthetic renders."""
+    import mujoco
+
+    for direction in ((0.5, 0.3, -1.0), (-0.7, 0.4, 0.3), (0.2, -0.8, 0.2)):
+        light = spec.worldbody.add_light()
+        light.type = mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
+        light.dir = np.asarray(direction) / np.linalg.norm(direction)
+        light.diffuse = (0.6, 0.6, 0.6)
+        light.ambient = (0.12, 0.12, 0.12)
+        light.specular = (0.0, 0.0, 0.0)
+        light.castshadow = False
+        light.pos = np.asarray(centre) - 4 * radius * light.dir
+
+
 def _model(mesh, size: int, fovy: float, colour):
     import mujoco
 
@@ -41,17 +57,7 @@ def _model(mesh, size: int, fovy: float, colour):
     spec.visual.global_.fovy = fovy
     spec.visual.headlight.active = 0
     spec.visual.quality.shadowsize = 0
-    centre = mesh.bounds.mean(axis=0)
-    radius = float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0])) / 2
-    for direction in ((0.5, 0.3, -1.0), (-0.7, 0.4, 0.3), (0.2, -0.8, 0.2)):
-        light = spec.worldbody.add_light()
-        light.type = mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
-        light.dir = np.asarray(direction) / np.linalg.norm(direction)
-        light.diffuse = (0.6, 0.6, 0.6)
-        light.ambient = (0.12, 0.12, 0.12)
-        light.specular = (0.0, 0.0, 0.0)
-        light.castshadow = False
-        light.pos = centre - 4 * radius * light.dir
+    add_lights(spec, mesh.bounds.mean(axis=0), float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0])) / 2)
     spec.add_mesh(name="object", uservert=np.asarray(mesh.vertices, dtype=np.float64).ravel(),
                   userface=np.asarray(mesh.faces, dtype=np.int32).ravel())
     geom = spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname="object", name="object")
@@ -60,6 +66,20 @@ def _model(mesh, size: int, fovy: float, colour):
     # MuJoCo recentres a mesh's vertices on their centroid and principal axes and moves the
     # geom to compensate: in the world frame the mesh sits exactly where its file has it
     return spec.compile()
+
+
+def rendered_camera(renderer) -> tuple[np.ndarray, float]:
+    """The camera a ``mujoco.Renderer`` just set up by ``update_scene`` renders from:
+    (camera-to-world (4, 4), Blender convention [m], tan of half the vertical field of view).
+    MuJoCo renders the mean of its two eyes' cameras (each is ipd/2 aside)."""
+    import mujoco
+
+    gl = mujoco.mjv_averageCamera(renderer.scene.camera[0], renderer.scene.camera[1])
+    forward, up = np.asarray(gl.forward, np.float64), np.asarray(gl.up, np.float64)
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2] = np.cross(forward, up), up, -forward
+    pose[:3, 3] = gl.pos
+    return pose, float(gl.frustum_top) / float(gl.frustum_near)
 
 
 def render_views(mesh, views: int, size: int, distance_factor: float = 2.0, fovy: float = 40.0,
@@ -97,12 +117,7 @@ def render_views(mesh, views: int, size: int, distance_factor: float = 2.0, fovy
             cam.azimuth = float(np.degrees(np.arctan2(direction[1], direction[0])))
             cam.elevation = float(-np.clip(np.degrees(np.arcsin(direction[2])), -89.0, 89.0))
             renderer.update_scene(data, cam)
-            # the pose actually rendered: the mean of the two eyes' cameras (each is ipd/2 aside)
-            gl = mujoco.mjv_averageCamera(renderer.scene.camera[0], renderer.scene.camera[1])
-            forward, up = np.asarray(gl.forward, np.float64), np.asarray(gl.up, np.float64)
-            pose = np.eye(4)
-            pose[:3, 0], pose[:3, 1], pose[:3, 2] = np.cross(forward, up), up, -forward
-            pose[:3, 3] = gl.pos
+            pose, tan_half = rendered_camera(renderer)
             rgb = renderer.render().astype(np.float64)
             renderer.enable_segmentation_rendering()
             seg = renderer.render()
@@ -118,7 +133,6 @@ def render_views(mesh, views: int, size: int, distance_factor: float = 2.0, fovy
                 progress(i + 1, views, "rendering views")
     finally:
         renderer.close()
-    tan_half = float(gl.frustum_top) / float(gl.frustum_near)
     focal = 0.5 * size / tan_half
     grow = _MARGIN * (hi - lo) + 1e-6
     return np.stack(images), np.stack(poses), focal, np.stack([lo - grow, hi + grow])

@@ -250,6 +250,7 @@ class SysIdProblem:
     velocity to fit as nuisance parameters, per segment (e.g. "xy"); window: split
     trajectories into windows of this many frame intervals, each rolled out from its
     observed state (multiple shooting for long or chaotic motions); None: whole trajectories.
+    fit_angular_velocity: axes of the initial angular velocity (body frame) to fit likewise.
     fit_ground: fit the height [m] of the ground plane (a real table is never exactly at
     z = 0) as one more nuisance parameter, ``ground_height``, the last entry of θ. It is
     applied by shifting the observed heights (exact, since a vertical shift leaves gravity
@@ -260,15 +261,16 @@ class SysIdProblem:
 
     def __init__(self, scene: Scene, observations: Sequence[Observation], parameters: Sequence[FitParameter],
                  weights: Weights = Weights(), base_params: SimParams | None = None, substeps: int = 1,
-                 fit_velocity: str = "", window: int | None = None, fit_ground: bool = False):
+                 fit_velocity: str = "", window: int | None = None, fit_ground: bool = False,
+                 fit_angular_velocity: str = ""):
         self._args = dict(weights=weights, base_params=base_params, substeps=substeps, fit_velocity=fit_velocity,
-                          window=window, fit_ground=fit_ground)
+                          window=window, fit_ground=fit_ground, fit_angular_velocity=fit_angular_velocity)
         self.fit_ground = bool(fit_ground)
         if self.fit_ground:
             _check_ground_only(scene, observations)
         if not observations:
             raise DanoError("no observed trajectories given")
-        if not parameters and not fit_velocity:
+        if not parameters and not fit_velocity and not fit_angular_velocity:
             raise DanoError("no parameters to identify")
         self.scene, self.observations = scene, list(observations)
         self.parameters, self.weights = list(parameters), weights
@@ -289,9 +291,12 @@ class SysIdProblem:
         labels = [p.label for p in self.parameters]
         if len(set(labels)) != len(labels):
             raise DanoError(f"parameters are listed twice: {sorted({x for x in labels if labels.count(x) > 1})}")
-        if set(fit_velocity) - set("xyz"):
-            raise DanoError(f"fit_velocity must be made of the letters x, y, z, got {fit_velocity!r}")
-        self.fit_axes = tuple("xyz".index(c) for c in fit_velocity)
+        for name, axes in (("fit_velocity", fit_velocity), ("fit_angular_velocity", fit_angular_velocity)):
+            if set(axes) - set("xyz"):
+                raise DanoError(f"{name} must be made of the letters x, y, z, got {axes!r}")
+        # offsets in a free joint's 6 dofs: linear x y z (world), then angular x y z (body)
+        self.fit_axes = tuple("xyz".index(c) for c in fit_velocity) + tuple(
+            3 + "xyz".index(c) for c in fit_angular_velocity)
         for p in self.parameters:
             if p.name != "alpha" and p.name not in ContactParams.names():
                 raise DanoError(f"unknown parameter {p.name!r}; known: alpha, {', '.join(ContactParams.names())}")
@@ -351,11 +356,12 @@ class SysIdProblem:
         """Names of θ's entries: the global parameters (``name`` or ``target:name``) first,
         then for each segment, each tracked DANO (sorted by name) and each fitted axis, the
         initial linear velocity offset [m/s, world frame] added to the finite-difference
-        estimate: ``v0[segment]:dano:axis``."""
+        estimate, ``v0[segment]:dano:axis``, then the angular ones [rad/s, body frame],
+        ``w0[segment]:dano:axis``."""
         names = [p.label for p in self.parameters]
         for i, s in enumerate(self.segments):
             for d in self._tracked[s.obs]:
-                names += [f"v0[{i}]:{d}:{'xyz'[a]}" for a in self.fit_axes]
+                names += [f"{'vw'[a // 3]}0[{i}]:{d}:{'xyz'[a % 3]}" for a in self.fit_axes]
         return names + (["ground_height"] if self.fit_ground else [])
 
     @property

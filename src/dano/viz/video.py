@@ -59,6 +59,12 @@ def write_video(scene, traj, path: str | Path, fps: float = 30.0, width: int = 6
     end; on any error nothing is left. Raises DanoError for an unsupported suffix or
     when rendering is impossible.
     """
+    return write_frames(render_frames(scene, traj, fps, width, height, progress), path, fps)
+
+
+def write_frames(frames, path: str | Path, fps: float = 30.0) -> Path:
+    """Write RGB frames (an iterable of (H, W, 3) uint8) to an H.264 ``.mp4`` or a ``.gif``,
+    atomically (nothing is left on error). Raises DanoError for another suffix."""
     import imageio.v2 as imageio
 
     path = Path(path)
@@ -76,6 +82,6 @@ def write_video(scene, traj, path: str | Path, fps: float = 30.0, width: int = 6
         # Python's "fork with threads" warning does not apply
         warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
         with imageio.get_writer(tmp, **kwargs) as writer:
-            for frame in render_frames(scene, traj, fps, width, height, progress):
+            for frame in frames:
                 writer.append_data(frame)
     return path

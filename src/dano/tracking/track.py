@@ -1,0 +1,363 @@
+"""Pose tracking in video: silhouettes (the paper, §VI-A) and colour (its limitation iii).
+
+Per frame k the object's body pose p = (position [m], wxyz quaternion; a DANO's qpos) minimises
+
+    L(p) = mean_px (α(p) − M)²  +  w_B·‖B(α(p)) − B(M)‖²  [+ w_C·mean_px ρ(C(p) − I)]  [+ w_S·‖δ‖²]
+
+with α the rendered silhouette coverage (:func:`dano.render.silhouette.silhouette_rays`), M the
+mask averaged over the same pixel blocks, B the barycentre in image coordinates (divided by
+the image diagonal), C the colour volume-rendered from a radiance field over the background
+frame (:func:`dano.render.render_rays`), I the frame, ρ the Charbonnier loss
+√(1 + (r/s)²) − 1 (robust to shading the field did not see) and δ = (translation / object
+size, rotation vector [rad]) the step from the prediction. Adam (optax) runs a fixed number
+of iterations per frame from a constant-velocity prediction of the previous two poses
+(the previous pose after a frame flagged poor), with the learning rate decaying
+log-linearly; the lowest-loss iterate is kept.
+
+To keep frames cheap only rays near the object are rendered: the mask's pixels and the
+previous frame's silhouette, dilated by ``margin`` of the object's size in pixels; the
+rest count as α = 0 = M. Ray sets are padded to multiples of 512, so a video compiles a
+few times at most.
+
+A frame is flagged **poor** when the intersection over union of α and M is below
+``poor_iou``: tracking loss is reported, not silently kept.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+import optax
+
+from ..errors import DanoError
+from ..render.cameras import pixel_rays
+from ..render.silhouette import silhouette_rays
+from ..render.volume import RenderOptions, render_rays
+from .inputs import VideoInput
+
+_BUCKET = 512
+
+
+@dataclass(frozen=True)
+class TrackConfig:
+    """iterations: Adam steps per frame; learning_rate → final_learning_rate: Adam's step,
+    decaying log-linearly over a frame (δ units: object sizes and radians); stride: pixels
+    per block along each axis (one ray per block, masks averaged over it); barycentre_weight
+    w_B; colour_weight w_C (0: silhouette only; > 0 needs a radiance field); colour_scale s
+    of the Charbonnier loss; smoothness_weight w_S (a prior toward the constant-velocity
+    prediction); samples_across: render samples across the field box's diagonal; margin:
+    ray-set dilation [fraction of object size]; poor_iou: frames with a lower silhouette IoU
+    are flagged poor."""
+
+    iterations: int = 60
+    learning_rate: float = 0.01
+    final_learning_rate: float = 0.001
+    stride: int = 2
+    barycentre_weight: float = 1.0
+    colour_weight: float = 0.0
+    colour_scale: float = 0.05
+    smoothness_weight: float = 0.0
+    samples_across: int = 96
+    margin: float = 0.25
+    poor_iou: float = 0.8
+
+    def check(self) -> None:
+        """Raises DanoError naming the first bad setting."""
+        for name in ("iterations", "stride", "samples_across"):
+            if int(getattr(self, name)) < 1:
+                raise DanoError(f"{name} must be at least 1, got {getattr(self, name)}")
+        for name in ("learning_rate", "final_learning_rate", "colour_scale"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v) or v <= 0:
+                raise DanoError(f"{name} must be positive, got {v}")
+        for name in ("barycentre_weight", "colour_weight", "smoothness_weight", "margin"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v) or v < 0:
+                raise DanoError(f"{name} must be non-negative, got {v}")
+        if not 0 <= self.poor_iou <= 1:
+            raise DanoError(f"poor_iou must be in [0, 1], got {self.poor_iou}")
+
+
+@dataclass(frozen=True)
+class TrackedObject:
+    """What is tracked: ``field`` (a DensityField, object frame [m]; ideally with
+    ``signed_distance``); ``center_of_mass`` (3,) object frame [m] (poses are of the body
+    frame: origin there, object axes); ``size`` [m] (its box diagonal: the unit of
+    translation steps and errors); ``radiance``: a radiance field in the same object frame
+    (``radiance(points, dirs) -> (σ, rgb)``, e.g. a trained :class:`~dano.nerf.HashGridField`)
+    for the colour term, or None."""
+
+    field: Any
+    center_of_mass: np.ndarray
+    size: float
+    radiance: Any = None
+    name: str = "object"
+
+    @classmethod
+    def from_asset(cls, asset, radiance=None) -> "TrackedObject":
+        """From a DanoAsset that stores its field. Raises DanoError if it does not."""
+        if asset.field is None:
+            raise DanoError(f"{asset.name}: the DANO does not store its density field; tracking renders the field "
+                            "(build it from a field, mesh or voxel grid so that it is kept)")
+        b = np.asarray(asset.field.bounds(), dtype=np.float64)
+        return cls(asset.field, np.asarray(asset.center_of_mass, dtype=np.float64),
+                   float(np.linalg.norm(b[1] - b[0])), radiance, asset.name)
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """time (T,) [s]; poses (T, 7) body pose per frame: position [m], wxyz quaternion;
+    loss (T,); iou (T,) silhouette intersection over union; poor (T,) bool; per-frame wall
+    time [s]; config; alpha: (T, H/s, W/s) the final silhouettes (for overlays)."""
+
+    time: np.ndarray
+    poses: np.ndarray
+    loss: np.ndarray
+    iou: np.ndarray
+    poor: np.ndarray
+    frame_time_s: np.ndarray
+    config: TrackConfig
+    alpha: np.ndarray
+    stride: int
+
+    def summary(self) -> dict:
+        return {"frames": int(len(self.time)), "poor_frames": int(self.poor.sum()),
+                "mean_iou": float(self.iou.mean()), "min_iou": float(self.iou.min()),
+                "time_per_frame_s": float(np.median(self.frame_time_s)), "config": asdict(self.config)}
+
+
+def block_average(images: np.ndarray, stride: int) -> np.ndarray:
+    """(T, H, W, …) -> (T, H//s, W//s, …): means over s × s pixel blocks (the remainder cropped)."""
+    t, h, w = images.shape[:3]
+    hb, wb = h // stride, w // stride
+    x = images[:, : hb * stride, : wb * stride]
+    return x.reshape(t, hb, stride, wb, stride, *images.shape[3:]).mean(axis=(2, 4))
+
+
+def compose_pose(position, quaternion, delta, size):
+    """The body pose after a step δ = (translation / size, rotation vector [rad], body frame)."""
+    q = (jaxlie.SO3(quaternion) @ jaxlie.SO3.exp(delta[3:])).wxyz
+    return position + size * delta[:3], q
+
+
+def field_pose(position, quaternion, center_of_mass):
+    """World-from-object pose of the field for a body pose (the body origin is the CoM)."""
+    R = jaxlie.SO3(quaternion / jnp.linalg.norm(quaternion)).as_matrix()
+    return position - R @ center_of_mass, quaternion
+
+
+def predict(poses: list[np.ndarray], poor: list[bool]) -> np.ndarray:
+    """Constant-velocity prediction of the next body pose from the last two (the last pose
+    alone after a poor frame or with fewer than two)."""
+    if len(poses) < 2 or poor[-1] or poor[-2]:
+        return poses[-1].copy()
+    from scipy.spatial.transform import Rotation
+
+    a, b = poses[-2], poses[-1]
+    ra, rb = Rotation.from_quat(a[3:], scalar_first=True), Rotation.from_quat(b[3:], scalar_first=True)
+    q = (rb * (ra.inv() * rb)).as_quat(scalar_first=True)
+    return np.concatenate([2 * b[:3] - a[:3], q])
+
+
+class _Problem:
+    """The per-frame solve, jitted once per ray-set bucket."""
+
+    def __init__(self, obj: TrackedObject, video: VideoInput, config: TrackConfig):
+        self.obj, self.config = obj, config
+        s = config.stride
+        self.cam = video.camera
+        h, w = video.frames.shape[1:3]
+        self.hb, self.wb = h // s, w // s
+        v, u = np.meshgrid((np.arange(self.hb) + 0.5) * s, (np.arange(self.wb) + 0.5) * s, indexing="ij")
+        self.uv = np.stack([u.ravel(), v.ravel()], axis=-1)  # block centres [px]
+        o, d = pixel_rays(self.cam, jnp.zeros(len(self.uv), jnp.int32), jnp.asarray(self.uv[:, 0]),
+                          jnp.asarray(self.uv[:, 1]))
+        self.origins, self.directions = np.asarray(o), np.asarray(d)
+        f = np.asarray(self.cam.focal[0], dtype=np.float64)
+        self.pixel_angle = s / float(np.sqrt(f[0] * f[1]))
+        self.diag_px = float(np.hypot(h, w))
+        b = np.asarray(obj.field.bounds(), dtype=np.float64)
+        self.step = float(np.linalg.norm(b[1] - b[0])) / config.samples_across
+        self.num_samples = int(config.samples_across) + 2
+        self.masks = None if video.masks is None else block_average(video.masks, s).reshape(len(video.masks), -1)
+        self.colours = block_average(video.frames, s).reshape(len(video.frames), -1, 3)
+        bg = video.background if video.background is not None else np.ones((h, w, 3), np.float32)
+        self.background = block_average(bg[None], s).reshape(-1, 3)
+        if config.colour_weight > 0 and obj.radiance is None:
+            raise DanoError("the colour term (photometric tracking) needs a radiance field of the object (a trained "
+                            "field directory)")
+        if self.masks is None and config.colour_weight == 0:
+            raise DanoError("no masks: give mask images or a background frame, or track photometrically")
+        self.render_options = RenderOptions(self.step, self.num_samples)
+        self._solve = jax.jit(self._solve_impl)
+        self._alpha_all = jax.jit(self._alpha_impl)
+
+    # --- pure pieces
+    def _alpha_impl(self, pose, origins, directions):
+        p, q = field_pose(pose[:3], pose[3:], jnp.asarray(self.obj.center_of_mass, pose.dtype))
+        return silhouette_rays(self.obj.field, origins, directions, pose=(p, q), step=self.step,
+                               num_samples=self.num_samples, pixel_angle=self.pixel_angle).alpha
+
+    def _loss(self, delta, base, rays, target):
+        origins, directions, uv, valid = rays
+        mask, colour, background, mask_total, mask_bary = target
+        cfg = self.config
+        p, q = compose_pose(base[:3], base[3:], delta, self.obj.size)
+        alpha = self._alpha_impl(jnp.concatenate([p, q]), origins, directions) * valid
+        n_all = self.hb * self.wb
+        loss = 0.0
+        if self.masks is not None:
+            loss = jnp.sum((alpha - mask) ** 2) / n_all
+            total = jnp.sum(alpha)
+            bary = jnp.sum(alpha[:, None] * uv, axis=0) / jnp.maximum(total, 1e-6)
+            loss = loss + cfg.barycentre_weight * jnp.sum(((bary - mask_bary) / self.diag_px) ** 2)
+        if cfg.colour_weight > 0:
+            fp = field_pose(p, q, jnp.asarray(self.obj.center_of_mass, p.dtype))
+            rgb = render_rays(self.obj.radiance, origins, directions, self.render_options, pose=fp,
+                              background=background).rgb
+            r = (rgb - colour) / cfg.colour_scale
+            loss = loss + cfg.colour_weight * jnp.sum(valid[:, None] * (jnp.sqrt(1.0 + r * r) - 1.0)) / (3 * n_all)
+        loss = loss + cfg.smoothness_weight * jnp.sum(delta ** 2)
+        return loss, alpha
+
+    def _solve_impl(self, base, rays, target):
+        cfg = self.config
+        schedule = optax.exponential_decay(cfg.learning_rate, cfg.iterations,
+                                           cfg.final_learning_rate / cfg.learning_rate)
+        opt = optax.adam(schedule)
+        grad = jax.value_and_grad(self._loss, has_aux=True)
+        delta0 = jnp.zeros(6, base.dtype)
+
+        def body(_, carry):
+            delta, state, best, best_loss = carry
+            (loss, _), g = grad(delta, base, rays, target)
+            better = loss < best_loss
+            best, best_loss = jnp.where(better, delta, best), jnp.where(better, loss, best_loss)
+            updates, state = opt.update(g, state, delta)
+            return optax.apply_updates(delta, updates), state, best, best_loss
+
+        carry = (delta0, opt.init(delta0), delta0, jnp.asarray(jnp.inf, base.dtype))
+        delta, _, best, best_loss = jax.lax.fori_loop(0, cfg.iterations, body, carry)
+        last, _ = self._loss(delta, base, rays, target)
+        best = jnp.where(last < best_loss, delta, best)
+        loss, alpha = self._loss(best, base, rays, target)
+        p, q = compose_pose(base[:3], base[3:], best, self.obj.size)
+        return jnp.concatenate([p, q / jnp.linalg.norm(q)]), loss, alpha
+
+    # --- host side
+    def _dilate(self, region: np.ndarray, pixels: float) -> np.ndarray:
+        from scipy.ndimage import binary_dilation
+
+        r = max(1, int(np.ceil(pixels / self.config.stride)))
+        return binary_dilation(region.reshape(self.hb, self.wb), iterations=r).ravel()
+
+    def ray_set(self, k: int, previous_alpha: np.ndarray | None, pose: np.ndarray) -> np.ndarray:
+        """Indices of the rays rendered for frame k."""
+        region = np.zeros(self.hb * self.wb, bool)
+        if self.masks is not None:
+            region |= self.masks[k] > 0
+        if previous_alpha is None:  # the first frame: the silhouette at the initial pose, every ray
+            previous_alpha = np.asarray(self._alpha_all(jnp.asarray(pose), jnp.asarray(self.origins),
+                                                        jnp.asarray(self.directions)))
+        region |= previous_alpha > 0.01
+        if not region.any():
+            region[:] = True
+        extent = np.sqrt(region.sum()) * self.config.stride  # rough object size in pixels
+        return np.flatnonzero(self._dilate(region, self.config.margin * extent + 2 * self.config.stride))
+
+    def solve(self, k: int, base: np.ndarray, index: np.ndarray):
+        n = len(index)
+        size = int(np.ceil(n / _BUCKET) * _BUCKET)
+        idx = np.concatenate([index, np.repeat(index[-1:], size - n)])
+        valid = (np.arange(size) < n).astype(np.float64)
+        rays = (jnp.asarray(self.origins[idx]), jnp.asarray(self.directions[idx]), jnp.asarray(self.uv[idx]),
+                jnp.asarray(valid))
+        if self.masks is not None:
+            m = self.masks[k]
+            mask = m[idx] * valid
+            total = float(m.sum())
+            bary = (m[:, None] * self.uv).sum(axis=0) / max(total, 1e-6)
+        else:
+            mask, total, bary = np.zeros(size), 0.0, np.zeros(2)
+        target = (jnp.asarray(mask), jnp.asarray(self.colours[k][idx]), jnp.asarray(self.background[idx]),
+                  jnp.asarray(total), jnp.asarray(bary))
+        pose, loss, alpha = self._solve(jnp.asarray(base, jnp.float64), rays, target)
+        full = np.zeros(self.hb * self.wb)
+        full[index] = np.asarray(alpha)[:n]
+        # the constant part of the silhouette loss: mask pixels outside the rendered set
+        return np.asarray(pose), float(loss), full
+
+
+def track(video: VideoInput, obj: TrackedObject, initial_pose, config: TrackConfig = TrackConfig(),
+          frames: slice | None = None, progress=None) -> TrackResult:
+    """Track ``obj`` through ``video`` from ``initial_pose`` (7,) (body pose of the first
+    frame: CoM position [m], wxyz quaternion, world frame).
+
+    Returns a :class:`TrackResult`. Raises DanoError for a bad config, a non-finite or zero
+    initial pose, no masks and no colour term, or the colour term without a radiance field.
+    """
+    config.check()
+    pose = np.asarray(initial_pose, dtype=np.float64).reshape(-1)
+    if pose.shape != (7,) or not np.all(np.isfinite(pose)) or np.linalg.norm(pose[3:]) < 1e-9:
+        raise DanoError(f"initial pose must be 7 finite numbers (x, y, z, qw, qx, qy, qz) with a non-zero "
+                        f"quaternion, got {pose.tolist()}")
+    pose[3:] /= np.linalg.norm(pose[3:])
+    problem = _Problem(obj, video, config)
+    ks = range(video.num_frames)[frames or slice(None)]
+    poses, losses, ious, poor, times, alphas = [], [], [], [], [], []
+    previous_alpha = None
+    for i, k in enumerate(ks):
+        t0 = time.perf_counter()
+        base = pose if i == 0 else predict(poses, poor)
+        index = problem.ray_set(k, previous_alpha, base)
+        p, loss, alpha = problem.solve(k, base, index)
+        if problem.masks is not None:
+            m = problem.masks[k]
+            iou = float(np.minimum(alpha, m).sum() / max(np.maximum(alpha, m).sum(), 1e-9))
+        else:
+            iou = float("nan")
+        bad = not np.all(np.isfinite(p)) or (problem.masks is not None and iou < config.poor_iou)
+        if not np.all(np.isfinite(p)):
+            p = base
+        poses.append(p)
+        losses.append(loss)
+        ious.append(iou)
+        poor.append(bad)
+        alphas.append(alpha.reshape(problem.hb, problem.wb).astype(np.float32))
+        previous_alpha = alpha
+        times.append(time.perf_counter() - t0)
+        if progress is not None:
+            progress(i + 1, len(ks), f"loss {loss:.2e}, IoU {iou:.3f}")
+    return TrackResult(video.time[list(ks)], np.stack(poses), np.asarray(losses), np.asarray(ious),
+                       np.asarray(poor), np.asarray(times), config, np.stack(alphas), config.stride)
+
+
+def pose_errors(poses: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame translation error [m] and rotation error [deg] of (T, 7) poses against (T, 7)."""
+    dp = np.linalg.norm(poses[:, :3] - truth[:, :3], axis=1)
+    dots = np.abs(np.sum(poses[:, 3:] * truth[:, 3:], axis=1)) / (
+        np.linalg.norm(poses[:, 3:], axis=1) * np.linalg.norm(truth[:, 3:], axis=1))
+    return dp, np.degrees(2 * np.arccos(np.clip(dots, 0.0, 1.0)))
+
+
+def initial_velocity(time: np.ndarray, poses: np.ndarray, frames: int = 5) -> np.ndarray:
+    """(6,) initial velocity of a free body from its first ``frames`` poses (T, 7) by least
+    squares: linear velocity (world frame) [m/s] from a straight-line fit of the positions,
+    angular velocity (body frame) [rad/s] from a fit through zero of the rotation vectors
+    log(R₀ᵀR_k). Steadier than differences of two tracked poses."""
+    from scipy.spatial.transform import Rotation
+
+    n = int(min(max(frames, 2), len(time)))
+    t = np.asarray(time[:n], dtype=np.float64) - time[0]
+    p = np.asarray(poses[:n], dtype=np.float64)
+    v = np.polyfit(t, p[:, :3], 1)[0]
+    R = Rotation.from_quat(p[:, 3:], scalar_first=True)
+    rotvec = (R[0].inv() * R).as_rotvec()
+    w = (t @ rotvec) / max(t @ t, 1e-12)
+    return np.r_[v, w]

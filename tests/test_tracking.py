@@ -1,0 +1,165 @@
+"""Pose tracking from video: the silhouette renderer against a closed form and finite
+differences, a one-frame track of a MuJoCo-rendered bunny from a perturbed pose, the
+tracked poses as a trajectory, and bad input."""
+
+import json
+import shutil
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import dano
+from dano.cli import main
+from dano.errors import DanoError, FileFormatError
+from dano.fields import SphereField
+from dano.render import Cameras, image_rays
+from dano.render.silhouette import silhouette_rays
+from dano.tracking import TrackConfig, TrackedObject, load_video, pose_errors, track, tracked_trajectory
+from dano.tracking.synthetic import VideoCamera, render_video, write_video_folder
+from dano.trajectory import load_trajectory, save_trajectory
+
+# a camera on the +y side looking at the origin from 3 m (Blender convention: looks along -z)
+LOOK = np.array([[-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 3.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+
+
+@pytest.fixture(scope="module")
+def bunny():
+    dano.enable_float64()
+    return dano.load_builtin("bunny_lowpoly")
+
+
+@pytest.fixture(scope="module")
+def one_frame(bunny, tmp_path_factory):
+    """One 320x240 MuJoCo render of the low-poly bunny's mesh, tipped and turned."""
+    from scipy.spatial.transform import Rotation
+
+    quat = Rotation.from_rotvec([0.3, -0.2, 0.9]).as_quat(scalar_first=True)
+    pose = np.r_[0.1, 0.05, 0.4, quat]
+    camera = VideoCamera(lookat=(0.1, 0.05, 0.3), distance=2.6)
+    frames, masks, background, c2w, focal = render_video(bunny, pose[None], camera)
+    folder = write_video_folder(tmp_path_factory.mktemp("video") / "one", frames, masks, background, c2w, focal,
+                                fps=50.0)
+    return folder, pose
+
+
+def test_sphere_silhouette_area_matches_projection():
+    """A sphere of radius R at distance Z covers π(f·R/√(Z² − R²))² pixels: the coverage α
+    summed over the image gives it (the edge sits on the surface: no outward bias)."""
+    dano.enable_float64()
+    R, Z, f, n = 0.5, 3.0, 80.0, 96
+    cams = Cameras.create(LOOK[None], n, n, f, dtype=jnp.float64)
+    o, d = image_rays(cams, 0)
+    alpha = silhouette_rays(SphereField(radius=R, edge_width=0.01), o, d, step=0.01, num_samples=120,
+                            pixel_angle=1.0 / f).alpha
+    expected = np.pi * (f * R / np.sqrt(Z * Z - R * R)) ** 2
+    assert float(alpha.sum()) == pytest.approx(expected, rel=0.01)
+    assert float(alpha.min()) >= 0 and float(alpha.max()) <= 1
+
+
+def test_silhouette_pose_gradient_matches_finite_differences(bunny):
+    """d(Σ α·weights)/d(position, quaternion) by forward-mode AD equals central differences."""
+    cams = Cameras.create(LOOK[None], 48, 48, 30.0, dtype=jnp.float64)
+    o, d = image_rays(cams, 0)
+    w = jnp.asarray(np.random.default_rng(0).uniform(0.5, 1.5, len(o)))
+    field = bunny.field
+
+    def f(x):
+        a = silhouette_rays(field, o, d, pose=(x[:3], x[3:]), step=0.015, num_samples=110,
+                            pixel_angle=1.0 / 30.0).alpha
+        return jnp.sum(a * w)
+
+    x0 = jnp.asarray(np.r_[0.02, -0.03, 0.01, 0.98, 0.1, -0.15, 0.05])
+    ad = np.asarray(jax.jacfwd(f)(x0))
+    h = 1e-6
+    fd = np.array([(float(f(x0.at[i].add(h))) - float(f(x0.at[i].add(-h)))) / (2 * h) for i in range(7)])
+    assert np.all(np.isfinite(ad))
+    np.testing.assert_allclose(ad, fd, rtol=2e-3, atol=2e-3 * np.abs(fd).max())
+
+
+def test_one_frame_track_converges_from_a_perturbed_pose(bunny, one_frame):
+    """Tracking one MuJoCo-rendered frame (the renderer dano does not use) from a pose off by
+    3 cm and 4 degrees succeeds by the tracking issue's measure (within 2 % of the bunny's
+    size and 5 degrees); the rotation ends within 1.5 degrees."""
+    from scipy.spatial.transform import Rotation
+
+    folder, truth = one_frame
+    video = load_video(folder)
+    start = truth.copy()
+    start[:3] += [0.02, -0.015, 0.015]
+    start[3:] = (Rotation.from_quat(truth[3:], scalar_first=True)
+                 * Rotation.from_rotvec(np.radians(4.0) * np.array([0.6, 0.0, 0.8]))).as_quat(scalar_first=True)
+    obj = TrackedObject.from_asset(bunny)
+    before = pose_errors(start[None], truth[None])
+    result = track(video, obj, start, TrackConfig())
+    dp, dr = pose_errors(result.poses, truth[None])
+    size = float(np.linalg.norm(np.ptp(bunny.mesh_vertices, axis=0)))
+    assert dp[0] < 0.02 * size and dr[0] < 1.5 < before[1][0], (dp, dr, before)
+    assert result.iou[0] > 0.9 and not result.poor[0]
+
+
+def test_tracked_poses_are_a_trajectory(bunny, one_frame, tmp_path):
+    folder, truth = one_frame
+    video = load_video(folder)
+    result = track(video, TrackedObject.from_asset(bunny), truth, TrackConfig(iterations=5))
+    traj = tracked_trajectory(result, "bunny")
+    path = save_trajectory(traj, tmp_path / "poses.npz")
+    back = load_trajectory(path)
+    assert back.dano_names == ("bunny",) and back.qpos.shape == (1, 7)
+    np.testing.assert_allclose(back.dano_pose("bunny")[0], result.poses[:, :3])
+
+
+def test_background_subtraction_finds_the_rendered_object(one_frame):
+    folder, _ = one_frame
+    given = load_video(folder).masks
+    subtracted = load_video(folder, subtract_background=True).masks
+    iou = np.minimum(given, subtracted).sum() / np.maximum(given, subtracted).sum()
+    assert iou > 0.93
+
+
+def _copy(folder, tmp_path):
+    target = tmp_path / "video"
+    shutil.copytree(folder, target)
+    return target
+
+
+def test_bad_video_inputs_are_refused_clearly(one_frame, tmp_path):
+    folder, _ = one_frame
+    empty = tmp_path / "empty"
+    (empty / "frames").mkdir(parents=True)
+    shutil.copy(folder / "camera.json", empty / "camera.json")
+    with pytest.raises(FileFormatError, match="no frames"):
+        load_video(empty)
+    mixed = _copy(folder, tmp_path / "mixed")
+    import imageio.v3 as iio
+
+    iio.imwrite(mixed / "frames" / "0001.png", np.zeros((10, 12, 3), np.uint8))
+    with pytest.raises(FileFormatError, match="one size"):
+        load_video(mixed)
+    wrong = _copy(folder, tmp_path / "wrong")
+    meta = json.loads((wrong / "camera.json").read_text())
+    (wrong / "camera.json").write_text(json.dumps({**meta, "w": 640}))
+    with pytest.raises(FileFormatError, match="frames are 320x240"):
+        load_video(wrong)
+    nan = _copy(folder, tmp_path / "nan")
+    (nan / "camera.json").write_text(json.dumps({**meta, "fl_x": float("nan")}).replace("NaN", "NaN"))
+    with pytest.raises((FileFormatError, DanoError), match="focal"):
+        load_video(nan)
+    with pytest.raises(DanoError, match="initial pose"):
+        track(load_video(folder), TrackedObject(SphereField(radius=0.1), np.zeros(3), 0.2), [0, 0, 0, 0, 0, 0, 0])
+
+
+def test_track_cli_refuses_bad_input_and_leaves_nothing(one_frame, tmp_path, capsys):
+    folder, truth = one_frame
+    empty = tmp_path / "frames"
+    empty.mkdir()
+    out = tmp_path / "out"
+    pose = [str(x) for x in truth]
+    code = main(["track", str(empty), "--object", "builtin:bunny_lowpoly", "--pose", *pose, "-o", str(out),
+                 "--camera", str(folder / "camera.json"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 1 and "no frames" in err and "Traceback" not in err
+    assert not out.exists()
+    code = main(["track", str(folder), "--object", "builtin:bunny_lowpoly", "--pose", *pose[:6], "-o", str(out)])
+    assert code != 0 and not out.exists()
