@@ -37,6 +37,33 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         raise
 
 
+@contextmanager
+def atomic_dir(out_dir: str | Path) -> Iterator[Path]:
+    """Yield a temporary folder beside ``out_dir``; on success it becomes ``out_dir`` (usual
+    permissions; an empty ``out_dir`` is replaced), on any error it is removed. Raises
+    DanoError up front if ``out_dir`` exists and is not an empty folder."""
+    import shutil
+
+    from .errors import DanoError
+
+    out_dir = Path(out_dir)
+    if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
+        raise DanoError(f"{out_dir}: exists and is not an empty folder; choose a new output folder")
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        yield tmp
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)
+        if out_dir.exists():
+            out_dir.rmdir()
+        os.replace(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
 def _about_output(exc: OSError, path: Path) -> OSError:
     """The same error, naming the output the user asked for rather than a temporary file."""
     other = Path(str(exc.filename)) if exc.filename else None

@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .._files import atomic_dir
 from ..errors import DanoError
 
 _MARGIN = 0.10
@@ -154,9 +153,7 @@ def render_dataset(mesh_path: str | Path, out_dir: str | Path, views: int = 100,
         raise DanoError(f"{out_dir}: exists and is not an empty folder; choose a new output folder")
     mesh = load_mesh(mesh_path, require_watertight=False)
     images, poses, focal, bounds = render_views(mesh, views, size, progress=progress)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-    try:
+    with atomic_dir(out_dir) as tmp:
         (tmp / "images").mkdir()
         frames = []
         for i, (image, pose) in enumerate(zip(images, poses)):
@@ -169,10 +166,4 @@ def render_dataset(mesh_path: str | Path, out_dir: str | Path, views: int = 100,
                 "dano_note": "RGBA views of the mesh rendered by MuJoCo (dano render-dataset); frame: the mesh file's",
                 "frames": frames}
         (tmp / "transforms.json").write_text(json.dumps(meta, indent=1) + "\n")
-        if out_dir.exists():
-            out_dir.rmdir()
-        os.replace(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out_dir

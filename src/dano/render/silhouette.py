@@ -9,8 +9,10 @@ covers*, smooth in the pose — so this renders the limit directly from the surf
 * along each ray, samples t_k on a grid fixed to the ray (as in :func:`render_rays`) inside
   the field's box; the surface distance d_k at each (the field's ``signed_distance`` when it
   has one, else −w·logit(φ/φ_interior), exact for φ = ρ·σ(−d/w));
-* d_min = min_k d_k is the ray's distance to the surface (exact for the grazing rays that
-  make the silhouette's edge, up to step²/(8·curvature radius));
+* d_min = min_k d_k, refined to the vertex of the parabola through the smallest sample and
+  its two neighbours, is the ray's distance to the surface (for the grazing rays that make
+  the silhouette's edge; without the refinement it ripples with the step as the object moves
+  along the rays);
 * coverage α = σ(−d_min / (ℓ/4)), with ℓ = t*·θ the pixel's footprint at the depth t* of the
   closest approach (θ: the pixel's angular size). A straight edge at distance e from a
   pixel's centre covers clip(½ − e/ℓ, 0, 1) of it; the logistic with width ℓ/4 has the same
@@ -86,8 +88,18 @@ def silhouette_rays(field, origins: jax.Array, directions: jax.Array, *, pose=No
     dist = surface_distance(field, points.reshape(-1, 3), step if edge_width is None else edge_width)
     dist = jnp.where(valid, dist.reshape(t.shape), _FAR)
     k = jnp.argmin(dist, axis=1)
-    d_min = jnp.take_along_axis(dist, k[:, None], axis=1)[:, 0]
-    t_min = jnp.take_along_axis(t, k[:, None], axis=1)[:, 0]
+    take = lambda a, i: jnp.take_along_axis(a, jnp.clip(i, 0, num_samples - 1)[:, None], axis=1)[:, 0]  # noqa: E731
+    d_k, t_k = take(dist, k), take(t, k)
+    # the minimum between samples: the vertex of the parabola through the argmin and its
+    # neighbours (without it, d_min ripples with period `step` as the object moves along the
+    # rays, and a tracker settles in those ripples)
+    d_lo, d_hi = take(dist, k - 1), take(dist, k + 1)
+    usable = (k > 0) & (k < num_samples - 1) & (d_lo < 0.5 * _FAR) & (d_hi < 0.5 * _FAR)
+    curvature = jnp.where(usable, d_hi - 2.0 * d_k + d_lo, 1.0)
+    usable = usable & (curvature > 1e-12)
+    shift = jnp.where(usable, jnp.clip(0.5 * (d_lo - d_hi) / jnp.where(usable, curvature, 1.0), -0.5, 0.5), 0.0)
+    d_min = d_k - jnp.where(usable, 0.5 * curvature * shift * shift, 0.0)
+    t_min = t_k + shift * step
     footprint = jnp.maximum(t_min, step) * jnp.asarray(pixel_angle, dtype)
     alpha = jax.nn.sigmoid(-4.0 * d_min / footprint)
     return SilhouetteOutput(alpha, d_min, t_min)

@@ -17,13 +17,12 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .._files import atomic_dir
 from ..errors import DanoError
 
 #: the synthetic slide: the built-in low-poly bunny (1.29 m across) thrown across the ground
@@ -48,7 +47,7 @@ class VideoCamera:
     height: int = 240
 
 
-def _video_model(asset, camera: VideoCamera, supersample: int, colour=(0.72, 0.55, 0.38)):
+def _video_model(asset, camera: VideoCamera, supersample: int, colour=(0.72, 0.55, 0.38), flat: bool = False):
     import mujoco
 
     from ..nerf.synthetic import add_lights
@@ -59,7 +58,11 @@ def _video_model(asset, camera: VideoCamera, supersample: int, colour=(0.72, 0.5
     spec.visual.global_.fovy = camera.fovy
     spec.visual.headlight.active = 0
     spec.visual.quality.shadowsize = 0
-    add_lights(spec, np.asarray(camera.lookat, dtype=np.float64), 2.0)
+    if flat:  # ambient light only: every surface shows its own colour
+        light = spec.worldbody.add_light(type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, dir=[0, 0, -1])
+        light.diffuse, light.ambient, light.specular, light.castshadow = (0, 0, 0), (1, 1, 1), (0, 0, 0), False
+    else:
+        add_lights(spec, np.asarray(camera.lookat, dtype=np.float64), 2.0)
     spec.add_texture(name="grid", type=mujoco.mjtTexture.mjTEXTURE_2D,
                            builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, width=256, height=256,
                            rgb1=[0.32, 0.36, 0.42], rgb2=[0.22, 0.25, 0.30])
@@ -77,9 +80,10 @@ def _video_model(asset, camera: VideoCamera, supersample: int, colour=(0.72, 0.5
 
 
 def render_video(asset, poses: np.ndarray, camera: VideoCamera = VideoCamera(), supersample: int = 2,
-                 progress=None):
+                 flat: bool = False, progress=None):
     """Render frames of ``asset`` (a DanoAsset with a visual mesh) at body poses ``poses``
     (T, 7): centre-of-mass position [m] and wxyz quaternion (MuJoCo's qpos of its free joint).
+    flat: ambient light only (no shading: the object shows one colour).
 
     Returns ``(frames (T, H, W, 3) uint8, masks (T, H, W) float32 in [0, 1], background
     (H, W, 3) uint8, camera_to_world (4, 4) Blender convention, focal [px])``.
@@ -91,7 +95,7 @@ def render_video(asset, poses: np.ndarray, camera: VideoCamera = VideoCamera(), 
 
     if len(asset.mesh_faces) == 0:
         raise DanoError(f"{asset.name}: has no visual mesh to render")
-    model = _video_model(asset, camera, supersample)
+    model = _video_model(asset, camera, supersample, flat=flat)
     data = mujoco.MjData(model)
     w, h, s = camera.width, camera.height, supersample
     try:
@@ -179,11 +183,7 @@ def write_video_folder(out_dir: str | Path, frames, masks, background, camera_to
     from ..trajectory import save_trajectory
 
     out_dir = Path(out_dir)
-    if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
-        raise DanoError(f"{out_dir}: exists and is not an empty folder; choose a new output folder")
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-    try:
+    with atomic_dir(out_dir) as tmp:
         (tmp / "frames").mkdir()
         (tmp / "masks").mkdir()
         for k, (frame, mask) in enumerate(zip(frames, masks)):
@@ -197,12 +197,6 @@ def write_video_folder(out_dir: str | Path, frames, masks, background, camera_to
         (tmp / "camera.json").write_text(json.dumps(meta, indent=1) + "\n")
         if truth is not None:
             save_trajectory(truth, tmp / "truth.npz")
-        if out_dir.exists():
-            out_dir.rmdir()
-        os.replace(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out_dir
 
 

@@ -2,17 +2,19 @@
 
 Per frame k the object's body pose p = (position [m], wxyz quaternion; a DANO's qpos) minimises
 
-    L(p) = mean_px (α(p) − M)²  +  w_B·‖B(α(p)) − B(M)‖²  [+ w_C·mean_px ρ(C(p) − I)]  [+ w_S·‖δ‖²]
+    L(p) = mean_px (α(p) − M)²  +  w_B·‖B(α(p)) − B(M)‖²  [+ w_C·mean_px ρ((C(p) − I)/s)]  [+ w_S·‖δ‖²]
 
 with α the rendered silhouette coverage (:func:`dano.render.silhouette.silhouette_rays`), M the
 mask averaged over the same pixel blocks, B the barycentre in image coordinates (divided by
 the image diagonal), C the colour volume-rendered from a radiance field over the background
-frame (:func:`dano.render.render_rays`), I the frame, ρ the Charbonnier loss
-√(1 + (r/s)²) − 1 (robust to shading the field did not see) and δ = (translation / object
+frame (:func:`dano.render.render_rays`), I the frame, ρ(x) = x²/√(1 + x²) a robust loss
+(mean over colour channels) and δ = (translation / object
 size, rotation vector [rad]) the step from the prediction. Adam (optax) runs a fixed number
 of iterations per frame from a constant-velocity prediction of the previous two poses
 (the previous pose after a frame flagged poor), with the learning rate decaying
-log-linearly; the lowest-loss iterate is kept.
+log-linearly; the lowest-loss iterate is kept and optionally polished by Levenberg–Marquardt
+steps (the loss is a sum of squares; the colour residual is x/(1 + x²)^¼ with x = (C − I)/s, so its
+square is quadratic near 0 and grows linearly: robust to shading the field did not see).
 
 To keep frames cheap only rays near the object are rendered: the mask's pixels and the
 previous frame's silhouette, dilated by ``margin`` of the object's size in pixels; the
@@ -53,7 +55,9 @@ class TrackConfig:
     of the Charbonnier loss; smoothness_weight w_S (a prior toward the constant-velocity
     prediction); samples_across: render samples across the field box's diagonal; margin:
     ray-set dilation [fraction of object size]; poor_iou: frames with a lower silhouette IoU
-    are flagged poor."""
+    are flagged poor; refine: Levenberg–Marquardt steps after Adam (0: Adam alone, the
+    default: on the synthetic slide 5 steps per frame took 4.3 s per frame instead of 2.3 s
+    and left the RMS error at 10.9 mm instead of 11.0)."""
 
     iterations: int = 60
     learning_rate: float = 0.01
@@ -66,9 +70,12 @@ class TrackConfig:
     samples_across: int = 96
     margin: float = 0.25
     poor_iou: float = 0.8
+    refine: int = 0
 
     def check(self) -> None:
         """Raises DanoError naming the first bad setting."""
+        if int(self.refine) < 0:
+            raise DanoError(f"refine must be non-negative, got {self.refine}")
         for name in ("iterations", "stride", "samples_across"):
             if int(getattr(self, name)) < 1:
                 raise DanoError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -204,27 +211,31 @@ class _Problem:
         return silhouette_rays(self.obj.field, origins, directions, pose=(p, q), step=self.step,
                                num_samples=self.num_samples, pixel_angle=self.pixel_angle).alpha
 
-    def _loss(self, delta, base, rays, target):
+    def _residuals(self, delta, base, rays, target):
+        """Residual vector r(δ) with L = Σ r² (see the module doc), and α."""
         origins, directions, uv, valid = rays
-        mask, colour, background, mask_total, mask_bary = target
+        mask, colour, background, mask_bary = target
         cfg = self.config
         p, q = compose_pose(base[:3], base[3:], delta, self.obj.size)
         alpha = self._alpha_impl(jnp.concatenate([p, q]), origins, directions) * valid
         n_all = self.hb * self.wb
-        loss = 0.0
+        parts = [np.sqrt(cfg.smoothness_weight) * delta]
         if self.masks is not None:
-            loss = jnp.sum((alpha - mask) ** 2) / n_all
-            total = jnp.sum(alpha)
-            bary = jnp.sum(alpha[:, None] * uv, axis=0) / jnp.maximum(total, 1e-6)
-            loss = loss + cfg.barycentre_weight * jnp.sum(((bary - mask_bary) / self.diag_px) ** 2)
+            bary = jnp.sum(alpha[:, None] * uv, axis=0) / jnp.maximum(jnp.sum(alpha), 1e-6)
+            parts += [(alpha - mask) / np.sqrt(n_all),
+                      np.sqrt(cfg.barycentre_weight) * (bary - mask_bary) / self.diag_px]
         if cfg.colour_weight > 0:
             fp = field_pose(p, q, jnp.asarray(self.obj.center_of_mass, p.dtype))
             rgb = render_rays(self.obj.radiance, origins, directions, self.render_options, pose=fp,
                               background=background).rgb
-            r = (rgb - colour) / cfg.colour_scale
-            loss = loss + cfg.colour_weight * jnp.sum(valid[:, None] * (jnp.sqrt(1.0 + r * r) - 1.0)) / (3 * n_all)
-        loss = loss + cfg.smoothness_weight * jnp.sum(delta ** 2)
-        return loss, alpha
+            x = (rgb - colour) / cfg.colour_scale
+            robust = x / (1.0 + x * x) ** 0.25  # r² = x²/√(1 + x²): quadratic near 0, linear far out
+            parts.append(np.sqrt(cfg.colour_weight / (3 * n_all)) * (valid[:, None] * robust).ravel())
+        return jnp.concatenate(parts), alpha
+
+    def _loss(self, delta, base, rays, target):
+        r, alpha = self._residuals(delta, base, rays, target)
+        return jnp.sum(r * r), alpha
 
     def _solve_impl(self, base, rays, target):
         cfg = self.config
@@ -246,9 +257,35 @@ class _Problem:
         delta, _, best, best_loss = jax.lax.fori_loop(0, cfg.iterations, body, carry)
         last, _ = self._loss(delta, base, rays, target)
         best = jnp.where(last < best_loss, delta, best)
+        best = self._gauss_newton(best, base, rays, target)
         loss, alpha = self._loss(best, base, rays, target)
         p, q = compose_pose(base[:3], base[3:], best, self.obj.size)
         return jnp.concatenate([p, q / jnp.linalg.norm(q)]), loss, alpha
+
+    def _gauss_newton(self, delta, base, rays, target):
+        """``refine`` Levenberg–Marquardt steps on r(δ) (steps that raise L are refused and
+        the damping grows): Adam's first-order steps crawl along the weakly observed depth
+        direction, where curvature information converges in a few steps."""
+        if self.config.refine == 0:
+            return delta
+        residuals = lambda d: self._residuals(d, base, rays, target)[0]  # noqa: E731
+        jacobian = jax.jacfwd(residuals)
+
+        def body(_, carry):
+            d, lam, loss = carry
+            r, J = residuals(d), jacobian(d)
+            H, g = J.T @ J, J.T @ r
+            step = -jnp.linalg.solve(H + lam * jnp.diag(jnp.diag(H)) + 1e-12 * jnp.eye(6), g)
+            trial = d + step
+            r_new = residuals(trial)
+            new_loss = jnp.sum(r_new * r_new)
+            ok = jnp.isfinite(new_loss) & (new_loss < loss)
+            return (jnp.where(ok, trial, d), jnp.where(ok, lam * 0.3, lam * 10.0), jnp.where(ok, new_loss, loss))
+
+        r0 = residuals(delta)
+        d, _, _ = jax.lax.fori_loop(0, self.config.refine, body, (delta, jnp.asarray(1e-3, delta.dtype),
+                                                                   jnp.sum(r0 * r0)))
+        return d
 
     # --- host side
     def _dilate(self, region: np.ndarray, pixels: float) -> np.ndarray:
@@ -281,16 +318,14 @@ class _Problem:
         if self.masks is not None:
             m = self.masks[k]
             mask = m[idx] * valid
-            total = float(m.sum())
-            bary = (m[:, None] * self.uv).sum(axis=0) / max(total, 1e-6)
+            bary = (m[:, None] * self.uv).sum(axis=0) / max(float(m.sum()), 1e-6)
         else:
-            mask, total, bary = np.zeros(size), 0.0, np.zeros(2)
+            mask, bary = np.zeros(size), np.zeros(2)
         target = (jnp.asarray(mask), jnp.asarray(self.colours[k][idx]), jnp.asarray(self.background[idx]),
-                  jnp.asarray(total), jnp.asarray(bary))
+                  jnp.asarray(bary))
         pose, loss, alpha = self._solve(jnp.asarray(base, jnp.float64), rays, target)
         full = np.zeros(self.hb * self.wb)
         full[index] = np.asarray(alpha)[:n]
-        # the constant part of the silhouette loss: mask pixels outside the rendered set
         return np.asarray(pose), float(loss), full
 
 
@@ -346,11 +381,14 @@ def pose_errors(poses: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.nd
     return dp, np.degrees(2 * np.arccos(np.clip(dots, 0.0, 1.0)))
 
 
-def initial_velocity(time: np.ndarray, poses: np.ndarray, frames: int = 5) -> np.ndarray:
+def initial_velocity(time: np.ndarray, poses: np.ndarray, frames: int = 3) -> np.ndarray:
     """(6,) initial velocity of a free body from its first ``frames`` poses (T, 7) by least
     squares: linear velocity (world frame) [m/s] from a straight-line fit of the positions,
     angular velocity (body frame) [rad/s] from a fit through zero of the rotation vectors
-    log(R₀ᵀR_k). Steadier than differences of two tracked poses."""
+    log(R₀ᵀR_k). Steadier than differences of two tracked poses; few frames, so that a
+    contact soon after the first frame does not bias it (on the synthetic slide, which lands
+    after 3 frames: ω from 3 frames (2.16, −0.90, 5.69) rad/s, from 5 (1.36, 0.39, 5.25); the
+    truth (2, −1, 6))."""
     from scipy.spatial.transform import Rotation
 
     n = int(min(max(frames, 2), len(time)))
