@@ -95,7 +95,9 @@ def load_dataset(path: str | Path, bounds=None) -> Dataset:
         raise FileFormatError(f"{path}: {exc}") from exc
 
 
-def _as_float_images(images: np.ndarray, where: str) -> np.ndarray:
+def as_float_images(images: np.ndarray, where: str) -> np.ndarray:
+    """uint8/uint16/float images -> float32 in [0, 1]. Raises DanoError naming ``where`` for
+    float images that are not finite or not in [0, 1]."""
     if images.dtype == np.uint8:
         return images.astype(np.float32) / 255.0
     if images.dtype == np.uint16:
@@ -119,7 +121,7 @@ def _from_npz(path: Path) -> Dataset:
     images = arrays["images"]
     if images.ndim != 4:
         raise DanoError(f"images must have shape (C, H, W, 3|4), got {images.shape}")
-    rgb, alpha = _split_alpha(_as_float_images(images, "images"))
+    rgb, alpha = _split_alpha(as_float_images(images, "images"))
     c, h, w = rgb.shape[:3]
     poses = arrays["poses"]
     if len(poses) != c:
@@ -159,7 +161,7 @@ def _read_image(path: Path) -> np.ndarray:
         raise FileFormatError(f"{path}: cannot read image ({exc})") from exc
     if image.ndim == 2:
         image = np.repeat(image[..., None], 3, axis=-1)
-    return _as_float_images(image, str(path))
+    return as_float_images(image, str(path))
 
 
 def _from_transforms(path: Path) -> Dataset:

@@ -50,14 +50,14 @@ class VideoInput:
 
 
 def _as_float(image: np.ndarray, where: str) -> np.ndarray:
-    if image.dtype == np.uint8:
-        return image.astype(np.float32) / 255.0
-    if image.dtype == np.uint16:
-        return image.astype(np.float32) / 65535.0
-    out = image.astype(np.float32)
-    if not np.all(np.isfinite(out)) or out.min() < 0 or out.max() > 1:
-        raise FileFormatError(f"{where}: float images must be finite and in [0, 1]")
-    return out
+    from ..nerf.data import as_float_images
+
+    try:
+        return as_float_images(image, where)
+    except FileFormatError:
+        raise
+    except DanoError as exc:
+        raise FileFormatError(str(exc)) from exc
 
 
 def _read(path: Path, channels: int) -> np.ndarray:
