@@ -35,7 +35,8 @@ from .track import block_average, field_pose
 
 @dataclass(frozen=True)
 class PixelFitResult:
-    """labels; estimates (n,) (parameters, then the initial pose offsets (6), v0 (3), ω0 (3)); cost (final ½‖r‖²);
+    """labels; estimates (n,) (parameters, then the initial position offset (3) [m], v0 (3), ω0 (3));
+    cost (final ½‖r‖²);
     scan: {"values": (S,), "costs": (S,)} along the first parameter; nfev/njev; wall and
     compile time [s]; success and the solver's message."""
 

@@ -202,11 +202,11 @@ class _Problem:
         if self.masks is None and config.colour_weight == 0:
             raise DanoError("no masks: give mask images or a background frame, or track photometrically")
         self.render_options = RenderOptions(self.step, self.num_samples)
-        self._solve = jax.jit(self._solve_impl)
-        self._alpha_all = jax.jit(self._alpha_impl)
+        self._solve = jax.jit(self._solve_frame)
+        self._alpha_all = jax.jit(self._alpha)
 
     # --- pure pieces
-    def _alpha_impl(self, pose, origins, directions):
+    def _alpha(self, pose, origins, directions):
         p, q = field_pose(pose[:3], pose[3:], jnp.asarray(self.obj.center_of_mass, pose.dtype))
         return silhouette_rays(self.obj.field, origins, directions, pose=(p, q), step=self.step,
                                num_samples=self.num_samples, pixel_angle=self.pixel_angle).alpha
@@ -217,7 +217,7 @@ class _Problem:
         mask, colour, background, mask_bary = target
         cfg = self.config
         p, q = compose_pose(base[:3], base[3:], delta, self.obj.size)
-        alpha = self._alpha_impl(jnp.concatenate([p, q]), origins, directions) * valid
+        alpha = self._alpha(jnp.concatenate([p, q]), origins, directions) * valid
         n_all = self.hb * self.wb
         parts = [np.sqrt(cfg.smoothness_weight) * delta]
         if self.masks is not None:
@@ -237,7 +237,7 @@ class _Problem:
         r, alpha = self._residuals(delta, base, rays, target)
         return jnp.sum(r * r), alpha
 
-    def _solve_impl(self, base, rays, target):
+    def _solve_frame(self, base, rays, target):
         cfg = self.config
         schedule = optax.exponential_decay(cfg.learning_rate, cfg.iterations,
                                            cfg.final_learning_rate / cfg.learning_rate)
