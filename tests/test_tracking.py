@@ -128,7 +128,7 @@ def _copy(folder, tmp_path):
 
 
 def test_bad_video_inputs_are_refused_clearly(one_frame, tmp_path):
-    folder, _ = one_frame
+    folder, truth = one_frame
     empty = tmp_path / "empty"
     (empty / "frames").mkdir(parents=True)
     shutil.copy(folder / "camera.json", empty / "camera.json")
@@ -149,6 +149,8 @@ def test_bad_video_inputs_are_refused_clearly(one_frame, tmp_path):
     (nan / "camera.json").write_text(json.dumps({**meta, "fl_x": float("nan")}).replace("NaN", "NaN"))
     with pytest.raises((FileFormatError, DanoError), match="focal"):
         load_video(nan)
+    with pytest.raises(DanoError, match="no frames to track"):
+        track(load_video(folder), TrackedObject(SphereField(radius=0.1), np.zeros(3), 0.2), truth, frames=slice(5, 5))
     with pytest.raises(DanoError, match="initial pose"):
         track(load_video(folder), TrackedObject(SphereField(radius=0.1), np.zeros(3), 0.2), [0, 0, 0, 0, 0, 0, 0])
 

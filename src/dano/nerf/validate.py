@@ -18,6 +18,7 @@ import numpy as np
 from ..asset import build
 from ..fields import mesh_field
 from ..io import load_mesh
+from ..tracking.track import pose_errors
 from .data import load_dataset
 from .density import DENSITY_RULES, density_grid
 from .synthetic import render_dataset
@@ -83,7 +84,7 @@ def simulation_difference(asset, reference: dict, scale: float, size: float) -> 
     for kind, (pb, qb) in reference.items():
         pa, qa = _final_pose(asset, kind, scale)
         out[f"{kind}_position_error"] = float(np.linalg.norm(pa - pb)) / (size * scale)
-        out[f"{kind}_rotation_error_deg"] = float(np.degrees(2 * np.arccos(np.clip(abs(np.dot(qa, qb)), 0, 1))))
+        out[f"{kind}_rotation_error_deg"] = float(pose_errors(np.r_[pa, qa][None], np.r_[pb, qb][None])[1][0])
     return out
 
 

@@ -335,7 +335,8 @@ def track(video: VideoInput, obj: TrackedObject, initial_pose, config: TrackConf
     frame: CoM position [m], wxyz quaternion, world frame).
 
     Returns a :class:`TrackResult`. Raises DanoError for a bad config, a non-finite or zero
-    initial pose, no masks and no colour term, or the colour term without a radiance field.
+    initial pose, an empty frame selection, no masks and no colour term, or the colour term
+    without a radiance field.
     """
     config.check()
     pose = np.asarray(initial_pose, dtype=np.float64).reshape(-1)
@@ -345,6 +346,8 @@ def track(video: VideoInput, obj: TrackedObject, initial_pose, config: TrackConf
     pose[3:] /= np.linalg.norm(pose[3:])
     problem = _Problem(obj, video, config)
     ks = range(video.num_frames)[frames or slice(None)]
+    if len(ks) == 0:
+        raise DanoError(f"no frames to track ({video.num_frames} frames in the video, selection {frames})")
     poses, losses, ious, poor, times, alphas = [], [], [], [], [], []
     previous_alpha = None
     for i, k in enumerate(ks):
