@@ -168,13 +168,6 @@ def identify_from_pixels(scene, base_params, video: VideoInput, obj, qpos0: np.n
         if progress is not None:
             progress(min(done["n"], total), total, what)
 
-    def compiled(frames):
-        nonlocal compile_s
-        fn = pixel_residual_function(scene, base_params, [parameter], _first(video, frames), obj, qpos0, substeps,
-                                     stride)
-        res, jac = jax.jit(fn), jax.jit(jax.jacfwd(fn))
-        return res, jac
-
     def solve(res, jac, x0, what):
         nonlocal compile_s
         t0 = time.perf_counter()
@@ -191,7 +184,8 @@ def identify_from_pixels(scene, base_params, video: VideoInput, obj, qpos0: np.n
                              xtol=1e-10, ftol=1e-10)
 
     x = np.r_[0.5 * (bounds[0] + bounds[1]), np.zeros(3), np.asarray(qvel0, dtype=np.float64)[dof : dof + 6]]
-    res, jac = compiled(video.num_frames)
+    fn = pixel_residual_function(scene, base_params, [parameter], video, obj, qpos0, substeps, stride)
+    res, jac = jax.jit(fn), jax.jit(jax.jacfwd(fn))
     values, costs = [], []
     coarse = np.linspace(bounds[0], bounds[1], scan)
     for level in (coarse, None):
@@ -212,11 +206,3 @@ def identify_from_pixels(scene, base_params, video: VideoInput, obj, qpos0: np.n
     return PixelFitResult(labels, sol.x, float(sol.cost), {"values": values, "costs": costs}, int(sol.nfev),
                           int(sol.njev or 0), time.perf_counter() - t_start, compile_s, bool(sol.success),
                           str(sol.message))
-
-
-def _first(video: VideoInput, frames: int) -> VideoInput:
-    """The first ``frames`` frames of a video."""
-    from dataclasses import replace
-
-    return replace(video, frames=video.frames[:frames], time=video.time[:frames],
-                   masks=None if video.masks is None else video.masks[:frames])
