@@ -73,12 +73,13 @@ def test_render_gradient_wrt_pose_matches_finite_differences():
         origins, dirs = image_rays(cams, 0)
         opts = RenderOptions.for_bounds(field.bounds(), 256)
 
+        @jax.jit  # one compilation for the 14 differences (op by op, each render took seconds)
         def image(pose_vec):
             out = render_rays(field, origins, dirs, opts, pose=(pose_vec[:3], pose_vec[3:]), background=0.2)
             return jnp.concatenate([out.rgb[:, 0], out.alpha, out.depth * out.alpha])
 
         x0 = jnp.array([0.02, -0.03, 0.1, 0.95, 0.1, -0.2, 0.15])
-        jac = np.asarray(jax.jacfwd(image)(x0))
+        jac = np.asarray(jax.jit(jax.jacfwd(image))(x0))
         eps = 1e-6
         fd = np.stack([(np.asarray(image(x0.at[k].add(eps))) - np.asarray(image(x0.at[k].add(-eps)))) / (2 * eps)
                        for k in range(7)], axis=1)

@@ -89,12 +89,13 @@ def test_step_vmaps_over_data_and_params(box_scene):
     speeds = jnp.asarray([0.0, 0.5, 1.0])
     datas = jax.vmap(lambda s: make_data(scene, qpos, jnp.asarray(qvel).at[scene.dof_adr[0]].set(s)))(speeds)
     batched = jax.jit(jax.vmap(step, in_axes=(None, None, 0)))(scene, params, datas)
+    single = jax.jit(step)
     for i, s in enumerate(speeds):
-        one = jax.jit(step)(scene, params, make_data(scene, qpos, jnp.asarray(qvel).at[scene.dof_adr[0]].set(s)))
+        one = single(scene, params, make_data(scene, qpos, jnp.asarray(qvel).at[scene.dof_adr[0]].set(s)))
         np.testing.assert_allclose(np.asarray(batched.qvel[i]), np.asarray(one.qvel), atol=1e-12)
     mus = jnp.asarray([0.1, 0.5])
-    many = jax.vmap(lambda mu: step(scene, params.replace(contact=params.contact.replace(
-        sliding_friction=jnp.full_like(params.contact.sliding_friction, mu))), datas[1]).qvel)(mus)
+    many = jax.jit(jax.vmap(lambda mu: step(scene, params.replace(contact=params.contact.replace(
+        sliding_friction=jnp.full_like(params.contact.sliding_friction, mu))), datas[1]).qvel))(mus)
     assert np.all(np.isfinite(np.asarray(many)))
 
 

@@ -132,7 +132,7 @@ def test_contact_linearisation_matches_central_differences(push_task):
     step = jax.jit(lambda z: pr.dynamics(z[:pr.nx], z[pr.nx:], 0, task.params))
     from dano.sim import overlaps
 
-    psi = np.array([np.asarray(overlaps(task.scene, task.params, _data(task, x))) for x in X[:-1]])
+    psi = np.asarray(jax.jit(jax.vmap(lambda x: overlaps(task.scene, task.params, _data(task, x))))(X[:-1]))
     pusher_pair = task.scene.pair_names.index("bunny/pusher")
     touching = np.flatnonzero(psi[:, pusher_pair] > 1e-3)
     free = np.flatnonzero(psi[:, pusher_pair] == 0)

@@ -151,13 +151,16 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     return out
 
 
-def bench_sysid(repeats: int = 3) -> dict:
+def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int = 10) -> dict:
     """Identification wall times (solver only; compilation reported separately), with AD
     Jacobians and, in the same run, with SciPy's finite-difference Jacobians:
 
     * ``soap``: the real soap video (sliding friction + 2 nuisance velocities), median of
       ``repeats`` solves;
-    * ``bunny_pushes``: α and friction from 10 noisy pushes (one solve each way; the slow one).
+    * ``bunny_pushes``: α and friction from 10 noisy pushes (one solve each way; the slow one);
+    * ``compile_by_lengths``: compile time for 20 trajectories of 20 lengths vs one length;
+    * ``contactnets_cube`` (with ``cube_data``, the ContactNets .npz): the whole example's wall
+      and compile time on ``cube_tosses`` tosses, and its local solve with AD vs FD Jacobians.
     """
     from .sysid import identify
     from .sysid.examples import PUSH_TRUTH, push_problem, soap_problem
@@ -180,6 +183,58 @@ def bench_sysid(repeats: int = 3) -> dict:
             "alpha_rel_error": est["bunny:alpha"] / PUSH_TRUTH["alpha"] - 1,
             "friction_rel_error": est["bunny/ground:sliding_friction"] / PUSH_TRUTH["sliding_friction"] - 1}
     out["bunny_pushes_ratio_fd_over_ad"] = out["bunny_pushes_fd"]["wall_s"] / out["bunny_pushes_ad"]["wall_s"]
+    out["compile_by_lengths"] = _compile_by_lengths()
+    if cube_data:
+        from .sysid.examples import contactnets_identify, contactnets_problem
+
+        report = contactnets_identify(cube_data, cube_tosses)[2]
+        out["contactnets_cube"] = {k: report[k] for k in (
+            "num_tosses", "sliding_friction", "cost", "wall_time_s", "compile_time_s", "heldout_position_rms_mm")}
+        problem = contactnets_problem(cube_data, cube_tosses)[0]
+        for jac in ("ad", "fd"):  # the local solve alone, from the same start, each way
+            r = identify(problem, jacobian=jac)
+            out[f"contactnets_cube_{jac}"] = {"wall_s": r.wall_time_s, "compile_s": r.compile_time_s,
+                                              "nfev": r.nfev, "njev": r.njev, "cost": r.final_cost,
+                                              "sliding_friction": float(r.estimates[0])}
+        out["contactnets_cube_ratio_fd_over_ad"] = (out["contactnets_cube_fd"]["wall_s"]
+                                                    / out["contactnets_cube_ad"]["wall_s"])
+    else:
+        out["contactnets_cube"] = "skipped: give --cube-data (the ContactNets tosses .npz)"
+    return out
+
+
+def _compile_by_lengths(count: int = 20) -> dict:
+    """Compile time of an identification's residual and Jacobian for ``count`` trajectories of
+    ``count`` different lengths (11, 12, … frames) against one trajectory of the longest
+    length: the lengths are padded into one batch, so the first should not cost much more."""
+    import jax.numpy as jnp
+
+    from . import enable_float64
+    from .asset import build
+    from .fields import BoxField
+    from .sim import DanoObject, compose
+    from .sysid import FitParameter, SysIdProblem, Weights
+    from .sysid.examples import analytic_slides
+    from .sysid.solve import _compile
+
+    enable_float64()
+    asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
+                  name="box")
+    scene = compose([DanoObject("box", asset, (0, 0, 0.05))], dt=0.0025)
+    longest = 10 + count
+    slides = analytic_slides(0, 0.05, count, frames=longest)
+    out: dict = {"trajectories": count, "frames": [11, longest]}
+    for key, obs in (("one_length_s", slides[:1]), ("distinct_lengths_s", [
+            dataclasses.replace(o, time=o.time[: 11 + k], poses={"box": o.poses["box"][: 11 + k]})
+            for k, o in enumerate(slides)])):
+        problem = SysIdProblem(scene, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)],
+                               weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=4)
+        t0 = time.perf_counter()
+        _, fun, jac = _compile(problem)
+        theta = jnp.asarray(problem.initial())
+        jax.block_until_ready((fun(theta), jac(theta)))
+        out[key] = time.perf_counter() - t0
+    out["ratio"] = out["distinct_lengths_s"] / out["one_length_s"]
     return out
 
 

@@ -470,12 +470,14 @@ def sysid(
     tosses: int = 10,
     start: float = 0.3,
     contact_model: str = "centroid",
+    bootstrap: int = 0,
 ) -> None:
     """Identify friction and mass scale from observed trajectories (Gauss-Newton/LM with AD Jacobians).
 
     Args:
         config: a TOML problem file, or a built-in example: soap (the paper's real soap video),
-            bunny-pushes (the paper's bunny pushed 10 times by a sphere), contactnets-cube (real cube tosses:
+            bunny-pushes (the paper's bunny pushed 10 times by a sphere), bunny-dynamics (the same pushes with
+            the bunny's centre of mass and inertia unknown as well), contactnets-cube (real cube tosses:
             friction, impact spring and damper and the table height on half the tosses, the other half
             predicted; needs --data).
         json_: print one JSON object (estimates as top-level keys, e.g. sliding_friction, with
@@ -483,12 +485,14 @@ def sysid(
         out_dir: write result.json, config.json (the resolved configuration) and fit.png here
             (default: sysid-<name>/).
         jacobian: ad (forward-mode AD, default) or fd (finite differences, for comparison).
-        no_noise: bunny-pushes: observations without the 1 mm / 0.5 deg pose noise.
+        no_noise: bunny-pushes, bunny-dynamics: observations without the 1 mm / 0.5 deg pose noise.
         data: contactnets-cube: the ContactNets tosses (.npz of toss_<n> arrays, (T, 13) each; not shipped with
             dano, e.g. shared/data/real/contactnets_cube/tosses_100_299.npz).
         tosses: contactnets-cube: use the first this many tosses (even ones fitted, odd ones held out).
         start: contactnets-cube: initial guess of the sliding friction.
         contact_model: contactnets-cube: centroid (the paper's) or per_sample.
+        bootstrap: contactnets-cube: also refit this many resamples of the fitted tosses (with replacement) for a
+            95 % percentile interval (TOML problems: [options] bootstrap).
     """
     from .sysid.config import run
 
@@ -500,6 +504,7 @@ def sysid(
             config, data = "contactnets-cube", data or Path(str(saved.get("data", "")))
             tosses, start = int(saved.get("tosses", tosses)), float(saved.get("start", start))
             contact_model = str(saved.get("contact_model", contact_model))
+            bootstrap = int(saved.get("bootstrap", bootstrap))
     if config == "contactnets-cube":
         from .sysid.examples import contactnets_identify
 
@@ -509,13 +514,18 @@ def sysid(
         if not 2 <= tosses <= 200:
             raise ValueError(f"--tosses must be 2 to 200, got {tosses}")
         _check_contact_model(contact_model)
-        problem, result, report = contactnets_identify(data, tosses, start, contact_model=contact_model)
+        if bootstrap and not 2 <= bootstrap <= 10_000:
+            raise ValueError(f"--bootstrap must be 0 or 2 to 10000 resamples, got {bootstrap}")
+        problem, result, report = contactnets_identify(data, tosses, start, contact_model=contact_model,
+                                                       bootstrap=bootstrap)
         report, nonfinite = _json_safe(report)
         if nonfinite:
-            report["warnings"] = [f"not finite (written as null): {', '.join(nonfinite)}"]
+            report["warnings"].append(f"not finite (written as null): {', '.join(nonfinite)}")
+        for note in report["warnings"]:
+            err.print(f"[yellow]warning:[/] contactnets-cube: {note}", highlight=False, soft_wrap=True)
         out_dir = out_dir or Path("sysid-contactnets-cube")
         resolved = {"example": "contactnets-cube", "data": str(Path(data).resolve()), "tosses": tosses,
-                    "start": start, "contact_model": contact_model}
+                    "start": start, "contact_model": contact_model, "bootstrap": bootstrap}
         _write_sysid(out_dir, report, resolved, problem, result)
         if json_:
             print(json.dumps({k: v for k, v in report.items() if k not in ("grid", "heldout_per_toss")}))
@@ -524,7 +534,8 @@ def sysid(
         t.add_column("quantity")
         t.add_column("value")
         for key in ("sliding_friction", "impact_spring", "impact_damper", "ground_height"):
-            t.add_row(key.replace("_", " "), f"{report[key]:.5g} ± {report[key + '_std']:.2g}")
+            sd = report[key + "_std"]
+            t.add_row(key.replace("_", " "), f"{report[key]:.5g}" + ("" if sd is None else f" ± {sd:.2g}"))
         for key in ("heldout_position_rms_mm", "heldout_rotation_rms_deg", "grid_best_friction",
                     "grid_heldout_position_rms_mm", "grid_heldout_rotation_rms_deg"):
             t.add_row(key.replace("_", " "), f"{report[key]:.4g}")
@@ -534,10 +545,12 @@ def sysid(
 
     problem, result, report = run(config, jacobian=jacobian, noise=not no_noise)
     report["report"], nonfinite = _json_safe(report["report"])
+    notes = list(result.warnings)
     if nonfinite:
-        note = (f"not finite (written as null): {', '.join(nonfinite)}; the data do not determine these (check that "
-                "positions are in metres and that the motion excites the parameters)")
-        report["report"]["warnings"] = [note]
+        notes.append(f"not finite (written as null): {', '.join(nonfinite)}; the data do not determine these (check "
+                     "that positions are in metres and that the motion excites the parameters)")
+    report["report"]["warnings"] = notes
+    for note in notes:
         err.print(f"[yellow]warning:[/] {config}: {note}", highlight=False, soft_wrap=True)
     out_dir = out_dir or Path(f"sysid-{Path(config).stem}")
     _write_sysid(out_dir, report["report"], report["config"], problem, result)
@@ -602,6 +615,8 @@ def bench(
     contact_model: str = "centroid",
     nerf_minutes: float = 3.0,
     nerf_loop_minutes: float = 3.0,
+    cube_data: Path | None = None,
+    cube_tosses: int = 10,
     out: Path | None = None,
 ) -> None:
     """Run the benchmarks (wall times; medians of repeats, first compiling call separate).
@@ -616,6 +631,9 @@ def bench(
         contact_model: contact model of the energy suite (centroid or per_sample).
         nerf_minutes: training time of the nerf suite's lego run (PSNR also at 1 minute).
         nerf_loop_minutes: training time per mesh of the nerf suite's ground-truth loop (0: skip it).
+        cube_data: sysid suite: also time the contactnets-cube identification on this ContactNets .npz
+            (not shipped with dano).
+        cube_tosses: sysid suite: tosses of that run.
         out: also write the JSON here.
     """
     from .bench import SUITES, run
@@ -628,8 +646,14 @@ def bench(
     if not 1 <= repeats <= 1000:
         raise ValueError(f"--repeats must be 1 to 1000, got {repeats}")
     _check_contact_model(contact_model)
+    if cube_data is not None and not cube_data.is_file():
+        raise ValueError(f"--cube-data {cube_data}: no such file")
+    if not 2 <= cube_tosses <= 200:
+        raise ValueError(f"--cube-tosses must be 2 to 200, got {cube_tosses}")
     result = run(list(suite) or None, repeats=repeats,
                  options={"energy": {"drops": drops, "seed": seed, "contact_model": contact_model},
+                          "sysid": {"cube_data": None if cube_data is None else str(cube_data),
+                                    "cube_tosses": cube_tosses},
                           "nerf": {"minutes": nerf_minutes, "loop_minutes": nerf_loop_minutes,
                                    "eval_at": tuple(m for m in (1.0, 3.0) if m < nerf_minutes)}})
     text = json.dumps(result, indent=None if json_ else 2)

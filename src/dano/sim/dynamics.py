@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
+import jaxlie
 import mujoco
 import numpy as np
 
@@ -91,16 +92,33 @@ def as_data(scene: Scene, state):
 
 def model_with_alpha(scene: Scene, alpha):
     """The MJX model with each DANO's mass and inertia scaled by its α (D,)."""
+    return model_with_params(scene, SimParams(None, alpha))
+
+
+def model_with_params(scene: Scene, params: SimParams):
+    """The MJX model with each DANO's inertial properties from ``params``: mass and inertia
+    scaled by α, and, where given, the centre of mass offset (body_ipos), the principal
+    second moments scaled (body_inertia: I_x = α(Σ_y + Σ_z), ...) and the principal axes
+    rotated (body_iquat). Differentiable in all of them."""
     m = scene.model
     if not scene.dano_names:
         return m
     ids = np.asarray(_dano_bodies(scene), dtype=np.int32)
+    alpha = params.alpha
     mass = scene.base_mass * alpha
-    return m.replace(
-        body_mass=m.body_mass.at[ids].set(mass),
-        body_subtreemass=m.body_subtreemass.at[ids].set(mass),
-        body_inertia=m.body_inertia.at[ids].set(scene.base_inertia * alpha[:, None]),
-    )
+    inertia = scene.base_inertia
+    if params.second_moment_scale is not None:
+        second = 0.5 * (jnp.sum(inertia, axis=-1, keepdims=True) - 2 * inertia)  # Σ_x = (I_y + I_z − I_x)/2
+        second = second * params.second_moment_scale
+        inertia = jnp.sum(second, axis=-1, keepdims=True) - second
+    repl = dict(body_mass=m.body_mass.at[ids].set(mass), body_subtreemass=m.body_subtreemass.at[ids].set(mass),
+                body_inertia=m.body_inertia.at[ids].set(inertia * alpha[:, None]))
+    if params.com_offset is not None:
+        repl["body_ipos"] = m.body_ipos.at[ids].add(params.com_offset)
+    if params.principal_axes is not None:  # (jaxlie: a NaN-free exponential map at zero rotation)
+        turn = jax.vmap(lambda q, r: (jaxlie.SO3(q) @ jaxlie.SO3.exp(r)).wxyz)
+        repl["body_iquat"] = m.body_iquat.at[ids].set(turn(m.body_iquat[ids], params.principal_axes))
+    return m.replace(**repl)
 
 
 def _dano_bodies(scene: Scene) -> tuple[int, ...]:
@@ -145,7 +163,7 @@ def _psi(scene: Scene, geos, dtype):
 
 def overlaps(scene: Scene, params: SimParams, data) -> jax.Array:
     """ψ (P,) of every contact pair at ``data``'s configuration (mass units)."""
-    m = model_with_alpha(scene, params.alpha)
+    m = model_with_params(scene, params)
     d = mjx.fwd_position(m, data)
     geos, _ = contact_geometry(scene, params, m, d)
     return _psi(scene, geos, d.qpos.dtype)
@@ -153,7 +171,7 @@ def overlaps(scene: Scene, params: SimParams, data) -> jax.Array:
 
 def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonOptions = NewtonOptions()):
     """:func:`step`, also returning its :class:`StepInfo`."""
-    m = model_with_alpha(scene, params.alpha)
+    m = model_with_params(scene, params)
     h = scene.dt
     user_qfrc = data.qfrc_applied
     d = mjx.fwd_position(m, data)

@@ -78,6 +78,13 @@ def check_params(scene: Scene, params: SimParams) -> None:
     alpha = np.asarray(params.alpha)
     if alpha.shape != (len(scene.dano_names),) or not np.all(np.isfinite(alpha)) or np.any(alpha <= 0):
         raise DanoError(f"alpha must be {len(scene.dano_names)} finite positive mass scales, got {alpha.tolist()}")
+    for name in ("com_offset", "second_moment_scale", "principal_axes"):
+        v = getattr(params, name)
+        if v is not None and (np.shape(v) != (len(scene.dano_names), 3) or not np.all(np.isfinite(np.asarray(v)))):
+            raise DanoError(f"{name} must be ({len(scene.dano_names)}, 3) finite values, got shape {np.shape(v)}")
+    if params.second_moment_scale is not None and np.any(np.asarray(params.second_moment_scale) < 0):
+        raise DanoError("second_moment_scale must be >= 0 (a physical inertia), got "
+                        f"{np.asarray(params.second_moment_scale).tolist()}")
 
 
 def rollout(
@@ -186,9 +193,14 @@ def first_divergence(scene, params, qpos, qvel, psi, max_speed: float = 1e3):
 
 
 def params_to_dict(scene: Scene, params: SimParams) -> dict:
-    """JSON-able {"contact": {name: [per pair]}, "alpha": {dano: α}, "pairs": [...]}."""
-    return {
+    """JSON-able {"contact": {name: [per pair]}, "alpha": {dano: α}, "pairs": [...]}, and
+    {name: {dano: [x, y, z]}} for the inertial parameters that are set."""
+    out = {
         "pairs": list(scene.pair_names),
         "contact": {n: np.asarray(getattr(params.contact, n)).tolist() for n in params.contact.names()},
         "alpha": dict(zip(scene.dano_names, np.asarray(params.alpha).tolist())),
     }
+    for name in ("com_offset", "second_moment_scale", "principal_axes"):
+        if getattr(params, name) is not None:
+            out[name] = dict(zip(scene.dano_names, np.asarray(getattr(params, name)).tolist()))
+    return out

@@ -103,6 +103,11 @@ class SceneInfo:
     name: str
 
 
+#: per-DANO parameters of its own dynamics besides α (fields of :class:`SimParams`, one per axis)
+INERTIAL_PARAMETERS = tuple(f"{f}_{a}" for f in ("com_offset", "second_moment_scale", "principal_axes")
+                            for a in "xyz")
+
+
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
 class SimParams:
@@ -111,10 +116,23 @@ class SimParams:
     contact: :class:`~dano.contact.ContactParams` with (P,) fields, one value per contact
     pair (in ``scene.pair_names`` order); alpha: (D,) mass scale α of each DANO (mass,
     inertia and sample weights scale together; the assets' own α by default).
+
+    The object's own dynamics beyond α (paper §V-A: θ may include mass and inertia; the
+    field's estimates are guesses to refine from motion), each None for the asset's own:
+    com_offset: (D, 3) centre of mass relative to the asset's estimate, in the DANO's body
+    frame [m]; the body frame, its samples and its pose (qpos) stay with the geometry, so the
+    samples move with the centre of mass consistently. second_moment_scale: (D, 3) factors
+    on the principal second moments of mass Σᵢ = ∫xᵢ² dm (the moments are
+    I_x = Σ_y + Σ_z, ...; any factors ≥ 0 give a physically valid inertia, triangle
+    inequalities included; 1: the asset's). principal_axes: (D, 3) rotation vector [rad]
+    of the principal axes relative to the asset's (body frame).
     """
 
     contact: ContactParams
     alpha: jax.Array
+    com_offset: jax.Array | None = None
+    second_moment_scale: jax.Array | None = None
+    principal_axes: jax.Array | None = None
 
     def replace(self, **changes) -> "SimParams":
         """A copy with the given fields replaced (trace-safe; no validation)."""
@@ -230,8 +248,9 @@ class Scene:
                          jnp.asarray([a.alpha for a in self.assets], dtype=self.dtype).reshape(len(self.assets)))
 
     def set_param(self, params: SimParams, name: str, value, target: str | None = None) -> SimParams:
-        """A copy of ``params`` with contact parameter ``name`` (or ``"alpha"``) set to
-        ``value`` for every pair (every DANO for alpha), or only for pair/DANO ``target``.
+        """A copy of ``params`` with contact parameter ``name`` (or ``"alpha"``, or one of
+        :data:`INERTIAL_PARAMETERS`, e.g. ``"com_offset_x"``) set to ``value`` for every pair
+        (every DANO for alpha and the inertial ones), or only for pair/DANO ``target``.
         A convenience over ``params.replace``: differentiable in ``value`` (usable under
         ``jax.jacfwd``); concrete values are validated. Raises DanoError for unknown names
         or targets and invalid values."""
@@ -241,6 +260,14 @@ class Scene:
         if name == "alpha":
             idx = slice(None) if target is None else self.dano_index(target)
             new = params.replace(alpha=jnp.asarray(params.alpha).at[idx].set(value))
+        elif name in INERTIAL_PARAMETERS:
+            idx = slice(None) if target is None else self.dano_index(target)
+            field_name, axis = name[:-2], "xyz".index(name[-1])
+            current = getattr(params, field_name)
+            if current is None:  # the asset's own: zero offsets and rotations, unit scales
+                fill = 1.0 if field_name == "second_moment_scale" else 0.0
+                current = jnp.full((len(self.dano_names), 3), fill, dtype=jnp.asarray(params.alpha).dtype)
+            new = params.replace(**{field_name: jnp.asarray(current).at[idx, axis].set(value)})
         elif name in ContactParams.names():
             if target is None:
                 idx = slice(None)
@@ -251,11 +278,14 @@ class Scene:
             arr = jnp.asarray(getattr(params.contact, name)).at[idx].set(value)
             new = params.replace(contact=params.contact.replace(**{name: arr}))
         else:
-            raise DanoError(f"unknown parameter {name!r}; known: alpha, {', '.join(ContactParams.names())}")
+            raise DanoError(f"unknown parameter {name!r}; known: alpha, {', '.join(INERTIAL_PARAMETERS)}, "
+                            f"{', '.join(ContactParams.names())}")
         if concrete:
             new.contact.validate()
             if np.any(np.asarray(new.alpha) <= 0):
                 raise DanoError(f"alpha must be positive, got {value}")
+            if new.second_moment_scale is not None and np.any(np.asarray(new.second_moment_scale) < 0):
+                raise DanoError(f"second moment scales must be >= 0 (a physical inertia), got {value}")
         return new
 
     def dano_index(self, name: str) -> int:

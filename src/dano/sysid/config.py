@@ -21,7 +21,8 @@ interactive-perception experiment). A TOML file describes a user problem::
     object = "soap"               # which DANO the CSV tracks
 
     [[parameter]]
-    name = "sliding_friction"     # a contact parameter or "alpha"
+    name = "sliding_friction"     # a contact parameter, "alpha", or com_offset_x|y|z [m],
+                                  # second_moment_scale_x|y|z, principal_axes_x|y|z [rad]
     initial = 0.3
     lower = 0.0
     upper = 2.0
@@ -35,6 +36,8 @@ interactive-perception experiment). A TOML file describes a user problem::
     scan = 0                      # global start: >0 scans the bounds (points per parameter)
     starts = 3                    # local solves from the best scan points
     fit_ground = false            # fit the ground plane's height (nuisance "ground_height" [m])
+    noise_rms = 0.002             # optional: rms residual of the noise alone; warn when the fit is worse
+    bootstrap = 0                 # >0: resample whole trajectories this many times (percentile interval)
     position_weights = [1.0, 1.0, 1.0]
     rotation_weight = 1.0
     jacobian = "ad"
@@ -59,7 +62,7 @@ from ..errors import DanoError, FileFormatError
 from .problem import FitParameter, Observation, SysIdProblem, Weights
 from .solve import identify
 
-EXAMPLES = ("soap", "bunny-pushes")
+EXAMPLES = ("soap", "bunny-pushes", "bunny-dynamics")
 
 
 MAX_OBSERVED_SPEED = 100.0  # m/s: faster observed motion means the positions are not in metres
@@ -159,6 +162,8 @@ class OptionsConfig:
     scan: int = 0
     starts: int = 3
     fit_ground: bool = False
+    noise_rms: float | None = None
+    bootstrap: int = 0
 
 
 @dataclass(frozen=True)
@@ -184,8 +189,10 @@ def _check_values(c: SysIdConfig) -> None:
         upper = np.inf if p.upper is None else p.upper
         if not (np.isfinite(p.initial) and np.isfinite(p.lower)) or np.isnan(upper):
             raise DanoError(f"{where}: initial and lower must be finite, upper finite, inf or left out")
-        if p.lower < 0:
-            raise DanoError(f"{where}: lower bound {p.lower} is negative; contact parameters and alpha are >= 0")
+        signed = p.name.startswith(("com_offset_", "principal_axes_"))  # offsets and rotations may be negative
+        if p.lower < 0 and not signed:
+            raise DanoError(f"{where}: lower bound {p.lower} is negative; contact parameters, alpha and second "
+                            "moment scales are >= 0")
         if not p.lower <= p.initial <= upper:
             raise DanoError(f"{where}: initial {p.initial} must lie within [lower, upper] = [{p.lower}, {p.upper}]")
     o = c.options
@@ -201,6 +208,11 @@ def _check_values(c: SysIdConfig) -> None:
         raise DanoError(f"[options].starts: 1 to 16 local starts, got {o.starts}")
     if o.scan and any(p.upper is None for p in c.parameter):
         raise DanoError("[options].scan: a global scan needs an upper bound on every [[parameter]]")
+    if o.noise_rms is not None and not 0 < o.noise_rms < np.inf:
+        raise DanoError(f"[options].noise_rms: a positive rms residual, got {o.noise_rms}")
+    if o.bootstrap != 0 and not (2 <= o.bootstrap <= 10_000 and len(c.trajectory) >= 2):
+        raise DanoError(f"[options].bootstrap: 0 or 2 to 10000 resamples, and at least two [[trajectory]] to resample "
+                        f"(got {o.bootstrap} with {len(c.trajectory)})")
     if o.jacobian not in ("ad", "fd"):
         raise DanoError(f"[options].jacobian: 'ad' or 'fd', got {o.jacobian!r}")
     if not all(0 <= w < np.inf for w in (*o.position_weights, o.rotation_weight)):
@@ -265,7 +277,8 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
         raise DanoError(f"{path}: {exc}") from exc
     except DanoError as exc:
         raise DanoError(exc.args[0] if str(path) in str(exc) else f"{path}: {exc}") from exc
-    solver = {"jacobian": opt.jacobian, "horizons": opt.horizons, "scan": opt.scan, "starts": opt.starts}
+    solver = {"jacobian": opt.jacobian, "horizons": opt.horizons, "scan": opt.scan, "starts": opt.starts,
+              "noise_rms": opt.noise_rms, "bootstrap_samples": opt.bootstrap}
     return problem, solver, dataclasses.asdict(_absolute(cfg, base))
 
 
@@ -276,9 +289,11 @@ def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) 
     Returns (problem, result, report); ``report`` is JSON-able: the estimates as top-level
     keys (e.g. ``sliding_friction``), their standard errors (``<name>_std``), wall and
     compile times, the fit residual and, for the soap, its sensitivity to the assumed
-    length scale. ``noise``: for ``bunny-pushes``, add the paper's pose noise (1 mm, 0.5°).
+    length scale; for ``bunny-dynamics``, the truth and ``recovery`` (:func:`dynamics_recovery`).
+    ``noise``: for ``bunny-pushes`` and ``bunny-dynamics``, add the paper's pose noise (1 mm, 0.5°).
     """
-    from .examples import PUSH_GUESS, PUSH_TRUTH, push_problem, soap_problem
+    from .examples import (PUSH_GUESS, PUSH_TRUTH, dynamics_recovery, push_dynamics_problem, push_problem,
+                           soap_problem)
 
     extra: dict = {}
     if Path(config).suffix.lower() == ".json" and Path(config).is_file():
@@ -296,6 +311,14 @@ def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) 
                     "time_scale": "Froude: sqrt(15.342) s of simulation per s of video",
                     "fit": ["sliding_friction (soap/ground)", "initial velocity x, y (nuisance)"],
                     "weights": {"position": [1, 1, 0], "rotation": 0}}
+    elif config == "bunny-dynamics":
+        noise_levels = (1e-3, 0.5) if noise else (0.0, 0.0)
+        problem, truth = push_dynamics_problem(*noise_levels)
+        solver = {"jacobian": "ad", "horizons": (0.4,), "max_iterations": 100}
+        resolved = {"example": "bunny-dynamics", "truth": truth, "initial_guess": PUSH_GUESS,
+                    "noise": {"position_m": noise_levels[0], "rotation_deg": noise_levels[1]}, "pushes": 10,
+                    "horizons": [0.4]}
+        extra["truth"] = truth
     elif config == "bunny-pushes":
         noise_levels = (1e-3, 0.5) if noise else (0.0, 0.0)
         problem, solver = push_problem(*noise_levels), {"jacobian": "ad", "horizons": (0.4,)}
@@ -316,15 +339,19 @@ def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) 
     else:
         resolved["solver"] = {**solver, "method": "scipy.optimize.least_squares (trf), bounds"}
     result = identify(problem, jacobian=solver["jacobian"], horizons=solver["horizons"],
-                      scan=solver.get("scan", 0), starts=solver.get("starts", 3))
+                      scan=solver.get("scan", 0), starts=solver.get("starts", 3),
+                      max_iterations=solver.get("max_iterations", 50),
+                      noise_rms=solver.get("noise_rms"), bootstrap_samples=solver.get("bootstrap_samples", 0))
     report = {}
     for label, v, s in zip(result.labels, result.estimates, result.standard_errors):
-        if not label.startswith("v0["):
+        if not label.startswith(("v0[", "w0[")):
             key = label.split(":")[-1] if sum(lab.split(":")[-1] == label.split(":")[-1]
                                               for lab in result.labels) == 1 else label
             report[key], report[f"{key}_std"] = float(v), float(s)
     report.update(result.as_dict())
     report.update(extra)
+    if config == "bunny-dynamics":
+        report["recovery"] = dynamics_recovery(dict(zip(result.labels, result.estimates)), extra["truth"])
     if config == "soap":
         sens = {}
         for scale in (0.9, 1.1):

@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from ..contact.params import ContactParams
 from ..errors import DanoError
-from ..sim.scene import Scene, SimParams
+from ..sim.scene import INERTIAL_PARAMETERS, Scene, SimParams
 from ..sim.rollout import rollout_arrays
 from ..sim.dynamics import State
 
@@ -75,9 +75,11 @@ class Observation:
 
 @dataclass(frozen=True)
 class FitParameter:
-    """A parameter to identify: name is a contact parameter (ContactParams field) or
-    "alpha"; target: a pair name (contact) or DANO name (alpha), None for all;
-    initial guess and bounds [lower, upper]."""
+    """A parameter to identify: name is a contact parameter (ContactParams field), "alpha"
+    or one of the object's own dynamics (:data:`dano.sim.scene.INERTIAL_PARAMETERS`:
+    ``com_offset_x|y|z`` [m, body frame], ``second_moment_scale_x|y|z`` [1, ≥ 0: a physical
+    inertia], ``principal_axes_x|y|z`` [rad]); target: a pair name (contact) or DANO name
+    (the others), None for all; initial guess and bounds [lower, upper]."""
 
     name: str
     initial: float
@@ -298,9 +300,10 @@ class SysIdProblem:
         self.fit_axes = tuple("xyz".index(c) for c in fit_velocity) + tuple(
             3 + "xyz".index(c) for c in fit_angular_velocity)
         for p in self.parameters:
-            if p.name != "alpha" and p.name not in ContactParams.names():
-                raise DanoError(f"unknown parameter {p.name!r}; known: alpha, {', '.join(ContactParams.names())}")
-            if p.target is not None and p.name == "alpha":
+            if p.name not in ("alpha",) + INERTIAL_PARAMETERS + ContactParams.names():
+                raise DanoError(f"unknown parameter {p.name!r}; known: alpha, {', '.join(INERTIAL_PARAMETERS)}, "
+                                f"{', '.join(ContactParams.names())}")
+            if p.target is not None and p.name in ("alpha",) + INERTIAL_PARAMETERS:
                 scene.dano_index(p.target)
             elif p.target is not None and p.target not in scene.pair_names:
                 raise DanoError(f"no contact pair {p.target!r}; pairs: {list(scene.pair_names)}")
@@ -457,6 +460,32 @@ class SysIdProblem:
         return dict(qpos0=qpos, qvel0=qvel, ctrl=ctrl, qfrc=qfrc, obs_pose=obs_pose, obs_joint=obs_joint), \
             (tuple(sc.qpos_adr[i] for i in didx), tuple(sc.dof_adr[i] for i in didx), tuple(jadr), steps, settle)
 
+    def _groups(self) -> dict:
+        """Segments batched by layout (tracked bodies, joints, settling): {layout: [(segment
+        index, its data, its steps)]}, the order in which the residual vector is built."""
+        groups: dict = {}
+        for i, seg in enumerate(self.segments):
+            data, (qadr, dadr, jadr, steps, settle) = self._segment_data(seg)
+            groups.setdefault((qadr, dadr, jadr, settle), []).append((i, data, steps))
+        return groups
+
+    def _columns(self, qadr, jadr) -> list[int]:
+        """Residual columns per frame of a segment: per tracked DANO the weighted position
+        axes and the rotation vector, then one per joint (zero weights left out)."""
+        npos, wrot, wjoint = len(self._pos_axes()), self.weights.rotation > 0, self.weights.joints > 0
+        return [c for _ in qadr for c in ((npos,) if npos else ()) + ((3,) if wrot else ())] + (
+            [1] * len(jadr) if wjoint else [])
+
+    def residual_observations(self) -> np.ndarray:
+        """(m,) int: the observation (trajectory index) each residual belongs to, in the order
+        of :meth:`residual_function`'s output (used to resample whole trajectories)."""
+        owner = []
+        for (qadr, _, jadr, _), items in self._groups().items():
+            per_frame = sum(self._columns(qadr, jadr))
+            for i, _, steps in items:
+                owner.append(np.full(steps // self.substeps * per_frame, self.segments[i].obs))
+        return np.concatenate(owner).astype(np.int64)
+
     def residual_function(self):
         """(θ) -> residual vector (m,), a pure JAX function (jit/jacfwd it). Segments of the
         same layout (tracked bodies, joints, settling) are batched with ``vmap`` whatever their
@@ -464,10 +493,7 @@ class SysIdProblem:
         dropped by a fixed gather), so one trace and one compilation serve them all. Residuals
         are ordered by batch, then segment, then tracked DANO (position axes with non-zero
         weight [m·√w], rotation vector [rad·√w]) and joints, frame by frame."""
-        groups: dict = {}
-        for i, seg in enumerate(self.segments):
-            data, (qadr, dadr, jadr, steps, settle) = self._segment_data(seg)
-            groups.setdefault((qadr, dadr, jadr, settle), []).append((i, data, steps))
+        groups = self._groups()
         pos_axes = jnp.asarray(self._pos_axes(), dtype=jnp.int32)
         wpos = jnp.sqrt(jnp.asarray(self.weights.position, dtype=jnp.float64))[pos_axes]
         wrot, wjoint = float(np.sqrt(self.weights.rotation)), float(np.sqrt(self.weights.joints))
@@ -480,8 +506,7 @@ class SysIdProblem:
             frames = steps // substeps + 1
             stacked = {k: jnp.asarray(np.stack([_pad(d[k], k, frames, settle + steps) for _, d, _ in items]))
                        for k in items[0][1]}
-            cols = [c for _ in qadr for c in ((len(self._pos_axes()),) if len(self._pos_axes()) else ())
-                    + ((3,) if wrot > 0 else ())] + ([1] * len(jadr) if wjoint > 0 else [])
+            cols = self._columns(qadr, jadr)
             keep = _valid_residuals([st // substeps for _, _, st in items], frames - 1, cols)
             batches.append(((qadr, dadr, jadr, settle + steps, settle), [i for i, _, _ in items], stacked,
                             jnp.asarray(keep)))

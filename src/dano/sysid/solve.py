@@ -23,12 +23,18 @@ from .problem import SysIdProblem
 
 @dataclass
 class SysIdResult:
-    """Estimates with standard errors (from σ²(JᵀJ)⁻¹ at the optimum, σ² = 2·cost/(m − n)),
-    the cost per iteration, wall time (compilation reported separately) and the fit.
+    """Estimates with standard errors, the cost per iteration, wall time (compilation
+    reported separately), the fit and what makes the uncertainty doubtful.
 
-    labels (n,); estimates, standard_errors, initial (n,); cost_history: cost
-    ½‖r‖² after each iteration (first: at the initial guess); rms_residual: √(2·cost/m);
-    num_residuals m; nfev/njev: residual/Jacobian evaluations; jacobian: "ad" or "fd".
+    labels (n,); estimates, standard_errors, initial (n,); standard errors come from
+    σ²(JᵀJ)⁻¹, σ² = 2·cost/(m − n), and only where that formula holds: NaN for every
+    parameter when the solver stopped before a convergence test was met, and for a
+    parameter that sits at a bound (the others then from the Jacobian's remaining columns);
+    cost_history: cost ½‖r‖² after each iteration (first: at the initial guess);
+    rms_residual: √(2·cost/m); num_residuals m; nfev/njev: residual/Jacobian evaluations;
+    jacobian: "ad" or "fd"; warnings: sentences saying why an error bar is missing or
+    doubtful (not converged, at a bound, local minima that disagree, a fit poor for the
+    stated noise); bootstrap: see :func:`bootstrap` (None unless asked for).
     """
 
     labels: list
@@ -49,6 +55,8 @@ class SysIdResult:
     fitted: list = field(default_factory=list, repr=False)
     stages: list = field(default_factory=list)
     scan: dict | None = None
+    warnings: list = field(default_factory=list)
+    bootstrap: dict | None = None
 
     def as_dict(self) -> dict:
         return {
@@ -68,6 +76,8 @@ class SysIdResult:
             "jacobian": self.jacobian,
             "stages": self.stages,
             "scan": self.scan,
+            "warnings": list(self.warnings),
+            "bootstrap": self.bootstrap,
         }
 
 
@@ -126,8 +136,16 @@ def _profiles(labels, points: np.ndarray, costs: np.ndarray, bins: int) -> dict:
 
 def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int = 50,
              xtol: float = 1e-8, ftol: float = 1e-8, gtol: float = 1e-8,
-             horizons: tuple[float, ...] = (), scan: int = 0, starts: int = 3) -> SysIdResult:
+             horizons: tuple[float, ...] = (), scan: int = 0, starts: int = 3,
+             noise_rms: float | None = None, bootstrap_samples: int = 0, seed: int = 0) -> SysIdResult:
     """Identify the problem's parameters; returns a :class:`SysIdResult`.
+
+    noise_rms: the rms residual that measurement noise alone would leave (residual units:
+    m·√w for positions, rad·√w for rotations); when the fit's rms residual exceeds twice it,
+    the result warns that the model does not explain the data to the noise level (its
+    standard errors assume it does). bootstrap_samples: if > 0, also resample whole
+    trajectories with replacement this many times (seeded by ``seed``) and refit each from
+    the estimate (:func:`bootstrap`; needs at least two trajectories).
 
     scan: global start (0: off). Before the local solver, the cost is evaluated on a coarse
     scan of the global parameters' bounds (:func:`scan_points`: ``scan`` values per axis for
@@ -148,6 +166,25 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     :func:`dano.enable_float64` before composing it) or the rollout produces non-finite
     residuals at the initial guess.
     """
+    if noise_rms is not None and not (np.isfinite(noise_rms) and noise_rms > 0):
+        raise DanoError(f"noise_rms must be a positive number, got {noise_rms}")
+    if bootstrap_samples < 0:
+        raise DanoError(f"bootstrap_samples must be >= 0, got {bootstrap_samples}")
+    result = _identify(problem, jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol,
+                       horizons=horizons, scan=scan, starts=starts)
+    if noise_rms is not None and result.rms_residual > 2 * noise_rms:
+        result.warnings.append(
+            f"rms residual {result.rms_residual:.3g} is {result.rms_residual / noise_rms:.1f}x the stated noise "
+            f"{noise_rms:.3g}: the model does not explain the data to the noise level, and the standard errors "
+            "(which assume it does) understate the uncertainty")
+    if bootstrap_samples:
+        result.bootstrap = bootstrap(problem, result.estimates, samples=bootstrap_samples, seed=seed,
+                                     max_iterations=max_iterations)
+    return result
+
+
+def _identify(problem: SysIdProblem, *, jacobian: str, max_iterations: int, xtol: float, ftol: float, gtol: float,
+              horizons: tuple[float, ...], scan: int, starts: int) -> SysIdResult:
     if problem.scene.dtype != jnp.float64:
         raise DanoError(f"identification needs a float64 scene, got {problem.scene.dtype}: call "
                         "dano.enable_float64() before composing the scene")
@@ -162,11 +199,12 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     if horizons:
         stages, current = [], problem
         for h in horizons:
-            r = identify(current.truncated(h), jacobian=jacobian, max_iterations=max_iterations, xtol=xtol,
-                         ftol=ftol, gtol=gtol)
+            r = _identify(current.truncated(h), jacobian=jacobian, max_iterations=max_iterations, xtol=xtol,
+                          ftol=ftol, gtol=gtol, horizons=(), scan=0, starts=starts)
             stages.append(r)
             current = problem.with_initial(r.estimates[: len(problem.parameters)])
-        final = identify(current, jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
+        final = _identify(current, jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol,
+                          gtol=gtol, horizons=(), scan=0, starts=starts)
         final.initial = problem.initial()
         final.wall_time_s += sum(r.wall_time_s for r in stages)
         final.compile_time_s += sum(r.compile_time_s for r in stages)
@@ -181,9 +219,18 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
 
 def _compile(problem: SysIdProblem):
     """(residual function, its jit, the jit of its forward-mode Jacobian): one trace of the
-    problem, shared by every local solve from another starting point."""
-    r_fn = problem.residual_function()
-    return r_fn, jax.jit(r_fn), jax.jit(jax.jacfwd(r_fn))  # the Jacobian compiles only when used
+    problem, kept on it (freed with it) and shared by every local solve from another
+    starting point and by the bootstrap's refits."""
+    if getattr(problem, "_compiled", None) is None:
+        r_fn = problem.residual_function()
+        problem._compiled = (r_fn, jax.jit(r_fn), jax.jit(jax.jacfwd(r_fn)))  # the Jacobian compiles only when used
+    return problem._compiled
+
+
+def _finite(a, fill: float) -> np.ndarray:
+    """``a`` as a NumPy array with non-finite entries replaced by ``fill``."""
+    a = np.asarray(a)
+    return np.where(np.isfinite(a), a, fill)
 
 
 def _local_solve(problem: SysIdProblem, compiled, x0: np.ndarray, *, jacobian: str, max_iterations: int,
@@ -203,12 +250,10 @@ def _local_solve(problem: SysIdProblem, compiled, x0: np.ndarray, *, jacobian: s
     history = [0.5 * float(r0 @ r0)]
 
     def f(x):
-        r = np.asarray(fun(jnp.asarray(x)))
-        return np.where(np.isfinite(r), r, 1e6)  # keep the solver away from diverging rollouts
+        return _finite(fun(jnp.asarray(x)), 1e6)  # keep the solver away from diverging rollouts
 
     def jac(x):
-        J = np.asarray(jac_fn(jnp.asarray(x)))
-        return np.where(np.isfinite(J), J, 0.0)  # rows of diverging rollouts carry no slope
+        return _finite(jac_fn(jnp.asarray(x)), 0.0)  # rows of diverging rollouts carry no slope
 
     def callback(intermediate_result):
         history.append(float(intermediate_result.cost))
@@ -218,21 +263,52 @@ def _local_solve(problem: SysIdProblem, compiled, x0: np.ndarray, *, jacobian: s
                         x_scale="jac", max_nfev=max_iterations, xtol=xtol,
                         ftol=ftol, gtol=gtol, callback=callback)
     wall = time.perf_counter() - t0
-    m, n = len(sol.fun), len(x0)
-    J = sol.jac  # AD, or SciPy's finite differences, at the solution
-    sigma2 = 2 * sol.cost / max(m - n, 1)
-    try:
-        cov = sigma2 * np.linalg.inv(J.T @ J)
-        se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    except np.linalg.LinAlgError:
-        se = np.full(n, np.nan)
+    m = len(sol.fun)
+    se, notes = _standard_errors(problem, sol, max_iterations)
     return SysIdResult(
         labels=problem.labels, estimates=np.asarray(sol.x), standard_errors=se, initial=x0,
         cost_history=history, final_cost=float(sol.cost), rms_residual=float(np.sqrt(2 * sol.cost / m)),
         num_residuals=m, nfev=int(sol.nfev), njev=int(sol.njev or 0), wall_time_s=wall,
         compile_time_s=compile_time, success=bool(sol.success), message=str(sol.message), jacobian=jacobian,
-        fitted=problem.simulate(sol.x) if fitted else [],
+        fitted=problem.simulate(sol.x) if fitted else [], warnings=notes,
     )
+
+
+def at_bound(problem: SysIdProblem, x: np.ndarray) -> list[tuple[int, str]]:
+    """Global parameters of ``x`` that sit on a bound (within 1e-6 of the bounds' span, or
+    of max(1, |initial|) for a half-open range): [(index, "lower" | "upper")]."""
+    out = []
+    for i, p in enumerate(problem.parameters):
+        span = p.upper - p.lower if np.isfinite(p.upper) else max(1.0, abs(p.initial))
+        for side, b in (("lower", p.lower), ("upper", p.upper)):
+            if np.isfinite(b) and abs(x[i] - b) <= 1e-6 * span:
+                out.append((i, side))
+    return out
+
+
+def _standard_errors(problem: SysIdProblem, sol, max_iterations: int) -> tuple[np.ndarray, list[str]]:
+    """Standard errors from σ²(JᵀJ)⁻¹ (n,) and the warnings that go with them: none when the
+    solver did not meet a convergence test; none for a parameter at a bound, the others from
+    the Jacobian without its column (the fit conditional on the bound)."""
+    m, n = sol.fun.shape[0], sol.x.shape[0]
+    se = np.full(n, np.nan)
+    if sol.status <= 0:
+        return se, [f"the solver stopped at its evaluation limit ({max_iterations}) before a convergence test was "
+                    "met: no standard errors (not a converged minimum)"]
+    notes, free = [], np.ones(n, dtype=bool)
+    for i, side in at_bound(problem, sol.x):
+        free[i] = False
+        p = problem.parameters[i]
+        notes.append(f"{p.label} = {sol.x[i]:.6g} sits at its {side} bound: no standard error (the cost may keep "
+                     "falling beyond it; widen the bound if that is physical)")
+    J = sol.jac[:, free]  # AD, or SciPy's finite differences, at the solution
+    sigma2 = 2 * sol.cost / max(m - int(free.sum()), 1)
+    try:
+        cov = sigma2 * np.linalg.inv(J.T @ J)
+        se[free] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    except np.linalg.LinAlgError:
+        notes.append("JᵀJ is singular: the data do not determine every parameter; no standard errors")
+    return se, notes
 
 
 def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) -> SysIdResult:
@@ -259,7 +335,7 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
     for x in candidates:
         try:
             if local["horizons"]:  # continuation: truncated problems, compiled per start
-                results.append(identify(problem.with_initial(x), **local))
+                results.append(_identify(problem.with_initial(x), scan=0, starts=starts, **local))
             else:  # one compiled residual and Jacobian for every start
                 x0 = np.concatenate([np.clip(x, lo, hi), problem.initial()[n:]])
                 results.append(_local_solve(problem, compiled, x0, fitted=False, **opts))
@@ -284,4 +360,83 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
         "profile": _profiles([p.label for p in problem.parameters], points, costs, bins=max(scan, 8)),
         "wall_time_s": scan_time,
     }
+    best.warnings = best.warnings + _disagreement(problem, best, results, float(np.min(costs)))
     return best
+
+
+def _disagreement(problem: SysIdProblem, best: SysIdResult, results: list, scan_best: float) -> list[str]:
+    """Warnings when the global search and the local fits disagree: another start ended within
+    5 % of the best cost at estimates further than 3 standard errors (1e-3 of the bounds'
+    span where there is none) from the best, i.e. local minima the standard errors do not
+    cover; or the scan saw a lower cost than any local fit reached."""
+    n = len(problem.parameters)
+    span = np.array([p.upper - p.lower for p in problem.parameters])
+    tol = np.where(np.isfinite(best.standard_errors[:n]), 3 * best.standard_errors[:n], 1e-3 * span)
+    others = [r for r in results if r is not best and r.final_cost <= 1.05 * best.final_cost + 1e-12
+              and np.any(np.abs(r.estimates[:n] - best.estimates[:n]) > tol)]
+    notes = []
+    if others:
+        lo = np.min([r.estimates[:n] for r in others + [best]], axis=0)
+        hi = np.max([r.estimates[:n] for r in others + [best]], axis=0)
+        spread = ", ".join(f"{p.label} {a:.4g}..{b:.4g}" for p, a, b in zip(problem.parameters, lo, hi))
+        notes.append(f"{len(others)} other start(s) ended within 5 % of the best cost at different estimates "
+                     f"({spread}): local minima; the standard errors understate the uncertainty (see the "
+                     "bootstrap or the scan's profile)")
+    if scan_best < best.final_cost * (1 - 1e-9):
+        notes.append(f"the scan saw a lower cost ({scan_best:.6g}) than every local fit reached "
+                     f"({best.final_cost:.6g}): the local solver stopped early")
+    return notes
+
+
+def bootstrap(problem: SysIdProblem, estimates: np.ndarray, *, samples: int = 100, seed: int = 0,
+              level: float = 0.95, max_iterations: int = 50) -> dict:
+    """Bootstrap over trajectories: ``samples`` times, draw as many trajectories as observed,
+    with replacement (seeded), and refit from ``estimates`` (n,) by the bounded least-squares
+    solver; a trajectory drawn k times weighs k (its residuals scaled by √k), so one compiled
+    residual and Jacobian serve every draw. Trajectories are the independent units: noise
+    that is shared within a trajectory (its initial pose, its tracking bias) makes σ²(JᵀJ)⁻¹
+    too small, the spread over resampled trajectories does not.
+
+    Returns {"samples", "seed", "level", "trajectories" (n), "labels" (the global parameters,
+    and ground_height when fitted), "std" (the refits' standard deviation × √(n/(n−1)), the
+    usual small-sample correction), "lower"/"upper" (estimate ∓ t_{n−1}·std at ``level``:
+    percentile intervals of a bootstrap over few trajectories are too narrow),
+    "percentile_lower"/"percentile_upper", "estimates" (refits, k), "failed" (draws whose refit
+    gave a non-finite result, left out)}. Raises DanoError for fewer than two trajectories,
+    fewer than two samples, a level outside (0, 1), or fewer than two finite refits."""
+    n_obs = len(problem.observations)
+    if n_obs < 2:
+        raise DanoError("the bootstrap resamples whole trajectories: it needs at least two")
+    if not 0 < level < 1 or samples < 2:
+        raise DanoError(f"bootstrap needs samples >= 2 and a level in (0, 1), got {samples} and {level}")
+    _, fun, jac_fn = _compile(problem)
+    owner = problem.residual_observations()
+    lo, hi = problem.bounds()
+    keep = list(range(len(problem.parameters))) + ([problem.num_parameters - 1] if problem.fit_ground else [])
+    x0 = np.clip(np.asarray(estimates, dtype=np.float64), lo, hi)
+    rng = np.random.default_rng(seed)
+    out, failed = [], 0
+    for _ in range(samples):
+        scale = np.sqrt(np.bincount(rng.integers(0, n_obs, n_obs), minlength=n_obs).astype(np.float64))[owner]
+        sol = least_squares(lambda x: _finite(fun(jnp.asarray(x)), 1e6) * scale, x0,
+                            jac=lambda x: _finite(jac_fn(jnp.asarray(x)), 0.0) * scale[:, None], bounds=(lo, hi),
+                            method="trf", x_scale="jac", max_nfev=max_iterations)
+        if np.all(np.isfinite(sol.x)) and np.isfinite(sol.cost):
+            out.append(sol.x[keep])
+        else:
+            failed += 1
+    est = np.array(out).reshape(len(out), len(keep))
+    if len(out) < 2:
+        raise DanoError(f"the bootstrap's refits failed ({failed} of {samples} non-finite)")
+    from scipy.stats import t as student_t
+
+    q = 100 * (1 - level) / 2
+    std = est.std(axis=0, ddof=1) * np.sqrt(n_obs / (n_obs - 1))  # small-sample correction of a cluster bootstrap
+    half = student_t.ppf(0.5 + level / 2, n_obs - 1) * std
+    centre = np.asarray(estimates, dtype=np.float64)[keep]
+    return {"samples": samples, "seed": seed, "level": level, "trajectories": n_obs,
+            "labels": [problem.labels[i] for i in keep], "std": std.tolist(),
+            "lower": (centre - half).tolist(), "upper": (centre + half).tolist(),
+            "percentile_lower": np.percentile(est, q, axis=0).tolist(),
+            "percentile_upper": np.percentile(est, 100 - q, axis=0).tolist(),
+            "estimates": est.tolist(), "failed": failed}
