@@ -84,6 +84,70 @@ def test_windows_and_fd_jacobians(box_setup):
     assert abs(a.estimates[0] / 0.45 - 1) < 0.02
 
 
+def test_windows_start_from_measured_velocities(box_setup, tmp_path):
+    """Given velocities, every window starts from them (not from finite differences); a CSV
+    gives them in columns vx..wz when its [[trajectory]] says velocities = true."""
+    from dano.errors import FileFormatError
+    from dano.sysid.config import _read_observation
+
+    _, scene, z = box_setup
+    t, poses = analytic_slide(0.45, z=z)
+    vel = np.zeros((len(t), 6))
+    vel[:, 0], vel[:, 5] = 2.0 - 0.45 * G * t, 0.1  # a measured spin the poses do not show
+    obs = Observation(time=t, poses={"box": poses}, velocities={"box": vel})
+    problem = SysIdProblem(scene, [obs], [FitParameter("sliding_friction", 0.3, 0, 1)], substeps=4, window=10)
+    assert len(problem.segments) == 3
+    for seg in problem.segments:
+        np.testing.assert_allclose(problem._segment_data(seg)[0]["qvel0"][:6], vel[seg.start])
+    with pytest.raises(DanoError, match="velocities of 'box' must be finite with shape"):
+        SysIdProblem(scene, [dataclasses.replace(obs, velocities={"box": vel[:-1]})],
+                     [FitParameter("sliding_friction", 0.3, 0, 1)], substeps=4)
+    csv = tmp_path / "slide.csv"
+    header = "t,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz"
+    np.savetxt(csv, np.column_stack([t, poses, vel]), delimiter=",", header=header, comments="")
+    read = _read_observation(csv, "box", scene, velocities=True)
+    np.testing.assert_allclose(read.velocities["box"], vel)
+    assert _read_observation(csv, "box", scene).velocities == {}  # only when asked for
+    np.savetxt(csv, np.column_stack([t, poses, vel[:, :3]]), delimiter=",", header=header[:28], comments="")
+    with pytest.raises(FileFormatError, match="needs the columns vx, vy, vz, wx, wy, wz; missing wx, wy, wz"):
+        _read_observation(csv, "box", scene, velocities=True)
+    np.savetxt(csv, np.column_stack([t, poses]), delimiter=",", header=header, comments="")
+    with pytest.raises(FileFormatError, match=r"cannot read CSV \(Some errors were detected ! Line #2 \(got 8 "
+                       r"columns instead of 14\) and 29 more\)$"):
+        _read_observation(csv, "box", scene)  # one line, not one per row
+
+
+def test_automatic_windows_start_before_each_impact(box_setup):
+    """A closed-form bouncing ball (restitution 0.6, 1 mm noise, 100 frames/s) lands at
+    0.319 s, 0.702 s and 0.932 s (where it stops): window="auto" starts windows a few frames
+    before each landing; sliding on the ground (0.45 g) starts none."""
+    from dano.sysid.problem import impact_windows
+
+    _, scene, z = box_setup
+    t = np.arange(100) * 0.01
+    g, e, h0 = 9.81, 0.6, 0.5
+    t1 = np.sqrt(2 * h0 / g)
+    v1 = e * g * t1
+    t2 = t1 + 2 * v1 / g
+    height = np.where(t < t1, h0 - 0.5 * g * t**2, np.where(
+        t < t2, v1 * (t - t1) - 0.5 * g * (t - t1) ** 2, e * v1 * (t - t2) - 0.5 * g * (t - t2) ** 2))
+    poses = np.zeros((100, 7))
+    poses[:, 0], poses[:, 2], poses[:, 3] = 0.5 * t, z + np.maximum(height, 0), 1.0
+    poses[:, :3] += np.random.default_rng(0).normal(0, 1e-3, (100, 3))
+    starts = impact_windows(Observation(time=t, poses={"box": poses}))
+    t3 = t2 + 2 * e * v1 / g
+    assert len(starts) == 4 and starts[0] == 0
+    for s, landing in zip(starts[1:], (t1, t2, t3)):
+        assert 0 < landing / 0.01 - s <= 5, (starts, t1, t2)  # within the 2-frame span before the landing
+    t, slide = analytic_slide(0.45, z=z)
+    problem = SysIdProblem(scene, [Observation(time=t, poses={"box": slide})],
+                           [FitParameter("sliding_friction", 0.3, 0, 1)], substeps=4, window="auto")
+    assert [(seg.start, seg.frames) for seg in problem.segments] == [(0, 30)]
+    with pytest.raises(DanoError, match="or 'auto'"):
+        SysIdProblem(scene, [Observation(time=t, poses={"box": slide})],
+                     [FitParameter("sliding_friction", 0.3, 0, 1)], substeps=4, window="sometimes")
+
+
 def test_quaternion_residual_is_sign_invariant():
     rng = np.random.default_rng(0)
     q1 = Rotation.random(20, random_state=1).as_quat(scalar_first=True)

@@ -19,6 +19,8 @@ interactive-perception experiment). A TOML file describes a user problem::
     [[trajectory]]
     file = "run1.csv"             # CSV columns t,x,y,z,qw,qx,qy,qz (header line), or a dano .npz
     object = "soap"               # which DANO the CSV tracks
+    velocities = false            # true: start every window from measured velocities: CSV columns
+                                  # vx,vy,vz (world, m/s), wx,wy,wz (body, rad/s), or the .npz's qvel
 
     [[parameter]]
     name = "sliding_friction"     # a contact parameter, "alpha", or com_offset_x|y|z [m],
@@ -32,6 +34,7 @@ interactive-perception experiment). A TOML file describes a user problem::
     substeps = 1
     fit_velocity = "xy"           # nuisance initial velocity axes
     window = 0                    # >0: multiple shooting windows of this many frames
+    auto_windows = false          # true: a window from just before each observed impact instead
     horizons = []                 # continuation, e.g. [0.4]
     scan = 0                      # global start: >0 scans the bounds (points per parameter)
     starts = 3                    # local solves from the best scan points
@@ -81,11 +84,15 @@ def _check_units(path: Path, obs: Observation) -> Observation:
     return obs
 
 
-def _read_trajectory(path: Path, obj: str | None, scene) -> Observation:
-    return _check_units(path, _read_observation(path, obj, scene))
+def _read_trajectory(path: Path, obj: str | None, scene, velocities: bool = False) -> Observation:
+    return _check_units(path, _read_observation(path, obj, scene, velocities))
 
 
-def _read_observation(path: Path, obj: str | None, scene) -> Observation:
+#: optional CSV columns of measured velocities: linear (world) [m/s], angular (body) [rad/s]
+VELOCITY_COLUMNS = ("vx", "vy", "vz", "wx", "wy", "wz")
+
+
+def _read_observation(path: Path, obj: str | None, scene, velocities: bool = False) -> Observation:
     if not path.is_file():
         raise FileFormatError(f"{path}: no such trajectory file")
     if path.suffix.lower() == ".csv":
@@ -94,24 +101,36 @@ def _read_observation(path: Path, obj: str | None, scene) -> Observation:
                 warnings.simplefilter("error")  # e.g. "empty input file": an error here, not a warning
                 data = np.genfromtxt(path, delimiter=",", names=True)
         except Exception as exc:
-            raise FileFormatError(f"{path}: cannot read CSV ({exc})") from exc
+            lines = [x.strip() for x in str(exc).splitlines() if x.strip()]
+            more = f" and {len(lines) - 2} more" if len(lines) > 2 else ""
+            raise FileFormatError(f"{path}: cannot read CSV ({' '.join(lines[:2])}{more})") from exc
         cols = ("t", "x", "y", "z", "qw", "qx", "qy", "qz")
         if data.dtype.names is None or any(c not in data.dtype.names for c in cols):
             raise FileFormatError(f"{path}: CSV needs a header with columns {', '.join(cols)}")
         if obj is None:
             raise DanoError(f"{path}: say which object the CSV tracks (object = \"name\")")
         poses = np.stack([data[c] for c in cols[1:]], axis=1)
-        return Observation(time=np.asarray(data["t"]), poses={obj: poses}, name=path.name)
+        vel = {}
+        if velocities:
+            missing = [c for c in VELOCITY_COLUMNS if c not in data.dtype.names]
+            if missing:
+                raise FileFormatError(f"{path}: velocities = true needs the columns {', '.join(VELOCITY_COLUMNS)}; "
+                                      f"missing {', '.join(missing)}")
+            vel = {obj: np.stack([data[c] for c in VELOCITY_COLUMNS], axis=1)}
+        return Observation(time=np.asarray(data["t"]), poses={obj: poses}, velocities=vel, name=path.name)
     from ..trajectory import load_trajectory
 
     traj = load_trajectory(path)
     names = [obj] if obj else list(traj.dano_names)
-    poses = {}
+    poses, vel = {}, {}
     for n in names:
         if n not in traj.dano_names:
             raise DanoError(f"{path}: no DANO {n!r} in the trajectory (it has {list(traj.dano_names)})")
         poses[n] = np.concatenate(traj.dano_pose(n), axis=1)
-    return Observation(time=traj.time, poses=poses, name=path.name)
+        if velocities:  # the file's qvel at the DANO's free joint (simulated, or central differences of tracking)
+            adr = traj.dof_adr[traj.dano_names.index(n)]
+            vel[n] = np.asarray(traj.qvel)[:, adr : adr + 6]
+    return Observation(time=traj.time, poses=poses, velocities=vel, name=path.name)
 
 
 # ------------------------------------------------------------------ typed schema
@@ -139,6 +158,7 @@ class SceneConfig:
 class TrajectoryConfig:
     file: str
     object: str | None = None
+    velocities: bool = False
 
 
 @dataclass(frozen=True)
@@ -155,6 +175,7 @@ class OptionsConfig:
     substeps: int = 1
     fit_velocity: str = ""
     window: int = 0
+    auto_windows: bool = False
     horizons: tuple[float, ...] = ()
     position_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
     rotation_weight: float = 1.0
@@ -200,6 +221,8 @@ def _check_values(c: SysIdConfig) -> None:
         raise DanoError(f"[options].substeps: must be at least 1, got {o.substeps}")
     if o.window < 0 or o.window == 1:
         raise DanoError(f"[options].window: must be 0 (no windows) or at least 2 frame intervals, got {o.window}")
+    if o.auto_windows and o.window:
+        raise DanoError("[options]: give window (a fixed length) or auto_windows = true, not both")
     if any(not 0 < h < 1 for h in o.horizons):
         raise DanoError(f"[options].horizons: fractions of the trajectory in (0, 1), got {list(o.horizons)}")
     if o.scan != 0 and not 2 <= o.scan <= 64:
@@ -266,12 +289,12 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
         scene = compose(objects, mjcf, dt=sc.dt, ground=None if mjcf else True, name=path.stem,
                         contact_model=sc.contact_model)
         base_params = scene.default_params(**cfg.contact)
-        obs = [_read_trajectory(base / t.file, t.object, scene) for t in cfg.trajectory]
+        obs = [_read_trajectory(base / t.file, t.object, scene, t.velocities) for t in cfg.trajectory]
         params = [FitParameter(p.name, p.initial, p.lower, np.inf if p.upper is None else p.upper, p.target)
                   for p in cfg.parameter]
         weights = Weights(opt.position_weights, opt.rotation_weight)
         problem = SysIdProblem(scene, obs, params, weights, base_params=base_params, substeps=opt.substeps,
-                               fit_velocity=opt.fit_velocity, window=opt.window or None,
+                               fit_velocity=opt.fit_velocity, window="auto" if opt.auto_windows else (opt.window or None),
                                fit_ground=opt.fit_ground)
     except TypeError as exc:  # e.g. an unknown [contact] parameter name
         raise DanoError(f"{path}: {exc}") from exc

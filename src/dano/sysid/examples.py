@@ -279,10 +279,11 @@ def contactnets_tosses(path, tosses: int) -> list[tuple[str, np.ndarray]]:
 
 def cube_observation(name: str, a: np.ndarray) -> Observation:
     """A ContactNets toss (T, 13) as an :class:`Observation` of the DANO "cube" with its
-    measured initial velocity."""
+    measured velocities (every frame: windows start from them; the first is qvel0)."""
     poses = np.column_stack([a[:, 4:7], a[:, 0:4]])
-    return Observation(time=np.arange(len(a)) * CUBE_FRAME_DT, poses={"cube": poses},
-                       qvel0=np.r_[a[0, 10:13], a[0, 7:10]], name=name)
+    velocities = np.column_stack([a[:, 10:13], a[:, 7:10]])  # linear (world), angular (body): MuJoCo's order
+    return Observation(time=np.arange(len(a)) * CUBE_FRAME_DT, poses={"cube": poses}, qvel0=velocities[0],
+                       velocities={"cube": velocities}, name=name)
 
 
 def cube_scene(substeps: int = 2, contact_model: str = "centroid"):

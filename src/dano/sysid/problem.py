@@ -41,6 +41,10 @@ class Observation:
     frames (second-order one-sided differences), or zero with ``rest_frames`` > 1;
     controls: optional (T−1, nu) actuator controls per frame interval;
     qfrc: optional (T−1, nv) known generalized forces per frame interval [N, N·m];
+    velocities: {DANO name: (T, 6)} optional measured velocities of tracked DANOs per frame,
+    MuJoCo's free-joint convention: linear (world frame) [m/s], then angular (body frame)
+    [rad/s]; every rollout segment (a trajectory, or each window) starts from them instead of
+    finite differences of the poses (qvel0, or rest_frames > 1, still decide the first frame);
     units: length unit of the poses; must be "m" (scene units);
     rest_frames: if > 1, the tracked bodies are known to be at rest during the first
     ``rest_frames`` frames: the initial pose is their mean (rotations averaged with
@@ -59,6 +63,7 @@ class Observation:
     qvel0: np.ndarray | None = None
     controls: np.ndarray | None = None
     qfrc: np.ndarray | None = None
+    velocities: dict = field(default_factory=dict)
     units: str = "m"
     name: str = ""
     rest_frames: int = 1
@@ -135,6 +140,14 @@ def _check_observation_values(obs: Observation, scene: Scene, k: int) -> None:
             raise DanoError(f"{tag}: poses of {name!r} contain NaN or infinite values (first at frame {bad})")
         if np.any(np.abs(np.linalg.norm(p[:, 3:], axis=1) - 1) > 1e-3):
             raise DanoError(f"{tag}: quaternions of {name!r} are not unit length")
+    for name, v in obs.velocities.items():
+        if name not in obs.poses:
+            raise DanoError(f"{tag}: velocities of {name!r}, which the trajectory does not track (its poses are not "
+                            "given)")
+        v = np.asarray(v, dtype=np.float64)
+        if v.shape != (len(t), 6) or not np.all(np.isfinite(v)):
+            raise DanoError(f"{tag}: velocities of {name!r} must be finite with shape ({len(t)}, 6) (vx vy vz world, "
+                            f"wx wy wz body), got {v.shape}")
     import mujoco
 
     for name, v in obs.joints.items():
@@ -185,6 +198,36 @@ def quat_log_error(q_obs: jax.Array, q_sim: jax.Array) -> jax.Array:
     n = jnp.sqrt(jnp.where(sq > 0, sq, 1.0))
     scale = jnp.where(sq > 1e-24, 2.0 * jnp.arctan2(n, w) / n, 2.0 / jnp.maximum(w, 1e-12))
     return scale * v
+
+
+def impact_windows(obs: Observation, threshold_g: float = 3.0, span_s: float = 0.02,
+                   min_intervals: int = 5) -> list[int]:
+    """Window starts (frame indices, the first 0) for multiple shooting that begin just before
+    each impact seen in the observation: where a tracked DANO's acceleration, from second
+    differences over ``span_s`` (at least one frame; it averages tracking noise down),
+    departs from free fall by more than ``threshold_g`` g. A run of such frames is one
+    impact; its window starts one span before the run. Windows shorter than
+    ``min_intervals`` frame intervals are merged into the previous one. Between impacts the
+    motion is smooth (flight, sliding), so each window's rollout stays close to the data,
+    while the chaotic part, which impact happens how, restarts from the observed state."""
+    h = obs.frame_dt
+    k = max(1, int(round(span_s / h)))
+    T = obs.num_frames
+    hot = np.zeros(T, dtype=bool)
+    for p in obs.poses.values():
+        x = np.asarray(p, dtype=np.float64)[:, :3]
+        if T < 2 * k + 1:
+            continue
+        a = (x[2 * k :] - 2 * x[k:-k] + x[: -2 * k]) / (k * h) ** 2
+        a[:, 2] += 9.81  # departure from free fall
+        hot[k:-k] |= np.linalg.norm(a, axis=1) > threshold_g * 9.81
+    starts = [0]
+    rising = np.flatnonzero(hot[1:] & ~hot[:-1]) + 1
+    for r in rising:
+        s = max(0, int(r) - k)
+        if s - starts[-1] >= min_intervals and T - 1 - s >= min_intervals:
+            starts.append(s)
+    return starts
 
 
 @dataclass(frozen=True)
@@ -251,7 +294,10 @@ class SysIdProblem:
     fit_velocity: axes ("x", "y", "z" letters) of each tracked DANO's initial linear
     velocity to fit as nuisance parameters, per segment (e.g. "xy"); window: split
     trajectories into windows of this many frame intervals, each rolled out from its
-    observed state (multiple shooting for long or chaotic motions); None: whole trajectories.
+    observed state (multiple shooting for long or chaotic motions), or "auto": a window
+    starting just before each impact the observation shows (:func:`impact_windows`);
+    None: whole trajectories. Windows start from the observed pose and the measured
+    velocities when given (``Observation.velocities``), else finite differences.
     fit_angular_velocity: axes of the initial angular velocity (body frame) to fit likewise.
     fit_ground: fit the height [m] of the ground plane (a real table is never exactly at
     z = 0) as one more nuisance parameter, ``ground_height``, the last entry of θ. It is
@@ -326,6 +372,7 @@ class SysIdProblem:
             cut = lambda a, k=n: None if a is None else np.asarray(a)[:k]  # noqa: E731
             obs.append(dataclasses.replace(
                 o, time=cut(o.time), poses={k: cut(v) for k, v in o.poses.items()},
+                velocities={k: cut(v) for k, v in o.velocities.items()},
                 joints={k: cut(v) for k, v in o.joints.items()}, controls=cut(o.controls, n - 1),
                 qfrc=cut(o.qfrc, n - 1)))
         return SysIdProblem(self.scene, obs, self.parameters, **self._args)
@@ -344,9 +391,13 @@ class SysIdProblem:
             if window is None:
                 segs.append(Segment(k, 0, T))
             else:
-                if not isinstance(window, (int, np.integer)) or window < 2:
-                    raise DanoError(f"window must be an integer of at least 2 frame intervals, got {window!r}")
-                starts = list(range(0, T - 1, window))
+                if window == "auto":
+                    starts = impact_windows(o)
+                elif not isinstance(window, (int, np.integer)) or isinstance(window, bool) or window < 2:
+                    raise DanoError(f"window must be an integer of at least 2 frame intervals or 'auto', got "
+                                    f"{window!r}")
+                else:
+                    starts = list(range(0, T - 1, window))
                 if len(starts) > 1 and T - 1 - starts[-1] < 2:
                     starts.pop()  # fold a 1-interval remainder into the previous window
                 for i, s in enumerate(starts):
@@ -425,7 +476,9 @@ class SysIdProblem:
                 mean_q = Rotation.from_quat(p[:k, 3:], scalar_first=True).mean().as_quat(scalar_first=True)
                 qpos[sc.qpos_adr[i] : sc.qpos_adr[i] + 7] = np.r_[p[:k, :3].mean(0), mean_q]
             if seg.start > 0 or (o.qvel0 is None and o.rest_frames <= 1):
-                qvel[sc.dof_adr[i] : sc.dof_adr[i] + 6] = finite_difference_velocity(t, p)
+                qvel[sc.dof_adr[i] : sc.dof_adr[i] + 6] = (
+                    np.asarray(o.velocities[name], dtype=np.float64)[seg.start] if name in o.velocities
+                    else finite_difference_velocity(t, p))
             elif o.qvel0 is None:  # known to be at rest
                 qvel[sc.dof_adr[i] : sc.dof_adr[i] + 6] = 0.0
         jadr = []
