@@ -333,6 +333,11 @@ substeps = 1
     ("[[parameter]]\nname = \"sliding_friction\"\ninitial = 0.2\nlower = 0.0\nupper = 2.0\n", "",
      "[[parameter]]: at least one parameter"),
     ("dt = 0.01", "dt = true", "[scene].dt: expected a number, got true"),
+    ("substeps = 1", "substeps = 1\nwindow = 5\nauto_windows = true", "auto_windows = true, not both"),
+    ("substeps = 1", "substeps = 1\nnoise_rms = -1.0", "[options].noise_rms: a positive rms residual"),
+    ("substeps = 1", "substeps = 1\nbootstrap = 5", "at least two [[trajectory]] to resample"),
+    ('name = "sliding_friction"\ninitial = 0.2\nlower = 0.0', 'name = "second_moment_scale_x"\ninitial = 0.2\n'
+     'lower = -0.5', "lower bound -0.5 is negative; contact parameters, alpha and second moment scales"),
 ])
 def test_sysid_configuration_errors_name_the_key(tmp_path, capsys, old, new, message):
     assert old in _GOOD_TOML
@@ -342,6 +347,20 @@ def test_sysid_configuration_errors_name_the_key(tmp_path, capsys, old, new, mes
     err = " ".join(capsys.readouterr().err.split())
     assert code == 1 and f"{cfg}: " in err and message in err
     assert not (tmp_path / "out").exists()
+
+
+def test_configuration_accepts_signed_dynamics_parameters(tmp_path):
+    """Centre-of-mass offsets and axis rotations may be negative; contact parameters may not."""
+    from dano.sysid.config import read_config
+
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(_GOOD_TOML.replace('name = "sliding_friction"\ninitial = 0.2\nlower = 0.0',
+                                      'name = "com_offset_x"\ntarget = "box"\ninitial = 0.0\nlower = -0.05')
+                   .replace("substeps = 1", "substeps = 1\nauto_windows = true\nbootstrap = 0\nnoise_rms = 0.002\n"
+                            'fit_angular_velocity = "z"'))
+    c = read_config(cfg)
+    assert c.parameter[0].lower == -0.05 and c.options.auto_windows and c.options.noise_rms == 0.002
+    assert c.options.fit_angular_velocity == "z"
 
 
 def test_trajectory_in_millimetres_is_refused(tmp_path, capsys):

@@ -33,6 +33,7 @@ interactive-perception experiment). A TOML file describes a user problem::
     [options]
     substeps = 1
     fit_velocity = "xy"           # nuisance initial velocity axes
+    fit_angular_velocity = ""     # nuisance initial angular velocity axes (body frame)
     window = 0                    # >0: multiple shooting windows of this many frames
     auto_windows = false          # true: a window from just before each observed impact instead
     horizons = []                 # continuation, e.g. [0.4]
@@ -174,6 +175,7 @@ class ParameterConfig:
 class OptionsConfig:
     substeps: int = 1
     fit_velocity: str = ""
+    fit_angular_velocity: str = ""
     window: int = 0
     auto_windows: bool = False
     horizons: tuple[float, ...] = ()
@@ -294,7 +296,8 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
                   for p in cfg.parameter]
         weights = Weights(opt.position_weights, opt.rotation_weight)
         problem = SysIdProblem(scene, obs, params, weights, base_params=base_params, substeps=opt.substeps,
-                               fit_velocity=opt.fit_velocity, window="auto" if opt.auto_windows else (opt.window or None),
+                               fit_velocity=opt.fit_velocity, fit_angular_velocity=opt.fit_angular_velocity,
+                               window="auto" if opt.auto_windows else (opt.window or None),
                                fit_ground=opt.fit_ground)
     except TypeError as exc:  # e.g. an unknown [contact] parameter name
         raise DanoError(f"{path}: {exc}") from exc
