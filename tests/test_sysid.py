@@ -417,6 +417,34 @@ def test_global_scan_finds_the_basin_and_reports_the_profile(box_setup):
                               substeps=4), scan=5)
 
 
+def test_ground_tilt_is_identified_with_height_and_friction(box_setup):
+    """Coulomb sliding down a table tilted by 0.05 rad about y and 3 mm high, in closed form
+    (s(t) = v₀t + ½(g sin β − μ g cos β)t² along the table, not simulated): with fit_tilt the
+    friction, the height and both tilts are recovered."""
+    from scipy.spatial.transform import Rotation
+
+    _, scene, z = box_setup
+    beta, h, mu, v0 = 0.05, 0.003, 0.45, 2.0
+    t = np.arange(30) * 0.01
+    s = v0 * t + 0.5 * G * (np.sin(beta) - mu * np.cos(beta)) * t**2
+    R = Rotation.from_rotvec([0.0, beta, 0.0])
+    poses = np.zeros((30, 7))
+    poses[:, :3] = R.apply(np.column_stack([s, np.zeros(30), np.full(30, z)])) + [0, 0, h]
+    poses[:, 3:] = R.as_quat(scalar_first=True)
+    obs = Observation(time=t, poses={"box": poses}, qvel0=np.r_[R.apply([v0, 0, 0]), 0, 0, 0])
+    problem = SysIdProblem(scene, [obs], [FitParameter("sliding_friction", 0.3, 0.0, 2.0)],
+                           weights=Weights((1.0, 1.0, 1.0), 0.1), substeps=4,
+                           base_params=scene.default_params(sliding_drag=0.0), fit_ground=True, fit_tilt=True)
+    assert problem.labels == ["sliding_friction", "ground_height", "ground_tilt_x", "ground_tilt_y"]
+    res = identify(problem)
+    mu_est, h_est, tx, ty = res.estimates
+    assert abs(mu_est / mu - 1) < 0.01 and abs(h_est - h) < 2e-4
+    assert abs(tx) < 1e-3 and abs(ty - beta) < 1e-3
+    assert np.max(np.abs(res.fitted[0][:, :3] - poses[:, :3])) < 1e-3  # shown in the observations' frame
+    with pytest.raises(DanoError, match="fit_tilt needs fit_ground"):
+        SysIdProblem(scene, [obs], [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], substeps=4, fit_tilt=True)
+
+
 def test_ground_height_is_identified_with_friction(box_setup):
     """The analytic slide observed on a table 3 mm above z = 0: with fit_ground the ground
     height and μ are both recovered; the scene must have only the ground as world geometry."""

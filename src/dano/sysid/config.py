@@ -40,6 +40,7 @@ interactive-perception experiment). A TOML file describes a user problem::
     scan = 0                      # global start: >0 scans the bounds (points per parameter)
     starts = 3                    # local solves from the best scan points
     fit_ground = false            # fit the ground plane's height (nuisance "ground_height" [m])
+    fit_tilt = false              # with fit_ground: also its tilt ("ground_tilt_x", "ground_tilt_y" [rad])
     noise_rms = 0.002             # optional: rms residual of the noise alone; warn when the fit is worse
     bootstrap = 0                 # >0: resample whole trajectories this many times (percentile interval)
     position_weights = [1.0, 1.0, 1.0]
@@ -185,6 +186,7 @@ class OptionsConfig:
     scan: int = 0
     starts: int = 3
     fit_ground: bool = False
+    fit_tilt: bool = False
     noise_rms: float | None = None
     bootstrap: int = 0
 
@@ -223,6 +225,8 @@ def _check_values(c: SysIdConfig) -> None:
         raise DanoError(f"[options].substeps: must be at least 1, got {o.substeps}")
     if o.window < 0 or o.window == 1:
         raise DanoError(f"[options].window: must be 0 (no windows) or at least 2 frame intervals, got {o.window}")
+    if o.fit_tilt and not o.fit_ground:
+        raise DanoError("[options].fit_tilt: the ground's tilt is fitted with its height: set fit_ground = true too")
     if o.auto_windows and o.window:
         raise DanoError("[options]: give window (a fixed length) or auto_windows = true, not both")
     if any(not 0 < h < 1 for h in o.horizons):
@@ -298,7 +302,7 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
         problem = SysIdProblem(scene, obs, params, weights, base_params=base_params, substeps=opt.substeps,
                                fit_velocity=opt.fit_velocity, fit_angular_velocity=opt.fit_angular_velocity,
                                window="auto" if opt.auto_windows else (opt.window or None),
-                               fit_ground=opt.fit_ground)
+                               fit_ground=opt.fit_ground, fit_tilt=opt.fit_tilt)
     except TypeError as exc:  # e.g. an unknown [contact] parameter name
         raise DanoError(f"{path}: {exc}") from exc
     except DanoError as exc:

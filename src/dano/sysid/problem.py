@@ -264,6 +264,35 @@ def _valid_residuals(intervals: list[int], padded: int, cols: list[int]) -> np.n
     return np.concatenate(keep) if keep else np.zeros(0, dtype=np.int64)
 
 
+def _poses_to_table(poses, height, R):
+    """(F, 7) world poses (x y z, wxyz) -> the frame of a table at height ``height`` tilted by
+    R (world ← table): p ↦ R⁻¹(p − h·e_z), q ↦ R⁻¹ ⊗ q."""
+    import jaxlie
+
+    Ri = R.inverse()
+    p = jax.vmap(lambda x: Ri @ x)(poses[:, :3] - jnp.stack([0.0, 0.0, height]).astype(poses.dtype))
+    q = jax.vmap(lambda w: (Ri @ jaxlie.SO3(w)).wxyz)(poses[:, 3:])
+    return jnp.concatenate([p, q], axis=1)
+
+
+def _poses_from_table(poses, height, R):
+    """The inverse of :func:`_poses_to_table`."""
+    import jaxlie
+
+    p = jax.vmap(lambda x: R @ x)(poses[:, :3]) + jnp.stack([0.0, 0.0, height]).astype(poses.dtype)
+    q = jax.vmap(lambda w: (R @ jaxlie.SO3(w)).wxyz)(poses[:, 3:])
+    return jnp.concatenate([p, q], axis=1)
+
+
+def _to_table(qpos0, qvel0, qadr, dadr, height, R):
+    """Initial state of the tracked free bodies in the table's frame (linear velocities rotate;
+    angular velocities are in the body frame and do not)."""
+    for a, d in zip(qadr, dadr):
+        qpos0 = qpos0.at[a : a + 7].set(_poses_to_table(qpos0[None, a : a + 7], height, R)[0])
+        qvel0 = qvel0.at[d : d + 3].set(R.inverse() @ qvel0[d : d + 3])
+    return qpos0, qvel0
+
+
 def _check_ground_only(scene, observations) -> None:
     """fit_ground shifts the observed DANOs; that equals moving the ground only if the
     ground plane (at z = 0, horizontal) is the world's only collidable geometry, every
@@ -303,6 +332,12 @@ class SysIdProblem:
     z = 0) as one more nuisance parameter, ``ground_height``, the last entry of θ. It is
     applied by shifting the observed heights (exact, since a vertical shift leaves gravity
     unchanged, for scenes of DANOs on the ground plane only, all tracked: checked).
+    fit_tilt: with fit_ground, also the ground's tilt, ``ground_tilt_x`` and
+    ``ground_tilt_y`` [rad] (the rotation vector (t_x, t_y, 0) that takes the simulation's
+    horizontal ground to the observed table), after ``ground_height`` at the end of θ. The
+    observations are taken into the table's frame and gravity is tilted the other way
+    (exact; residuals are compared in the table's frame, which equals the world's for
+    isotropic position weights).
     Raises DanoError for inconsistent input (see :func:`_check_observation`), unknown
     parameters, bounds that exclude the initial guess, or fewer residuals than parameters.
     """
@@ -310,10 +345,13 @@ class SysIdProblem:
     def __init__(self, scene: Scene, observations: Sequence[Observation], parameters: Sequence[FitParameter],
                  weights: Weights = Weights(), base_params: SimParams | None = None, substeps: int = 1,
                  fit_velocity: str = "", window: int | None = None, fit_ground: bool = False,
-                 fit_angular_velocity: str = ""):
+                 fit_angular_velocity: str = "", fit_tilt: bool = False):
         self._args = dict(weights=weights, base_params=base_params, substeps=substeps, fit_velocity=fit_velocity,
-                          window=window, fit_ground=fit_ground, fit_angular_velocity=fit_angular_velocity)
-        self.fit_ground = bool(fit_ground)
+                          window=window, fit_ground=fit_ground, fit_angular_velocity=fit_angular_velocity,
+                          fit_tilt=fit_tilt)
+        if fit_tilt and not fit_ground:
+            raise DanoError("fit_tilt needs fit_ground: the tilt is the ground plane's, fitted with its height")
+        self.fit_ground, self.fit_tilt = bool(fit_ground), bool(fit_tilt)
         if self.fit_ground:
             _check_ground_only(scene, observations)
         if not observations:
@@ -416,7 +454,27 @@ class SysIdProblem:
         for i, s in enumerate(self.segments):
             for d in self._tracked[s.obs]:
                 names += [f"{'vw'[a // 3]}0[{i}]:{d}:{'xyz'[a % 3]}" for a in self.fit_axes]
-        return names + (["ground_height"] if self.fit_ground else [])
+        return names + self.ground_labels
+
+    @property
+    def ground_labels(self) -> list[str]:
+        """The ground's nuisance parameters at the end of θ: ground_height [m], then with
+        fit_tilt ground_tilt_x, ground_tilt_y [rad]."""
+        return (["ground_height"] if self.fit_ground else []) + (
+            ["ground_tilt_x", "ground_tilt_y"] if self.fit_tilt else [])
+
+    def _table(self, theta):
+        """(height, rotation world ← table (jaxlie SO3)) of the ground from θ's last entries."""
+        import jaxlie
+
+        if self.fit_tilt:
+            return theta[-3], jaxlie.SO3.exp(jnp.stack([theta[-2], theta[-1], jnp.zeros_like(theta[-1])]))
+        return theta[-1], jaxlie.SO3(jnp.asarray([1.0, 0.0, 0.0, 0.0], dtype=theta.dtype))
+
+    def _tilted_scene(self, R):
+        """The scene with gravity seen from the table's frame: R⁻¹·g."""
+        m = self.scene.model
+        return self.scene.replace(model=m.replace(opt=m.opt.replace(gravity=R.inverse() @ m.opt.gravity)))
 
     @property
     def num_parameters(self) -> int:
@@ -568,7 +626,11 @@ class SysIdProblem:
 
         def residuals(theta):
             params = self.sim_params(theta)
-            height = theta[-1] if fit_ground else 0.0
+            sim_scene = scene
+            if fit_ground:
+                height, R = self._table(theta)
+                if self.fit_tilt:
+                    sim_scene = self._tilted_scene(R)
             out = []
             for (qadr, dadr, jadr, n_steps, settle), seg_ids, data, keep in batches:
                 # nuisance initial velocities of this batch's segments
@@ -580,10 +642,10 @@ class SysIdProblem:
                             dv = dv.at[row, jnp.asarray([d + a for a in axes])].add(block[b])
 
                 def one(qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, dv_):
-                    if fit_ground:  # observations in the frame of a ground at z = height
-                        qpos0 = qpos0.at[jnp.asarray([a + 2 for a in qadr])].add(-height)
-                        obs_pose = obs_pose.at[:, :, 2].add(-height)
-                    qpos, _, _ = rollout_arrays(scene, State(qpos0, qvel0 + dv_), ctrl, params, n_steps, qfrc)
+                    if fit_ground:  # observations in the frame of the table (at z = height, tilted by R)
+                        qpos0, qvel0 = _to_table(qpos0, qvel0, qadr, dadr, height, R)
+                        obs_pose = jax.vmap(lambda p: _poses_to_table(p, height, R))(obs_pose)
+                    qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0 + dv_), ctrl, params, n_steps, qfrc)
                     frames = qpos[settle + substeps :: substeps]  # states at frames 1..F-1
                     res = []  # components with zero weight are left out (they would dilute σ²)
                     for b, a in enumerate(qadr):
@@ -619,13 +681,17 @@ class SysIdProblem:
                 block = np.asarray(theta)[offsets[sid] : offsets[sid + 1]].reshape(-1, len(axes))
                 for b, d in enumerate(dadr):
                     qvel0[[d + a for a in axes]] += block[b]
-            height = float(np.asarray(theta)[-1]) if self.fit_ground else 0.0
-            qpos0 = np.array(data["qpos0"])
-            qpos0[[a + 2 for a in qadr]] -= height
+            qpos0, qvel0, sim_scene = jnp.asarray(data["qpos0"]), jnp.asarray(qvel0), self.scene
+            if self.fit_ground:
+                height, R = self._table(jnp.asarray(theta))
+                qpos0, qvel0 = _to_table(qpos0, qvel0, qadr, dadr, height, R)
+                sim_scene = self._tilted_scene(R) if self.fit_tilt else self.scene
             ctrl, qfrc = (jnp.asarray(_pad(np.asarray(data[k]), k, 0, longest)) for k in ("ctrl", "qfrc"))
-            qpos, _, _ = rollout_arrays(self.scene, State(jnp.asarray(qpos0), jnp.asarray(qvel0)), ctrl, params,
-                                        longest, qfrc)
-            qpos = np.array(qpos)[settle : settle + steps + 1 : self.substeps]
-            qpos[:, [a + 2 for a in qadr]] += height  # back in the observations' frame
-            out.append(qpos)
+            qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, longest, qfrc)
+            qpos = jnp.asarray(qpos)[settle : settle + steps + 1 : self.substeps]
+            if self.fit_ground:  # back in the observations' frame
+                for a in qadr:
+                    back = _poses_from_table(qpos[:, a : a + 7], height, R)
+                    qpos = qpos.at[:, a : a + 7].set(back)
+            out.append(np.array(qpos))
         return out

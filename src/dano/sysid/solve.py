@@ -398,7 +398,7 @@ def bootstrap(problem: SysIdProblem, estimates: np.ndarray, *, samples: int = 10
     too small, the spread over resampled trajectories does not.
 
     Returns {"samples", "seed", "level", "trajectories" (n), "labels" (the global parameters,
-    and ground_height when fitted), "std" (the refits' standard deviation × √(n/(n−1)), the
+    and the ground's when fitted), "std" (the refits' standard deviation × √(n/(n−1)), the
     usual small-sample correction), "lower"/"upper" (estimate ∓ t_{n−1}·std at ``level``:
     percentile intervals of a bootstrap over few trajectories are too narrow),
     "percentile_lower"/"percentile_upper", "estimates" (refits, k), "failed" (draws whose refit
@@ -412,7 +412,9 @@ def bootstrap(problem: SysIdProblem, estimates: np.ndarray, *, samples: int = 10
     _, fun, jac_fn = _compile(problem)
     owner = problem.residual_observations()
     lo, hi = problem.bounds()
-    keep = list(range(len(problem.parameters))) + ([problem.num_parameters - 1] if problem.fit_ground else [])
+    n_ground = len(problem.ground_labels)
+    keep = list(range(len(problem.parameters))) + list(range(problem.num_parameters - n_ground,
+                                                               problem.num_parameters))
     x0 = np.clip(np.asarray(estimates, dtype=np.float64), lo, hi)
     rng = np.random.default_rng(seed)
     out, failed = [], 0
