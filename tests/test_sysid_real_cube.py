@@ -55,6 +55,9 @@ def test_contactnets_cube_bad_input(tmp_path, capsys, shared):
     code = main(["sysid", "contactnets-cube", "--data", str(shared / NPZ), "--start", "2",
                  "--out-dir", str(tmp_path / "o")])
     assert code == 1 and "--start must lie" in capsys.readouterr().err
+    code = main(["sysid", "contactnets-cube", "--data", str(shared / NPZ), "--bootstrap", "1",
+                 "--out-dir", str(tmp_path / "o")])
+    assert code == 1 and "--bootstrap must be 0 or 2 to 10000" in capsys.readouterr().err
     code = main(["sysid", "contactnets-cube", "--data", str(tmp_path / "missing.npz"), "--out-dir",
                  str(tmp_path / "o")])
     assert code == 1 and "no such file" in capsys.readouterr().err
