@@ -86,7 +86,8 @@ def test_windows_and_fd_jacobians(box_setup):
 
 def test_windows_start_from_measured_velocities(box_setup, tmp_path):
     """Given velocities, every window starts from them (not from finite differences); a CSV
-    gives them in columns vx..wz when its [[trajectory]] says velocities = true."""
+    gives them in columns vx..wz, a .npz as an array velocities, when its [[trajectory]]
+    says velocities = true."""
     from dano.errors import FileFormatError
     from dano.sysid.config import _read_observation
 
@@ -108,6 +109,14 @@ def test_windows_start_from_measured_velocities(box_setup, tmp_path):
     read = _read_observation(csv, "box", scene, velocities=True)
     np.testing.assert_allclose(read.velocities["box"], vel)
     assert _read_observation(csv, "box", scene).velocities == {}  # only when asked for
+    npz = tmp_path / "slide.npz"
+    np.savez(npz, time=t, poses=poses, velocities=vel)
+    read = _read_observation(npz, "box", scene, velocities=True)
+    np.testing.assert_allclose(read.poses["box"], poses)
+    np.testing.assert_allclose(read.velocities["box"], vel)
+    np.savez(npz, time=t, poses=poses)
+    with pytest.raises(FileFormatError, match="needs an array velocities"):
+        _read_observation(npz, "box", scene, velocities=True)
     np.savetxt(csv, np.column_stack([t, poses, vel[:, :3]]), delimiter=",", header=header[:28], comments="")
     with pytest.raises(FileFormatError, match="needs the columns vx, vy, vz, wx, wy, wz; missing wx, wy, wz"):
         _read_observation(csv, "box", scene, velocities=True)

@@ -17,7 +17,8 @@ interactive-perception experiment). A TOML file describes a user problem::
     sliding_drag = 0.0
 
     [[trajectory]]
-    file = "run1.csv"             # CSV columns t,x,y,z,qw,qx,qy,qz (header line), or a dano .npz
+    file = "run1.csv"             # CSV columns t,x,y,z,qw,qx,qy,qz (header line), a .npz with arrays
+                                  # time (T,), poses (T, 7) [, velocities (T, 6)], or a dano trajectory .npz
     object = "soap"               # which DANO the CSV tracks
     velocities = false            # true: start every window from measured velocities: CSV columns
                                   # vx,vy,vz (world, m/s), wx,wy,wz (body, rad/s), or the .npz's qvel
@@ -120,8 +121,22 @@ def _read_observation(path: Path, obj: str | None, scene, velocities: bool = Fal
                                       f"missing {', '.join(missing)}")
             vel = {obj: np.stack([data[c] for c in VELOCITY_COLUMNS], axis=1)}
         return Observation(time=np.asarray(data["t"]), poses={obj: poses}, velocities=vel, name=path.name)
+    from .._files import read_npz
     from ..trajectory import load_trajectory
 
+    arrays = read_npz(path, (), "trajectory")
+    if "poses" in arrays:  # the plain layout: time (T,), poses (T, 7), optional velocities (T, 6)
+        if obj is None:
+            raise DanoError(f"{path}: say which object the poses track (object = \"name\")")
+        if "time" not in arrays:
+            raise FileFormatError(f"{path}: a .npz of poses needs the arrays time (T,) and poses (T, 7)")
+        vel = {}
+        if velocities:
+            if "velocities" not in arrays:
+                raise FileFormatError(f"{path}: velocities = true needs an array velocities (T, 6)")
+            vel = {obj: np.asarray(arrays["velocities"], dtype=np.float64)}
+        return Observation(time=np.asarray(arrays["time"], dtype=np.float64),
+                           poses={obj: np.asarray(arrays["poses"], dtype=np.float64)}, velocities=vel, name=path.name)
     traj = load_trajectory(path)
     names = [obj] if obj else list(traj.dano_names)
     poses, vel = {}, {}
