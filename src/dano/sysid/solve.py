@@ -399,8 +399,9 @@ def bootstrap(problem: SysIdProblem, estimates: np.ndarray, *, samples: int = 10
 
     Returns {"samples", "seed", "level", "trajectories" (n), "labels" (the global parameters,
     and the ground's when fitted), "std" (the refits' standard deviation × √(n/(n−1)), the
-    usual small-sample correction), "lower"/"upper" (estimate ∓ t_{n−1}·std at ``level``:
-    percentile intervals of a bootstrap over few trajectories are too narrow),
+    usual small-sample correction), "lower"/"upper" (estimate ∓ t_{n−1}·std at ``level``,
+    clipped to the bounds: percentile intervals of a bootstrap over few trajectories are too
+    narrow),
     "percentile_lower"/"percentile_upper", "estimates" (refits, k), "failed" (draws whose refit
     gave a non-finite result, left out)}. Raises DanoError for fewer than two trajectories,
     fewer than two samples, a level outside (0, 1), or fewer than two finite refits."""
@@ -436,9 +437,10 @@ def bootstrap(problem: SysIdProblem, estimates: np.ndarray, *, samples: int = 10
     std = est.std(axis=0, ddof=1) * np.sqrt(n_obs / (n_obs - 1))  # small-sample correction of a cluster bootstrap
     half = student_t.ppf(0.5 + level / 2, n_obs - 1) * std
     centre = np.asarray(estimates, dtype=np.float64)[keep]
+    lo_k, hi_k = lo[keep], hi[keep]  # an interval beyond a bound says nothing more than the bound
     return {"samples": samples, "seed": seed, "level": level, "trajectories": n_obs,
             "labels": [problem.labels[i] for i in keep], "std": std.tolist(),
-            "lower": (centre - half).tolist(), "upper": (centre + half).tolist(),
+            "lower": np.maximum(centre - half, lo_k).tolist(), "upper": np.minimum(centre + half, hi_k).tolist(),
             "percentile_lower": np.percentile(est, q, axis=0).tolist(),
             "percentile_upper": np.percentile(est, 100 - q, axis=0).tolist(),
             "estimates": est.tolist(), "failed": failed}
