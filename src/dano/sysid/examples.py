@@ -89,13 +89,14 @@ def pusher_scene(bunny=None, dt: float = 0.01, kp: float = 500.0, kv: float = 14
 
 def push_observations(scene, z_bunny: float, params, num_pushes: int = 10, duration: float = 2.0,
                       position_noise: float = 0.0, rotation_noise_deg: float = 0.0, seed: int = 0,
-                      rest_frames: int = 20):
+                      rest_frames: int = 20, push_height: float = 0.3):
     """Simulate ``num_pushes`` pushes of the bunny by the sphere under ``params`` (the hidden
     ground truth) and return them as :class:`Observation` s of the bunny's pose and the
     sphere's position, with optional Gaussian noise (position [m], rotation angle [deg]).
 
     Push k approaches from the direction 2πk/N with a lateral offset, along a straight
-    target line through the bunny over ``duration`` s. Bunny and sphere are at rest for the
+    target line through the bunny at the sphere-centre height ``push_height`` [m] over
+    ``duration`` s. Bunny and sphere are at rest for the
     first ``rest_frames`` frames (the sphere reaches the bunny after about 0.35 s): the
     observations say so, and the initial state is averaged over them."""
     import jax.numpy as jnp
@@ -122,8 +123,8 @@ def push_observations(scene, z_bunny: float, params, num_pushes: int = 10, durat
         ang = 2 * np.pi * k / num_pushes
         d = np.array([np.cos(ang), np.sin(ang), 0.0])
         side = np.array([-d[1], d[0], 0.0]) * 0.15 * np.sin(3 * ang + 0.5)
-        start = -0.95 * d + side + [0, 0, 0.3]
-        end = 0.6 * d + side + [0, 0, 0.3]
+        start = -0.95 * d + side + [0, 0, push_height]
+        end = 0.6 * d + side + [0, 0, push_height]
         s = np.clip(t[:-1] / (0.8 * duration), 0, 1)
         targets = start + (end - start) * (3 * s**2 - 2 * s**3)[:, None]
         qpos0 = rest.copy()
@@ -189,14 +190,16 @@ def second_moment_scale_for(base_inertia: np.ndarray, moment_factors) -> np.ndar
 
 
 def push_dynamics_problem(position_noise: float = 0.0, rotation_noise_deg: float = 0.0, num_pushes: int = 10,
-                          seed: int = 0):
+                          seed: int = 0, push_height: float = 0.3):
     """The bunny pushes with the object's own dynamics unknown: the hidden truth has the
     bunny's centre of mass off the field's estimate by 5 % of its size (its largest extent)
     along (1, −1, 0.5)/1.5 and principal moments off by +10 %, −10 %, +10 %; α, friction, the
     centre-of-mass offset and the three second-moment scales are identified from α = 0.05,
     μ = 0.8, no offset and unit scales. Returns (problem, truth dict: alpha,
     sliding_friction, com_offset (3,) [m], second_moment_scale (3,), size [m],
-    principal_moments (3,) [kg m²] of the truth, base_moments (3,) [kg m²] of the guess)."""
+    principal_moments (3,) [kg m²] of the truth, base_moments (3,) [kg m²] of the guess).
+    ``push_height``: the sphere centre's height along the pushes [m] (0.3: the paper's, at the
+    bunny's centre of mass; higher pushes tip it and excite the roll and pitch moments)."""
     from ..sim.dynamics import model_with_params
 
     scene, z = pusher_scene()
@@ -212,7 +215,7 @@ def push_dynamics_problem(position_noise: float = 0.0, rotation_noise_deg: float
         truth = scene.set_param(truth, f"com_offset_{'xyz'[a]}", offset[a], "bunny")
         truth = scene.set_param(truth, f"second_moment_scale_{'xyz'[a]}", scale[a], "bunny")
     obs = push_observations(scene, z, truth, num_pushes, position_noise=position_noise,
-                            rotation_noise_deg=rotation_noise_deg, seed=seed)
+                            rotation_noise_deg=rotation_noise_deg, seed=seed, push_height=push_height)
     bound = 0.2 * size
     params = [FitParameter("alpha", PUSH_GUESS["alpha"], 0.01, 1.0, target="bunny"),
               FitParameter("sliding_friction", PUSH_GUESS["sliding_friction"], 0.0, 2.0, target=pair)]
