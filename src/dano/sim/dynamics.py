@@ -95,6 +95,19 @@ def model_with_alpha(scene: Scene, alpha):
     return model_with_params(scene, SimParams(None, alpha))
 
 
+def second_moments(inertia):
+    """Principal second moments of mass Σ (..., 3) [kg m²] (Σ_x = ∫x² dm in the principal
+    frame) from principal moments of inertia (..., 3) [kg m²]: Σ_x = (I_y + I_z − I_x)/2.
+    NumPy or JAX arrays."""
+    return 0.5 * (inertia.sum(-1, keepdims=True) - 2 * inertia)
+
+
+def moments_of_inertia(second):
+    """Principal moments of inertia (..., 3) [kg m²] from second moments Σ (..., 3):
+    I_x = Σ_y + Σ_z (the inverse of :func:`second_moments`). NumPy or JAX arrays."""
+    return second.sum(-1, keepdims=True) - second
+
+
 def model_with_params(scene: Scene, params: SimParams):
     """The MJX model with each DANO's inertial properties from ``params``: mass and inertia
     scaled by α, and, where given, the centre of mass offset (body_ipos), the principal
@@ -108,9 +121,7 @@ def model_with_params(scene: Scene, params: SimParams):
     mass = scene.base_mass * alpha
     inertia = scene.base_inertia
     if params.second_moment_scale is not None:
-        second = 0.5 * (jnp.sum(inertia, axis=-1, keepdims=True) - 2 * inertia)  # Σ_x = (I_y + I_z − I_x)/2
-        second = second * params.second_moment_scale
-        inertia = jnp.sum(second, axis=-1, keepdims=True) - second
+        inertia = moments_of_inertia(second_moments(inertia) * params.second_moment_scale)
     repl = dict(body_mass=m.body_mass.at[ids].set(mass), body_subtreemass=m.body_subtreemass.at[ids].set(mass),
                 body_inertia=m.body_inertia.at[ids].set(inertia * alpha[:, None]))
     if params.com_offset is not None:

@@ -180,13 +180,12 @@ def second_moment_scale_for(base_inertia: np.ndarray, moment_factors) -> np.ndar
     """(3,) factors on the principal second moments Σ that turn principal moments
     ``base_inertia`` (3,) into ``base_inertia * moment_factors``. Raises ValueError if that
     inertia is not physical (a triangle inequality fails)."""
-    def second(inertia):
-        return 0.5 * (inertia.sum() - 2 * inertia)
+    from ..sim.dynamics import second_moments
 
-    target = second(np.asarray(base_inertia) * np.asarray(moment_factors))
+    target = second_moments(np.asarray(base_inertia) * np.asarray(moment_factors))
     if np.any(target < 0):
         raise ValueError(f"moments {np.asarray(base_inertia) * moment_factors} violate a triangle inequality")
-    return target / second(np.asarray(base_inertia))
+    return target / second_moments(np.asarray(base_inertia))
 
 
 def push_dynamics_problem(position_noise: float = 0.0, rotation_noise_deg: float = 0.0, num_pushes: int = 10,
@@ -235,9 +234,9 @@ def dynamics_recovery(estimates: dict, truth: dict) -> dict:
     moments (3,), of α and of the friction."""
     com = np.array([estimates[f"bunny:com_offset_{a}"] for a in "xyz"])
     scale = np.array([estimates[f"bunny:second_moment_scale_{a}"] for a in "xyz"])
-    base = np.asarray(truth["base_moments"])
-    second = 0.5 * (base.sum() - 2 * base) * scale
-    moments = second.sum() - second
+    from ..sim.dynamics import moments_of_inertia, second_moments
+
+    moments = moments_of_inertia(second_moments(np.asarray(truth["base_moments"])) * scale)
     com_err = (com - np.asarray(truth["com_offset"])) / truth["size"]
     return {"com_error_of_size": com_err.tolist(), "com_error_norm_of_size": float(np.linalg.norm(com_err)),
             "moment_relative_error": (moments / np.asarray(truth["principal_moments"]) - 1).tolist(),

@@ -12,9 +12,9 @@ frame (:func:`dano.render.render_rays`), I the frame, ρ(x) = x²/√(1 + x²) a
 size, rotation vector [rad]) the step from the prediction. Adam (optax) runs a fixed number
 of iterations per frame from a constant-velocity prediction of the previous two poses
 (the previous pose after a frame flagged poor), with the learning rate decaying
-log-linearly; the lowest-loss iterate is kept and optionally polished by Levenberg–Marquardt
-steps (the loss is a sum of squares; the colour residual is x/(1 + x²)^¼ with x = (C − I)/s, so its
-square is quadratic near 0 and grows linearly: robust to shading the field did not see).
+log-linearly; the lowest-loss iterate is kept. The loss is a sum of squares; the colour
+residual is x/(1 + x²)^¼ with x = (C − I)/s, so its square is quadratic near 0 and grows
+linearly: robust to shading the field did not see.
 
 To keep frames cheap only rays near the object are rendered: the mask's pixels and the
 previous frame's silhouette, dilated by ``margin`` of the object's size in pixels; the
@@ -55,9 +55,9 @@ class TrackConfig:
     of the Charbonnier loss; smoothness_weight w_S (a prior toward the constant-velocity
     prediction); samples_across: render samples across the field box's diagonal; margin:
     ray-set dilation [fraction of object size]; poor_iou: frames with a lower silhouette IoU
-    are flagged poor; refine: Levenberg–Marquardt steps after Adam (0: Adam alone, the
-    default: on the synthetic slide 5 steps per frame took 4.3 s per frame instead of 2.3 s
-    and left the RMS error at 10.9 mm instead of 11.0)."""
+    are flagged poor. (A Levenberg–Marquardt polish after Adam was tried and dropped: on the
+    synthetic slide 5 steps per frame took 4.3 s per frame instead of 2.3 s and left the RMS
+    error at 10.9 mm instead of 11.0.)"""
 
     iterations: int = 60
     learning_rate: float = 0.01
@@ -70,12 +70,9 @@ class TrackConfig:
     samples_across: int = 96
     margin: float = 0.25
     poor_iou: float = 0.8
-    refine: int = 0
 
     def check(self) -> None:
         """Raises DanoError naming the first bad setting."""
-        if int(self.refine) < 0:
-            raise DanoError(f"refine must be non-negative, got {self.refine}")
         for name in ("iterations", "stride", "samples_across"):
             if int(getattr(self, name)) < 1:
                 raise DanoError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -257,35 +254,9 @@ class _Problem:
         delta, _, best, best_loss = jax.lax.fori_loop(0, cfg.iterations, body, carry)
         last, _ = self._loss(delta, base, rays, target)
         best = jnp.where(last < best_loss, delta, best)
-        best = self._gauss_newton(best, base, rays, target)
         loss, alpha = self._loss(best, base, rays, target)
         p, q = compose_pose(base[:3], base[3:], best, self.obj.size)
         return jnp.concatenate([p, q / jnp.linalg.norm(q)]), loss, alpha
-
-    def _gauss_newton(self, delta, base, rays, target):
-        """``refine`` Levenberg–Marquardt steps on r(δ) (steps that raise L are refused and
-        the damping grows): Adam's first-order steps crawl along the weakly observed depth
-        direction, where curvature information converges in a few steps."""
-        if self.config.refine == 0:
-            return delta
-        residuals = lambda d: self._residuals(d, base, rays, target)[0]  # noqa: E731
-        jacobian = jax.jacfwd(residuals)
-
-        def body(_, carry):
-            d, lam, loss = carry
-            r, J = residuals(d), jacobian(d)
-            H, g = J.T @ J, J.T @ r
-            step = -jnp.linalg.solve(H + lam * jnp.diag(jnp.diag(H)) + 1e-12 * jnp.eye(6), g)
-            trial = d + step
-            r_new = residuals(trial)
-            new_loss = jnp.sum(r_new * r_new)
-            ok = jnp.isfinite(new_loss) & (new_loss < loss)
-            return (jnp.where(ok, trial, d), jnp.where(ok, lam * 0.3, lam * 10.0), jnp.where(ok, new_loss, loss))
-
-        r0 = residuals(delta)
-        d, _, _ = jax.lax.fori_loop(0, self.config.refine, body, (delta, jnp.asarray(1e-3, delta.dtype),
-                                                                   jnp.sum(r0 * r0)))
-        return d
 
     # --- host side
     def _dilate(self, region: np.ndarray, pixels: float) -> np.ndarray:
