@@ -492,7 +492,7 @@ def sysid(
         start: contactnets-cube: initial guess of the sliding friction.
         contact_model: contactnets-cube: centroid (the paper's) or per_sample.
         bootstrap: contactnets-cube: also refit this many resamples of the fitted tosses (with replacement) for a
-            95 % percentile interval (TOML problems: [options] bootstrap).
+            95 % interval, key "bootstrap" of the JSON (TOML problems: [options] bootstrap).
     """
     from .sysid.config import run
 
