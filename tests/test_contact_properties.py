@@ -186,3 +186,28 @@ def test_forward_gradients_are_finite_at_rest_onset_and_in_flight(tmp_path_facto
                                         evaluate(kind, model, {**inputs, "xa": xa}, u_)[3]])
             J = jax.jacfwd(f, argnums=(0, 1))(inputs["xa"], u)
             assert all(np.all(np.isfinite(np.asarray(j))) for j in J), (kind, model.name, height)
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(drag=st.sampled_from(("normal_force", "overlap")), psi=st.sampled_from((0.0, 1e-6, 1e-3, 0.3)),
+       speed=st.sampled_from((0.0, 1e-5, 1e-2, 1.0)), spin=st.booleans(), seed=st.integers(0, 2**16))
+def test_centroid_closed_form_jacobian_matches_forward_mode(drag, psi, speed, spin, seed):
+    """The step's Newton solve uses the centroid model's closed-form ∂wrench/∂u; it must
+    equal forward-mode AD of the wrench (touching or not, at rest, sliding, spinning)."""
+    from dano.contact.centroid import CentroidState
+
+    rng = np.random.default_rng(seed)
+    with jax.enable_x64(True):
+        n = rng.normal(size=3)
+        st_ = CentroidState(jnp.asarray(psi), jnp.asarray(rng.normal(size=6)),
+                            jnp.asarray(0.01 * rng.normal(size=(3, 6))), jnp.asarray(n / np.linalg.norm(n)),
+                            jnp.asarray(0.01))
+        p = ContactParams(3e4, 3e5 * rng.uniform(), *(rng.uniform(0, [1.0, 1.0, 0.1, 0.1, 0.1, 0.1])))
+        u = speed * rng.normal(size=6)
+        if not spin:
+            u[3:] = 0.0
+        model = Centroid(drag=drag)
+        W, K = model.wrench_and_jacobian(p, st_, jnp.asarray(u))
+        K_ad = jax.jacfwd(lambda x: model.wrench(p, st_, x))(jnp.asarray(u))
+        np.testing.assert_allclose(W, model.wrench(p, st_, jnp.asarray(u)), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(K, K_ad, rtol=1e-9, atol=1e-9 * float(jnp.max(jnp.abs(K_ad)) + 1e-30))

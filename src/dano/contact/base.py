@@ -138,9 +138,10 @@ def centroid_rates(weight, depth, depth_grad, moves, points, chi):
 class Compacted:
     """A contact model's prepared state in two sizes: ``active``, over the samples that can
     act in this step (gathered once per step, padded to a fixed count), and ``full``, over
-    all samples; ``overflow`` () is True where ``active`` could not hold them all. The step
-    evaluates a group's wrenches on ``active`` unless a pair of the group overflows (then on
-    ``full``; the same result at full cost)."""
+    all samples (or what the model's ``wrench`` needs to build that state, so that it is
+    only computed in a step that uses it); ``overflow`` () is True where ``active`` could
+    not hold them all. The step evaluates a group's wrenches on ``active`` unless a pair of
+    the group overflows (then on ``full``; the same result at full cost)."""
 
     active: Any
     full: Any
@@ -181,6 +182,9 @@ class ContactModel(Protocol):
     def prepare(self, geometry: PairGeometry, h) -> Any: ...
 
     def wrench(self, p, state, u: jax.Array) -> jax.Array: ...
+
+    # Optional: ``wrench_and_jacobian(p, state, u) -> (wrench (6,), ∂wrench/∂u (6, 6))`` in
+    # closed form; the step then uses it instead of forward-mode AD of ``wrench``.
 
 
 PAIR_KINDS: dict[str, PairKind] = {}

@@ -3,6 +3,7 @@ contact applies its own force at its own point."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -28,11 +29,28 @@ class PerSampleState:
     h: jax.Array
 
 
-def _state(g: PairGeometry, h, idx=None, valid=None) -> PerSampleState:
-    take = (lambda a: a) if idx is None else (lambda a: jnp.take(a, idx, axis=-1))
-    weight = take(g.weight) if valid is None else jnp.where(valid, take(g.weight), 0.0)
-    return PerSampleState(weight, take(g.depth), take(sample_rates(g)), take(g.points) - g.chi[:, None],
-                          take(g.moves), take(g.sample_normal), jnp.asarray(h, g.psi.dtype))
+def _state(g: PairGeometry, h, valid) -> PerSampleState:
+    return PerSampleState(jnp.where(valid, g.weight, 0.0), g.depth, sample_rates(g), g.points - g.chi[:, None],
+                          g.moves, g.sample_normal, jnp.asarray(h, g.psi.dtype))
+
+
+def _take(g: PairGeometry, idx) -> PairGeometry:
+    """``g`` with its per-sample arrays reduced to the samples ``idx`` (K,)."""
+    take = lambda a: jnp.take(a, idx, axis=-1)  # noqa: E731
+    return dataclasses.replace(g, weight=take(g.weight), depth=take(g.depth), depth_grad=take(g.depth_grad),
+                               moves=take(g.moves), points=take(g.points), sample_normal=take(g.sample_normal))
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class _AllSamples:
+    """The fallback of a pair whose samples within reach overflow ``max_active``: its whole
+    geometry, prepared inside the branch that uses it (so a step that does not overflow
+    never computes the rates of every sample)."""
+
+    geometry: PairGeometry
+    reach: jax.Array
+    h: jax.Array
 
 
 @register_contact_model("per_sample")
@@ -65,15 +83,18 @@ class PerSample:
     def prepare(self, g: PairGeometry, h):
         reach = (g.depth > -1.0) & (g.weight > 0)  # padded samples have weight 0
         if g.depth.shape[-1] <= self.max_active:
-            return _state(g, h, valid=reach)
+            return _state(g, h, reach)
         count = jnp.sum(reach)
         idx = jnp.nonzero(reach, size=self.max_active, fill_value=0)[0]
         valid = jnp.arange(self.max_active) < count
-        return Compacted(_state(g, h, idx, valid), _state(g, h, valid=reach), count > self.max_active)
+        return Compacted(_state(_take(g, idx), h, valid), _AllSamples(g, reach, jnp.asarray(h, g.psi.dtype)),
+                         count > self.max_active)
 
-    def wrench(self, p, st: PerSampleState | Compacted, u):
+    def wrench(self, p, st: PerSampleState | Compacted | _AllSamples, u):
         if isinstance(st, Compacted):  # one pair evaluated on its own (the step does this per group)
             return jax.lax.cond(st.overflow, lambda: self.wrench(p, st.full, u), lambda: self.wrench(p, st.active, u))
+        if isinstance(st, _AllSamples):
+            st = _state(st.geometry, st.h, st.reach)
         motion = u[:3, None] + cross_columns(u[3:, None], st.arm)  # (3, K) relative velocity at each sample
         arm = st.arm + st.h * st.moves * motion
         share = st.weight * occupancy(st.depth + st.h * (u @ st.rate))
