@@ -211,3 +211,28 @@ def test_centroid_closed_form_jacobian_matches_forward_mode(drag, psi, speed, sp
         K_ad = jax.jacfwd(lambda x: model.wrench(p, st_, x))(jnp.asarray(u))
         np.testing.assert_allclose(W, model.wrench(p, st_, jnp.asarray(u)), rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(K, K_ad, rtol=1e-9, atol=1e-9 * float(jnp.max(jnp.abs(K_ad)) + 1e-30))
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(drag=st.sampled_from(("normal_force", "overlap")), speed=st.sampled_from((0.0, 1e-5, 1e-2, 1.0)),
+       seed=st.integers(0, 2**16))
+def test_per_sample_closed_form_jacobian_matches_forward_mode(drag, speed, seed):
+    """The per-sample model's closed-form ∂wrench/∂u equals forward-mode AD of its wrench
+    (samples outside, entering, inside; of A and of B; at rest and moving)."""
+    from dano.contact.per_sample import PerSampleState
+
+    rng = np.random.default_rng(seed)
+    K = 16
+    with jax.enable_x64(True):
+        nrm = rng.normal(size=(3, K))
+        st_ = PerSampleState(jnp.asarray(rng.uniform(0, 0.01, K)), jnp.asarray(rng.uniform(-1.2, 1.2, K)),
+                             jnp.asarray(10 * rng.normal(size=(6, K))), jnp.asarray(0.05 * rng.normal(size=(3, K))),
+                             jnp.asarray((rng.uniform(size=K) > 0.3).astype(float)),
+                             jnp.asarray(nrm / np.linalg.norm(nrm, axis=0)), jnp.asarray(0.01))
+        p = ContactParams(3e4, 3e5 * rng.uniform(), *(rng.uniform(0, [1.0, 0.1, 0.1, 0.1, 0.1, 0.1])))
+        u = jnp.asarray(speed * rng.normal(size=6))
+        model = PerSample(drag=drag)
+        W, K_cf = model.wrench_and_jacobian(p, st_, u)
+        K_ad = jax.jacfwd(lambda x: model.wrench(p, st_, x))(u)
+        np.testing.assert_allclose(W, model.wrench(p, st_, u), rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(K_cf, K_ad, rtol=1e-9, atol=1e-9 * float(jnp.max(jnp.abs(K_ad)) + 1e-30))
