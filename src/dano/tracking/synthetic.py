@@ -47,7 +47,8 @@ class VideoCamera:
     height: int = 240
 
 
-def _video_model(asset, camera: VideoCamera, supersample: int, colour=(0.72, 0.55, 0.38), flat: bool = False):
+def _video_model(vertices, faces, camera: VideoCamera, supersample: int, colour=(0.72, 0.55, 0.38),
+                 flat: bool = False):
     import mujoco
 
     from ..nerf.synthetic import add_lights
@@ -71,8 +72,8 @@ def _video_model(asset, camera: VideoCamera, supersample: int, colour=(0.72, 0.5
                                      name="ground")
     ground.contype = ground.conaffinity = 0
     body = spec.worldbody.add_body(name="object", mocap=True)
-    spec.add_mesh(name="object", uservert=np.asarray(asset.mesh_vertices, dtype=np.float64).ravel(),
-                  userface=np.asarray(asset.mesh_faces, dtype=np.int32).ravel())
+    spec.add_mesh(name="object", uservert=np.asarray(vertices, dtype=np.float64).ravel(),
+                  userface=np.asarray(faces, dtype=np.int32).ravel())
     geom = body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname="object", name="object")
     geom.rgba = (*colour, 1.0)
     geom.contype = geom.conaffinity = 0
@@ -80,10 +81,11 @@ def _video_model(asset, camera: VideoCamera, supersample: int, colour=(0.72, 0.5
 
 
 def render_video(asset, poses: np.ndarray, camera: VideoCamera = VideoCamera(), supersample: int = 2,
-                 flat: bool = False, progress=None):
+                 flat: bool = False, mesh=None, progress=None):
     """Render frames of ``asset`` (a DanoAsset with a visual mesh) at body poses ``poses``
     (T, 7): centre-of-mass position [m] and wxyz quaternion (MuJoCo's qpos of its free joint).
-    flat: ambient light only (no shading: the object shows one colour).
+    flat: ambient light only (no shading: the object shows one colour); mesh: optional
+    (vertices (V, 3) body frame [m], faces (F, 3)) to render instead of the asset's visual mesh.
 
     Returns ``(frames (T, H, W, 3) uint8, masks (T, H, W) float32 in [0, 1], background
     (H, W, 3) uint8, camera_to_world (4, 4) Blender convention, focal [px])``.
@@ -93,9 +95,10 @@ def render_video(asset, poses: np.ndarray, camera: VideoCamera = VideoCamera(), 
 
     from ..nerf.synthetic import rendered_camera
 
-    if len(asset.mesh_faces) == 0:
+    vertices, faces = (asset.mesh_vertices, asset.mesh_faces) if mesh is None else mesh
+    if len(faces) == 0:
         raise DanoError(f"{asset.name}: has no visual mesh to render")
-    model = _video_model(asset, camera, supersample, flat=flat)
+    model = _video_model(vertices, faces, camera, supersample, flat=flat)
     data = mujoco.MjData(model)
     w, h, s = camera.width, camera.height, supersample
     try:
@@ -200,13 +203,39 @@ def write_video_folder(out_dir: str | Path, frames, masks, background, camera_to
     return out_dir
 
 
+def surface_mesh(asset, resolution: int = 192):
+    """The surface of an asset's signed-distance field, d = 0, by marching cubes
+    (scikit-image) on a grid of ``resolution`` nodes along the longest axis: (vertices
+    (V, 3) body frame [m], faces (F, 3)). The synthetic videos render this rather than the
+    asset's visual mesh: that mesh is extracted on a coarse grid and cuts the convex
+    features the silhouette is made of by a few mm, which made the tracked bunny's
+    silhouette fit sit ~1 cm too far from the camera (measured: the field's silhouette
+    covered 1.3–2.0 % more pixels than masks of the coarse mesh at the true poses).
+    Raises DanoError if the asset's field has no signed distance."""
+    import jax.numpy as jnp
+    from skimage.measure import marching_cubes
+
+    field = asset.field
+    if field is None or not hasattr(field, "signed_distance"):
+        raise DanoError(f"{asset.name}: a synthetic video needs a DANO whose field has a signed distance")
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in field.bounds())
+    shape = np.maximum(np.round(resolution * (hi - lo) / (hi - lo).max()).astype(int), 2)
+    axes = [np.linspace(lo[k], hi[k], shape[k]) for k in range(3)]
+    pts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    sd = np.concatenate([np.asarray(field.signed_distance(jnp.asarray(c))) for c in np.array_split(pts, 16)])
+    verts, faces, _, _ = marching_cubes(sd.reshape(shape), level=0.0, spacing=tuple((hi - lo) / (shape - 1)),
+                                        gradient_direction="descent")
+    return verts + lo - np.asarray(asset.center_of_mass, dtype=np.float64), faces.astype(np.int64)
+
+
 def synthetic_slide(out_dir: str | Path, friction: float = SLIDE_FRICTION, camera: VideoCamera = VideoCamera(),
                     duration: float = 1.2, fps: float = 50.0, progress=None) -> Path:
     """Simulate :func:`slide_trajectory` and render it (:func:`render_video`) into a video
     folder ``out_dir``; returns its path."""
     scene, truth = slide_trajectory(friction, duration, fps)
     asset = scene.assets[0]
-    frames, masks, background, pose, focal = render_video(asset, truth.qpos[:, :7], camera, progress=progress)
+    frames, masks, background, pose, focal = render_video(asset, truth.qpos[:, :7], camera, mesh=surface_mesh(asset),
+                                                          progress=progress)
     extra = {"dano_source": "dano synthetic-slide: bunny_lowpoly rendered by MuJoCo",
              "dano_object": "bunny_lowpoly", "dano_sliding_friction": friction}
     return write_video_folder(out_dir, frames, masks, background, pose, focal, fps, extra, truth)
