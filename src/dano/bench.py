@@ -485,8 +485,9 @@ def bench_nerf(repeats: int = 1, minutes: float = 3.0, eval_at: tuple[float, ...
     return out
 
 
-def tracking_success_curve(folder, translations=(0.01, 0.02, 0.04, 0.06, 0.08, 0.10),
-                           rotations=(2.0, 5.0, 10.0, 15.0, 20.0, 30.0), seeds: int = 4, frames: int = 10) -> list:
+def tracking_success_curve(folder, translations=(0.01, 0.02, 0.04, 0.06, 0.08, 0.10, 0.15, 0.20, 0.30),
+                           rotations=(2.0, 5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 90.0), seeds: int = 4,
+                           frames: int = 10) -> list:
     """Silhouette tracking of the first ``frames`` frames of the synthetic-slide video in
     ``folder`` from the true first pose perturbed by (translation · object size, rotation
     [deg]) about ``seeds`` random directions per size: per size, the success rate (final frame
@@ -518,7 +519,7 @@ def tracking_success_curve(folder, translations=(0.01, 0.02, 0.04, 0.06, 0.08, 0
 def bench_tracking(repeats: int = 1, curve: bool = True) -> dict:
     """From video to physics (``dano real2sim synthetic-slide``): tracking time per frame, the
     two identifications' results and wall times; and the tracking success rate against the
-    size of the initial pose error (:func:`tracking_success_curve`, 24 starts)."""
+    size of the initial pose error (:func:`tracking_success_curve`, 36 starts)."""
     import tempfile
 
     from .tracking.real2sim import synthetic_slide_real2sim

@@ -14,7 +14,13 @@ file (anything imageio/ffmpeg reads) may be given with ``--camera``.
 Masks without mask images: **background subtraction** — a pixel belongs to the object
 where its colour differs from the background frame's by more than ``threshold`` (largest
 channel difference, colours in [0, 1]); then a morphological opening (scikit-image) removes
-specks and only the largest connected region is kept.
+specks and only the largest connected region is kept. Pixels on the region's edge then get
+their covered fraction, not 1: an edge pixel covered by a fraction c of the object differs
+from the background by about c times the contrast of the fully covered pixels next to it
+(the mean difference of the region's pixels two pixels inside, within 3 px), so its mask
+value is that ratio, clipped to [0, 1]. Binary masks counted every pixel above the
+threshold as covered: on the synthetic slide they were 1.6–2.3 % larger than the exact
+masks and the tracked bunny sat 1.5 cm too close to the camera.
 """
 
 from __future__ import annotations
@@ -153,21 +159,32 @@ def read_camera(path: str | Path, width: int, height: int) -> tuple[Cameras, flo
 
 def masks_from_background(frames: np.ndarray, background: np.ndarray, threshold: float = 0.08,
                           opening: int = 1) -> np.ndarray:
-    """Object masks (T, H, W) float32 in {0, 1} by background subtraction (see the module
+    """Object masks (T, H, W) float32 in [0, 1] by background subtraction (see the module
     doc): colour difference > ``threshold``, opening with a disk of radius ``opening`` px,
-    the largest connected region kept."""
+    the largest connected region kept, its edge pixels given their covered fraction."""
+    from scipy.ndimage import uniform_filter
     from skimage.measure import label
-    from skimage.morphology import disk, opening as open_
+    from skimage.morphology import dilation, disk, erosion, opening as open_
 
-    diff = np.abs(frames - background[None]).max(axis=-1) > threshold
-    out = np.zeros(diff.shape, np.float32)
-    for k, m in enumerate(diff):
+    diff_all = np.abs(frames - background[None]).max(axis=-1)
+    out = np.zeros(diff_all.shape, np.float32)
+    for k, diff in enumerate(diff_all):
+        m = diff > threshold
         if opening > 0:
             m = open_(m, disk(opening))
         labels = label(m)
-        if labels.max() > 0:
-            largest = np.argmax(np.bincount(labels.ravel())[1:]) + 1
-            out[k] = labels == largest
+        if labels.max() == 0:
+            continue
+        region = labels == np.argmax(np.bincount(labels.ravel())[1:]) + 1
+        inner = erosion(region, disk(2))
+        count = uniform_filter(inner.astype(np.float64), size=7)
+        contrast = uniform_filter(np.where(inner, diff, 0.0), size=7) / np.maximum(count, 1e-12)
+        edge = dilation(region, disk(1)) & ~inner
+        known = edge & (count > 0) & (contrast > threshold)
+        mask = region.astype(np.float64)
+        mask[known] = np.clip(diff[known] / contrast[known], 0.0, 1.0)
+        mask[inner] = 1.0
+        out[k] = mask
     return out
 
 
