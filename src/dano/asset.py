@@ -348,12 +348,16 @@ def _check_band(band) -> tuple[float, float]:
 # ------------------------------------------------------------------------- mesh
 
 
-def visual_mesh(field: DensityField, level: float, resolution: int = 64, bounds: Any = None):
-    """Marching-cubes surface (scikit-image) of φ = ``level``, for rendering only.
+def visual_mesh(field: DensityField, level: float, resolution: int = 64, bounds: Any = None,
+                signed_distance: bool = False):
+    """Marching-cubes surface (scikit-image) of φ = ``level`` on a grid of ``resolution``
+    nodes along the box's longest side, for rendering only; with ``signed_distance``, of the
+    field's signed distance d = ``level`` [m] instead (d = 0: the field's exact surface, for
+    fields that have one).
 
     Returns ``(vertices (V, 3) object frame [m], faces (F, 3) int)``, faces wound so
     that normals point outward (towards lower density). Raises DanoError if the
-    level is outside the sampled density range.
+    level is outside the sampled range.
     """
     from skimage.measure import marching_cubes
 
@@ -362,9 +366,12 @@ def visual_mesh(field: DensityField, level: float, resolution: int = 64, bounds:
     shape = np.maximum(np.round(resolution * ext / ext.max()).astype(int), 2)
     axes = [np.linspace(b[0, k], b[1, k], shape[k]) for k in range(3)]
     pts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    vol = evaluate(field, pts).reshape(shape)
+    vol = evaluate(field, pts, signed_distance=signed_distance).reshape(shape)
+    if signed_distance:
+        vol = -vol  # inside high, as for a density
+        level = -level
     if not vol.min() < level < vol.max():
-        raise DanoError(f"mesh level {level:.4g} is outside the density range [{vol.min():.4g}, {vol.max():.4g}]")
+        raise DanoError(f"mesh level {level:.4g} is outside the sampled range [{vol.min():.4g}, {vol.max():.4g}]")
     spacing = tuple(ext / (shape - 1))
     verts, faces, _, _ = marching_cubes(vol, level=level, spacing=spacing, gradient_direction="ascent")
     verts = verts + b[0]

@@ -183,9 +183,6 @@ class ContactModel(Protocol):
 
     def wrench(self, p, state, u: jax.Array) -> jax.Array: ...
 
-    # Optional: ``wrench_and_jacobian(p, state, u) -> (wrench (6,), ∂wrench/∂u (6, 6))`` in
-    # closed form; the step then uses it instead of forward-mode AD of ``wrench``.
-
 
 PAIR_KINDS: dict[str, PairKind] = {}
 CONTACT_MODELS: dict[str, Callable[..., ContactModel]] = {}

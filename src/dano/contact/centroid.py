@@ -8,8 +8,8 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 
-from .base import PairGeometry, register_contact_model, skew
-from .law import check_drag, pair_wrench, pair_wrench_and_jacobian, smooth_max0
+from .base import PairGeometry, register_contact_model
+from .law import check_drag, pair_wrench, smooth_max0
 
 
 @jax.tree_util.register_dataclass
@@ -49,22 +49,6 @@ class Centroid:
         return CentroidState(g.psi, g.psi_rate, g.moment_rate, g.normal, jnp.asarray(h, g.psi.dtype))
 
     def wrench(self, p, st: CentroidState, u):
-        psi, arm = self._advanced(st, u)[:2]
-        force, torque = pair_wrench(p, psi, st.normal, u[:3], u[3:], self.drag)  # velocity at χ
-        return jnp.concatenate([force, torque + jnp.cross(arm, force)])
-
-    def wrench_and_jacobian(self, p, st: CentroidState, u):
-        """:meth:`wrench` (6,) and its Jacobian ∂wrench/∂u (6, 6), in closed form
-        (:func:`~dano.contact.law.pair_wrench_and_jacobian`)."""
-        psi, arm, dpsi, darm = self._advanced(st, u)
-        force, torque, dforce, dtorque = pair_wrench_and_jacobian(p, psi, dpsi, st.normal, u[:3], u[3:], self.drag)
-        wrench = jnp.concatenate([force, torque + jnp.cross(arm, force)])
-        jac = jnp.concatenate([dforce, dtorque + skew(arm) @ dforce - skew(force) @ darm], axis=0)
-        return wrench, jac
-
-    def _advanced(self, st: CentroidState, u):
-        """The overlap ψ and the centroid's shift (arm, (3,)) at the end of the step, and
-        their derivatives with respect to u ((6,) and (3, 6))."""
         touching = st.psi > 0
         # the smooth clamps' widths scale with ψ, floored so that a vanishing overlap cannot
         # overflow them (1e-9 kg: far below any resting overlap)
@@ -73,8 +57,5 @@ class Centroid:
         psi = jnp.where(touching, smooth_max0(psi_lin, 0.05 * ref), 0.0)
         denom = 0.5 * ref + smooth_max0(psi_lin - 0.5 * ref, 0.05 * ref)
         arm = jnp.where(touching, st.h * (st.moment_rate @ u) / denom, 0.0)
-        # d smooth_max0(x, w)/dx = sigmoid(x/w)
-        dpsi = jnp.where(touching, jax.nn.sigmoid(psi_lin / (0.05 * ref)), 0.0) * st.h * st.psi_rate
-        ddenom = jax.nn.sigmoid((psi_lin - 0.5 * ref) / (0.05 * ref)) * st.h * st.psi_rate
-        darm = jnp.where(touching, (st.h * st.moment_rate - jnp.outer(arm, ddenom)) / denom, 0.0)
-        return psi, arm, dpsi, darm
+        force, torque = pair_wrench(p, psi, st.normal, u[:3], u[3:], self.drag)  # velocity at χ
+        return jnp.concatenate([force, torque + jnp.cross(arm, force)])

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from ..errors import DanoError
-from .params import ContactParams, smooth_direction, smooth_direction_and_jacobian
+from .params import ContactParams, smooth_direction
 
 #: how the viscous drags scale: by ‖F_n‖ (paper Eqs. 9–11) or by ψ (dano 0.1)
 DRAG_SCALINGS = ("normal_force", "overlap")
@@ -73,45 +73,6 @@ def pair_wrench(p: ContactParams, psi, normal, v, w, drag: str = "normal_force")
     return force, torque
 
 
-def pair_wrench_and_jacobian(p: ContactParams, psi, dpsi, normal, v, w, drag: str = "normal_force"):
-    """:func:`pair_wrench` and its Jacobian with respect to the relative twist u = (v, ω):
-    returns (force (3,), torque (3,), ∂force/∂u (3, 6), ∂torque/∂u (3, 6)), given the
-    overlap's own rate dpsi (6,) = ∂ψ/∂u (zero for a fixed ψ). Written out (chain rule
-    through Eqs. 8–11) rather than by forward-mode AD: the step's Newton solve needs it at
-    every iteration, and the closed form is several times cheaper on CPU; a test checks it
-    against ``jax.jacfwd``."""
-    dt = v.dtype
-    zero3 = jnp.zeros((3, 3), dt)
-    n = normal
-    P = jnp.eye(3, dtype=dt) - jnp.outer(n, n)
-    dv = jnp.concatenate([jnp.eye(3, dtype=dt), zero3], axis=1)  # ∂v/∂u (3, 6)
-    dw = jnp.concatenate([zero3, jnp.eye(3, dtype=dt)], axis=1)
-    vn = jnp.dot(n, v)
-    vt = v - vn * n
-    wn = jnp.dot(n, w)
-    wt = w - wn * n
-    width = CLAMP_WIDTH * p.impact_spring
-    x = (p.impact_spring - p.impact_damper * vn) / width
-    g = width * jax.nn.softplus(x)
-    fn = psi * g
-    dfn = g * dpsi - psi * jax.nn.sigmoid(x) * p.impact_damper * (n @ dv)
-    s, ds = (fn, dfn) if drag == "normal_force" else (psi, dpsi)
-    d_t, D_t = smooth_direction_and_jacobian(vt)
-    d_n, D_n = smooth_direction_and_jacobian(wn * n)
-    d_r, D_r = smooth_direction_and_jacobian(wt)
-    force = fn * n + fn * p.sliding_friction * d_t - s * p.sliding_drag * vt
-    dforce = (jnp.outer(n + p.sliding_friction * d_t, dfn) + fn * p.sliding_friction * (D_t @ P @ dv)
-              - p.sliding_drag * (jnp.outer(vt, ds) + s * (P @ dv)))
-    torque = (fn * p.torsional_friction * d_n - s * p.torsional_drag * wn * n
-              + fn * p.rolling_friction * d_r - s * p.rolling_drag * wt)
-    dwn = n @ dw  # (6,)
-    dtorque = (p.torsional_friction * (jnp.outer(d_n, dfn) + fn * jnp.outer(D_n @ n, dwn))
-               - p.torsional_drag * (jnp.outer(wn * n, ds) + s * jnp.outer(n, dwn))
-               + p.rolling_friction * (jnp.outer(d_r, dfn) + fn * (D_r @ P @ dw))
-               - p.rolling_drag * (jnp.outer(wt, ds) + s * (P @ dw)))
-    return force, torque, dforce, dtorque
-
-
 def sample_forces(p: ContactParams, weight, normal, v, drag: str = "normal_force"):
     """Forces (3, S) [N] on A of S contact samples, each with its own share of the overlap.
 
@@ -126,26 +87,3 @@ def sample_forces(p: ContactParams, weight, normal, v, drag: str = "normal_force
     fn = normal_force(p, weight, vn)
     s = fn if drag == "normal_force" else weight
     return fn * (normal + p.sliding_friction * smooth_direction(vt, axis=0)) - (s * p.sliding_drag) * vt
-
-
-def sample_forces_and_jacobian(p: ContactParams, weight, dweight, normal, v, dv, drag: str = "normal_force"):
-    """:func:`sample_forces` (3, S) and their Jacobians (3, 6, S) with respect to the pair's
-    relative twist u, given each sample's ∂share/∂u dweight (6, S) and ∂v/∂u dv (3, 6, S).
-    The closed form of the chain rule through Eqs. 8–9 (a test checks it against
-    ``jax.jacfwd``)."""
-    vn = jnp.sum(normal * v, axis=0)  # (S,)
-    dvn = jnp.sum(normal[:, None] * dv, axis=0)  # (6, S)
-    vt = v - vn * normal
-    dvt = dv - normal[:, None] * dvn[None]
-    width = CLAMP_WIDTH * p.impact_spring
-    x = (p.impact_spring - p.impact_damper * vn) / width
-    g = width * jax.nn.softplus(x)
-    fn = weight * g
-    dfn = g * dweight - (weight * jax.nn.sigmoid(x) * p.impact_damper) * dvn
-    s, ds = (fn, dfn) if drag == "normal_force" else (weight, dweight)
-    d, D = smooth_direction_and_jacobian(vt)  # (3, S), (3, 3, S)
-    forces = fn * (normal + p.sliding_friction * d) - (s * p.sliding_drag) * vt
-    dforces = ((normal + p.sliding_friction * d)[:, None] * dfn[None]
-               + (fn * p.sliding_friction) * jnp.einsum("abs,bjs->ajs", D, dvt)
-               - p.sliding_drag * (vt[:, None] * ds[None] + s * dvt))
-    return forces, dforces

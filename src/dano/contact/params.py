@@ -82,22 +82,3 @@ def smooth_direction(v: jax.Array, steepness: float = FRICTION_STEEPNESS,
     sq = jnp.sum(v * v, axis=axis, keepdims=True)
     speed = jnp.sqrt(jnp.where(sq > 0, sq, 1.0)) * (sq > 0)
     return -(2.0 / jnp.pi) * jnp.arctan(steepness * speed) * v / (regularizer + speed)
-
-
-def smooth_direction_and_jacobian(x: jax.Array, steepness: float = FRICTION_STEEPNESS,
-                                  regularizer: float = FRICTION_REGULARIZER):
-    """:func:`smooth_direction` d(x) of vectors x (3, ...) (vector axis first) and its
-    Jacobian ∂d/∂x (3, 3, ...).
-
-    With s = |x| and q(s) = (2/π)·atan(σs)/(r + s), d = −q·x and
-    ∂d/∂x = −(q·I + q'(s)·s·x̂x̂ᵀ), x̂ = x/s; at x = 0 the second term vanishes (x̂ := 0),
-    which is the limit, so the Jacobian is finite and continuous there."""
-    sq = jnp.sum(x * x, axis=0)
-    pos = sq > 0
-    s = jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0)
-    xhat = x / jnp.where(pos, s, 1.0)
-    at = jnp.arctan(steepness * s)
-    q = (2.0 / jnp.pi) * at / (regularizer + s)
-    dq = (2.0 / jnp.pi) * (steepness / ((1.0 + (steepness * s) ** 2) * (regularizer + s)) - at / (regularizer + s) ** 2)
-    eye = jnp.eye(3, dtype=x.dtype).reshape((3, 3) + (1,) * (x.ndim - 1))
-    return -q * x, -(q * eye + (dq * s) * (xhat[:, None] * xhat[None, :]))

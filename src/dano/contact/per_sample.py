@@ -10,9 +10,8 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 
-from .base import (Compacted, PairGeometry, cross_columns, occupancy, occupancy_slope, register_contact_model,
-                   sample_rates)
-from .law import check_drag, sample_forces, sample_forces_and_jacobian
+from .base import Compacted, PairGeometry, cross_columns, occupancy, register_contact_model, sample_rates
+from .law import check_drag, sample_forces
 
 
 @jax.tree_util.register_dataclass
@@ -101,29 +100,3 @@ class PerSample:
         share = st.weight * occupancy(st.depth + st.h * (u @ st.rate))
         forces = sample_forces(p, share, st.normal, motion, self.drag)
         return jnp.concatenate([jnp.sum(forces, axis=1), jnp.sum(cross_columns(arm, forces), axis=1)])
-
-    def wrench_and_jacobian(self, p, st: PerSampleState | Compacted | _AllSamples, u):
-        """:meth:`wrench` (6,) and ∂wrench/∂u (6, 6) in closed form
-        (:func:`~dano.contact.law.sample_forces_and_jacobian`)."""
-        if isinstance(st, Compacted):
-            return jax.lax.cond(st.overflow, lambda: self.wrench_and_jacobian(p, st.full, u),
-                                lambda: self.wrench_and_jacobian(p, st.active, u))
-        if isinstance(st, _AllSamples):
-            st = _state(st.geometry, st.h, st.reach)
-        a = st.arm
-        motion = u[:3, None] + cross_columns(u[3:, None], a)
-        zero = jnp.zeros_like(a[0])
-        one = jnp.ones_like(a[0])
-        # ∂motion/∂u (3, 6, K): [I | −[a]×] per sample
-        dmotion = jnp.stack([jnp.stack([one, zero, zero, zero, a[2], -a[1]]),
-                             jnp.stack([zero, one, zero, -a[2], zero, a[0]]),
-                             jnp.stack([zero, zero, one, a[1], -a[0], zero])])
-        arm = a + st.h * st.moves * motion
-        z = st.depth + st.h * (u @ st.rate)
-        share = st.weight * occupancy(z)
-        dshare = (st.weight * occupancy_slope(z) * st.h) * st.rate
-        forces, dforces = sample_forces_and_jacobian(p, share, dshare, st.normal, motion, dmotion, self.drag)
-        wrench = jnp.concatenate([jnp.sum(forces, axis=1), jnp.sum(cross_columns(arm, forces), axis=1)])
-        darm = (st.h * st.moves) * dmotion
-        dtorque = (jnp.cross(arm[:, None], dforces, axis=0) - jnp.cross(forces[:, None], darm, axis=0)).sum(-1)
-        return wrench, jnp.concatenate([dforces.sum(-1), dtorque], axis=0)

@@ -91,8 +91,10 @@ def grid_points(bounds: np.ndarray, resolution: int | tuple[int, int, int]) -> t
 
 
 
-def evaluate(field: DensityField, points: np.ndarray, chunk: int = 1 << 18) -> np.ndarray:
-    """Evaluate ``field.density`` on many points in jitted chunks; returns float64 numpy (N,)."""
+def evaluate(field: DensityField, points: np.ndarray, chunk: int = 1 << 18,
+             signed_distance: bool = False) -> np.ndarray:
+    """Evaluate ``field.density`` (or, with ``signed_distance``, ``field.signed_distance`` [m])
+    on many points (N, 3), field frame [m], in jitted chunks; returns float64 numpy (N,)."""
     pts = np.asarray(points, dtype=np.float64)
     out = np.empty(len(pts))
     for start in range(0, len(pts), chunk):
@@ -100,8 +102,9 @@ def evaluate(field: DensityField, points: np.ndarray, chunk: int = 1 << 18) -> n
         n = len(block)
         if n < chunk and len(pts) > chunk:  # pad to keep one compiled shape
             block = np.concatenate([block, np.repeat(block[-1:], chunk - n, axis=0)])
-        out[start : start + n] = np.asarray(_DENSITY_JIT(field, block))[:n]
+        out[start : start + n] = np.asarray((_DISTANCE_JIT if signed_distance else _DENSITY_JIT)(field, block))[:n]
     return out
 
 
 _DENSITY_JIT = jax.jit(lambda f, p: f.density(p))
+_DISTANCE_JIT = jax.jit(lambda f, p: f.signed_distance(p))

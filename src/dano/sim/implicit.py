@@ -19,8 +19,7 @@ ring. At rest (v' = 0) nothing advances: resting states and ψ = m·g/k are unch
 
 Newton: A = M + h·B − h·∂Q/∂v', step −A⁻¹G, backtracking on ‖G‖² (Armijo), stop when the
 residual is at roundoff level relative to the step's impulses or the step is below
-``tolerance``. ∂Q/∂v' = Σ J·(∂wrench/∂u)·Jᵀ, the 6×6 wrench Jacobians in a
-model's closed form (``wrench_and_jacobian``) or by forward-mode AD.
+``tolerance``. ∂Q/∂v' = Σ J·(∂wrench/∂u)·Jᵀ, the 6×6 wrench Jacobians by forward-mode AD.
 The tangent of the converged
 solution is −A⁻¹·(∂G/∂θ·dθ) (implicit function theorem), so gradients are exact and cost
 one linear solve, whatever the iteration count.
@@ -87,17 +86,13 @@ def contact_force(models, pr: ImplicitProblem, v):
 
 
 def contact_force_and_jacobian(models, pr: ImplicitProblem, v):
-    """Q(v) (nv,) and ∂Q/∂v (nv, nv) = Σ J·(∂W/∂u)·Jᵀ: the 6×6 wrench Jacobians from a
-    model's ``wrench_and_jacobian`` where it has one, by forward-mode AD otherwise."""
+    """Q(v) (nv,) and ∂Q/∂v (nv, nv) = Σ J·(∂W/∂u)·Jᵀ (6×6 wrench Jacobians, forward mode)."""
     Q = jnp.zeros_like(v)
     D = jnp.zeros((v.shape[0], v.shape[0]), v.dtype)
     for model, J, st, p in zip(models, pr.jac, pr.state, pr.params):
         u = jnp.einsum("gvk,v->gk", J, v)
 
         def value_and_jac(p_, st_, u_, model=model):
-            if hasattr(model, "wrench_and_jacobian"):  # a model's own closed form
-                return model.wrench_and_jacobian(p_, st_, u_)
-
             def w(x):
                 out = model.wrench(p_, st_, x)
                 return out, out

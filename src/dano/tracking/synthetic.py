@@ -212,20 +212,13 @@ def surface_mesh(asset, resolution: int = 192):
     silhouette fit sit ~1 cm too far from the camera (measured: the field's silhouette
     covered 1.3–2.0 % more pixels than masks of the coarse mesh at the true poses).
     Raises DanoError if the asset's field has no signed distance."""
-    import jax.numpy as jnp
-    from skimage.measure import marching_cubes
+    from ..asset import visual_mesh
 
     field = asset.field
     if field is None or not hasattr(field, "signed_distance"):
         raise DanoError(f"{asset.name}: a synthetic video needs a DANO whose field has a signed distance")
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in field.bounds())
-    shape = np.maximum(np.round(resolution * (hi - lo) / (hi - lo).max()).astype(int), 2)
-    axes = [np.linspace(lo[k], hi[k], shape[k]) for k in range(3)]
-    pts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    sd = np.concatenate([np.asarray(field.signed_distance(jnp.asarray(c))) for c in np.array_split(pts, 16)])
-    verts, faces, _, _ = marching_cubes(sd.reshape(shape), level=0.0, spacing=tuple((hi - lo) / (shape - 1)),
-                                        gradient_direction="descent")
-    return verts + lo - np.asarray(asset.center_of_mass, dtype=np.float64), faces.astype(np.int64)
+    verts, faces = visual_mesh(field, 0.0, resolution, signed_distance=True)
+    return verts - np.asarray(asset.center_of_mass, dtype=np.float64), faces
 
 
 def synthetic_slide(out_dir: str | Path, friction: float = SLIDE_FRICTION, camera: VideoCamera = VideoCamera(),
