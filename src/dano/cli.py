@@ -677,10 +677,12 @@ def trajopt(
 
     Args:
         task: a built-in task (push-sphere: the paper's sphere pushing the bunny 1.0 sideways of a plain push;
-            push-panda: the Menagerie Panda's joint torques pushing a 15 cm bunny 10 cm, needs MENAGERIE_ROOT)
+            push-panda: the Menagerie Panda's joint torques pushing a 15 cm bunny 10 cm, needs MENAGERIE_ROOT;
+            grasp-panda: the Panda's hand grasps, lifts and holds the 15 cm bunny, needs MENAGERIE_ROOT)
             or a TOML/JSON configuration (key task and the task's settings, e.g. the config.json a run saved).
         json_: print one JSON object (bunny_final_error, pusher_final_error, max_constraint_violation,
-            iterations, converged, status, wall_time_s, compile_time_s, ...; model_error with --model-error).
+            iterations, converged, status, wall_time_s, compile_time_s, ...; model_error with --model-error;
+            grasp-panda: lift_height, slip_mm, slip_deg, grip_force, converged, wall_time_s, contact_models, ...).
         out_dir: write report.json, config.json, solution.npz, log.csv, convergence.png and the video here
             (default: trajopt-<task>/).
         model_error: also run the plan in a world with (1 + this) times the sliding friction: open loop and
@@ -709,7 +711,10 @@ def trajopt(
     t = Table(title=f"trajectory optimisation: {task}")
     t.add_column("quantity")
     t.add_column("value")
-    for key in ("status", "iterations", "bunny_final_error", "pusher_final_error", "max_constraint_violation", "cost"):
+    keys = ("status", "iterations", "bunny_final_error", "pusher_final_error", "max_constraint_violation", "cost")
+    if report["task"] == "grasp-panda":
+        keys = ("status", "grip_force", "lift_height", "slip_mm", "slip_deg", "wall_time_s")
+    for key in keys:
         v = report[key]
         t.add_row(key.replace("_", " "), f"{v:.4g}" if isinstance(v, float) else str(v))
     for key in ("max_control_ratio", "joint_limit_violation"):
@@ -718,6 +723,8 @@ def trajopt(
     for key, v in (report.get("model_error") or {}).items():
         if isinstance(v, float):
             t.add_row(key.replace("_", " "), f"{v:.4g}")
+    for model, r in (report.get("contact_models") or {}).items():
+        t.add_row(f"{model}: lift, slip", f"{r['lift_height']:.4g} m, {r['slip_mm']:.4g} mm, {r['slip_deg']:.3g} deg")
     t.caption = (f"{report['wall_time_s']:.1f} s (of which {report['compile_time_s']:.1f} s compiling); "
                  f"wrote {', '.join(str(p) for p in paths)}")
     out.print(t)

@@ -157,18 +157,20 @@ PANDA_WAYPOINTS = np.array([
 PANDA_WAYPOINT_TIMES = np.array([0.0, 0.8, 1.2, 1.6, 2.0, 2.4, 2.8])
 
 
-def menagerie_panda(who: str = "panda-push-bunny") -> Path:
-    """Path of the Menagerie Panda (``panda_nohand.xml``) under ``$MENAGERIE_ROOT``.
+def menagerie_panda(who: str = "panda-push-bunny", hand: bool = False) -> Path:
+    """Path of the Menagerie Panda (``panda_nohand.xml``, or ``panda.xml`` with its two-finger
+    hand if ``hand``) under ``$MENAGERIE_ROOT``.
 
     Raises DanoError if it is not there: the Panda's meshes (33 MB, Apache-2.0) do not
     ship with dano and nothing is downloaded at run time.
     """
     root = os.environ.get("MENAGERIE_ROOT")
-    path = Path(root) / "franka_emika_panda" / "panda_nohand.xml" if root else None
+    name = "panda.xml" if hand else "panda_nohand.xml"
+    path = Path(root) / "franka_emika_panda" / name if root else None
     if path is None or not path.is_file():
         raise DanoError(
             f"{who} needs the MuJoCo Menagerie Franka Panda: set MENAGERIE_ROOT to a folder holding "
-            "franka_emika_panda/panda_nohand.xml (a clone of mujoco_menagerie)"
+            f"franka_emika_panda/{name} (a clone of mujoco_menagerie)"
             + (f"; not found at {path}" if path else "")
         )
     return path

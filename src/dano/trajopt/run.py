@@ -12,30 +12,36 @@ import numpy as np
 
 from .._config import read_table, typed_table
 from ..errors import DanoError
+from .grasp import GraspPandaConfig
 from .tasks import TASKS, final_errors, limit_report, model_error_run, solve_task, unknown_task
+
+#: every built-in task: name -> its configuration class
+CONFIGS = {**{name: cls for name, (_, cls) in TASKS.items()}, "grasp-panda": GraspPandaConfig}
 
 
 def load_config(source: str, **overrides):
     """The task configuration: a built-in task name or a TOML/JSON file (key ``task`` and
     the task's settings), with ``overrides`` (None values ignored) applied and validated.
     Raises DanoError for an unknown task, unknown keys, wrong types or values out of range."""
-    if source in TASKS:
-        cls = TASKS[source][1]
-        cfg = cls()
+    if source in CONFIGS:
+        cfg = CONFIGS[source]()
     else:
         path = Path(source)
         if path.suffix.lower() not in (".toml", ".json") and not path.exists():
             raise unknown_task(source)
         raw = read_table(path)
         name = raw.get("task")
-        if name not in TASKS:
-            raise DanoError(f"{path}: [task] must name a built-in task ({', '.join(TASKS)}), got {name!r}")
+        if name not in CONFIGS:
+            raise DanoError(f"{path}: [task] must name a built-in task ({', '.join(CONFIGS)}), got {name!r}")
         try:
-            cfg = typed_table(raw, TASKS[name][1], "")
+            cfg = typed_table(raw, CONFIGS[name], "")
         except DanoError as exc:
             raise DanoError(f"{path}: {exc}") from None
-    cfg = dataclasses.replace(cfg, **{k: v for k, v in overrides.items() if v is not None})
-    return cfg.validate()
+    given = {k: v for k, v in overrides.items() if v is not None}
+    unused = sorted(set(given) - {f.name for f in dataclasses.fields(cfg)})
+    if unused:
+        raise DanoError(f"{cfg.task} does not use {', '.join('--' + k.replace('_', '-') for k in unused)}")
+    return dataclasses.replace(cfg, **given).validate()
 
 
 def report(task, solution, model_error=None) -> dict:
@@ -74,8 +80,14 @@ def report(task, solution, model_error=None) -> dict:
 def run(source: str, progress=None, **overrides):
     """Build and solve the task (and the model-error runs if configured). progress:
     optional ``progress(done, total, description)``. Returns (task, solution,
-    model_error or None, report dict)."""
+    model_error or None, report dict); for ``grasp-panda`` (task, the chosen
+    :class:`~dano.trajopt.grasp.GraspRun`, None, report)."""
     cfg = load_config(source, **overrides)
+    if isinstance(cfg, GraspPandaConfig):
+        from .grasp import run_grasp
+
+        task, chosen, rep = run_grasp(cfg, progress=progress)
+        return task, chosen, None, rep
     build = TASKS[cfg.task][0]
     if progress is not None:
         progress(0, 1, "building the task")
@@ -103,6 +115,8 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
     from ..sim import State, rollout
     from ..viz.plot import plot_trajopt
 
+    if isinstance(task.config, GraspPandaConfig):
+        return _write_grasp(task, solution, rep, Path(out_dir), video, progress)
     out_dir = Path(out_dir)
     names = ["report.json", "config.json", "solution.npz", "log.csv", "convergence.png"]
     if video:
@@ -142,4 +156,32 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
             if gap > 1e-6:
                 raise DanoError(f"internal: the replayed solution ends {gap:.3g} m from the solver's states")
             write_video(task.scene, traj, paths[f"{task.config.task}.mp4"], progress=progress)
+    return [out_dir / n for n in names]
+
+
+def _write_grasp(task, run, rep: dict, out_dir: Path, video: bool, progress) -> list:
+    """grasp-panda's outputs: report.json, config.json, solution.npz (time, states,
+    controls, qpos, qvel, the joint waypoints, the grasp) and the video, all or none."""
+    from .._files import atomic_path
+    from ..sim import State, rollout
+
+    names = ["report.json", "config.json", "solution.npz"] + (["grasp-panda.mp4"] if video else [])
+    X, U = np.asarray(run.states), np.asarray(run.controls)
+    nq = task.scene.nq
+    g = task.grasp
+    with ExitStack() as stack:
+        paths = {n: stack.enter_context(atomic_path(out_dir / n)) for n in names}
+        paths["report.json"].write_text(json.dumps(rep, indent=2))
+        paths["config.json"].write_text(json.dumps(dataclasses.asdict(task.config), indent=2))
+        with open(paths["solution.npz"], "wb") as f:
+            np.savez(f, time=np.arange(len(X)) * task.scene.dt, states=X, controls=U, qpos=X[:, :nq],
+                     qvel=X[:, nq:], waypoints=task.waypoints, grasp_center=g.center, grasp_axis=g.axis)
+        if video:
+            from ..viz.video import write_video
+
+            traj = rollout(task.scene, State(X[0, :nq], X[0, nq:]), U, task.params, len(U))
+            gap = float(np.abs(traj.qpos[-1] - X[-1, :nq]).max())
+            if gap > 1e-6:
+                raise DanoError(f"internal: the replayed grasp ends {gap:.3g} m from the simulated states")
+            write_video(task.scene, traj, paths["grasp-panda.mp4"], progress=progress)
     return [out_dir / n for n in names]

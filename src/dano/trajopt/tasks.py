@@ -227,29 +227,38 @@ PANDA_TORQUE = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0])  # N m, Fran
 PANDA_PUSHER_RADIUS = 0.025
 
 
-def panda_spec() -> mujoco.MjSpec:
-    """The Menagerie Panda (``$MENAGERIE_ROOT``) as a torque-controlled arm: its actuators
-    become joint motors (ctrl = torque [N m] within the torque limits), gravity compensated,
-    own collisions off, a spherical pusher (geom "pusher") 16.7 cm beyond link 7's frame.
-    Raises DanoError if the Panda is not found."""
-    from ..sim.scenes import menagerie_panda
-
-    spec = mujoco.MjSpec.from_file(str(menagerie_panda("push-panda")))
+def torque_controlled_arm(spec: mujoco.MjSpec) -> list:
+    """Make the Menagerie Panda in ``spec`` a torque-controlled arm, in place: its own
+    collisions off, every body gravity compensated, its first 7 actuators joint motors
+    (ctrl = torque [N m] within Franka's torque limits). Returns the spec's actuators.
+    Raises DanoError if the arm's 7 actuators are missing."""
     for g in spec.geoms:
         g.contype, g.conaffinity = 0, 0
     for b in spec.bodies:
         if b.name != "world":
             b.gravcomp = 1.0
     actuators = list(spec.actuators)
-    if len(actuators) != 7:
-        raise DanoError(f"expected the Panda's 7 actuators, found {len(actuators)}")
-    for a, limit in zip(actuators, PANDA_TORQUE):
+    if len(actuators) < 7:
+        raise DanoError(f"expected the Panda's 7 arm actuators, found {len(actuators)}")
+    for a, limit in zip(actuators[:7], PANDA_TORQUE):
         a.gaintype = mujoco.mjtGain.mjGAIN_FIXED
         a.gainprm[0] = 1.0
         a.biastype = mujoco.mjtBias.mjBIAS_NONE
         a.biasprm[:] = 0.0
         a.ctrlrange = [-limit, limit]
         a.forcerange = [-limit, limit]
+    return actuators
+
+
+def panda_spec() -> mujoco.MjSpec:
+    """The Menagerie Panda (``$MENAGERIE_ROOT``) as a torque-controlled arm
+    (:func:`torque_controlled_arm`) with a spherical pusher (geom "pusher") 16.7 cm beyond
+    link 7's frame. Raises DanoError if the Panda is not found."""
+    from ..sim.scenes import menagerie_panda
+
+    spec = mujoco.MjSpec.from_file(str(menagerie_panda("push-panda")))
+    if len(torque_controlled_arm(spec)) != 7:
+        raise DanoError(f"expected the Panda's 7 actuators, found {len(spec.actuators)}")
     spec.body("link7").add_geom(name="pusher", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[PANDA_PUSHER_RADIUS, 0, 0],
                                 pos=[0, 0, 0.167], contype=2, conaffinity=2, mass=0.1, rgba=[0.9, 0.2, 0.2, 1])
     return spec

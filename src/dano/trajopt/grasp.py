@@ -1,0 +1,439 @@
+"""``grasp-panda``: the Menagerie Panda's two-finger hand grasps the 15 cm bunny DANO from the
+table, lifts it and holds it for a second (the paper's abstract: "optimize grasps").
+
+The pipeline, every stage on the DANO's own contact samples and dano's simulator:
+
+1. **Grasp pose**: a search over antipodal pairs of the DANO's contact samples (outward
+   normals opposed within the friction cone's half-angle, the grip axis horizontal for a
+   top-down approach, the width within the hand's opening less a margin) whose finger paths
+   are free of samples (the open fingers descend and close without cutting the object); the
+   pair with the least gravity lever about the grip and the best-aligned normals is chosen
+   (:func:`antipodal_grasp`).
+2. **Arm configurations** for the pre-grasp (12 cm above), grasp and lifted poses by inverse
+   kinematics of the hand's grip site (SciPy's bounded least squares on MuJoCo's kinematics).
+3. **Motion**: joint-space PD tracking of approach → descend → settle → close → lift → hold,
+   with gravity compensation of the arm and a feedforward of the object's weight at the grip
+   site during lift and hold, simulated with :func:`dano.sim.step` (DANO contact between the
+   bunny, the two finger pads and the table).
+4. **Closing force**: a scan of the grip force per finger; the smallest force that lifts the
+   bunny by at least 90 % of the goal and holds it with less than ``slip_tolerance_mm`` of
+   slip is chosen (all forces of the scan go through one compiled rollout).
+
+The approach is scripted (joint interpolation between the IK poses), not optimised by iLQR:
+that, and optimising the grasp pose and force through the simulator's gradients, remain to
+do (see docs/trajopt.md).
+
+Decisions where the issue is silent: the finger motor is a force motor on the hand's tendon
+(ctrl = grip force per finger [N], −20 to 70 N: Franka's hand holds 70 N continuously),
+the finger joints get 200 N s/m of damping (the hand's gearing: they close at ≈ 7 cm/s under
+15 N instead of slamming into the object); only the two main fingertip pads (1.7 × 1.7 cm
+faces) touch the bunny, each made 2 cm thick outwards with the inner face where Menagerie has
+it (a thin box lets the centroid pass its mid-plane and the normal flip); the pads are stiff
+(impact spring 1e6, damper 1e7 per unit overlap: the paper's 3e4 lets the 1.7 cm pad's
+largest overlap carry only ≈ 5 N) and the table keeps the paper's values; sliding friction 0.8
+on both (rubber pads, a wooden table); h = 2 ms: at the push tasks' 10 ms the implicit step
+does not hold contact this stiff (measured: at 10 N the fingers were driven through their
+limits and the state grew to 1e124 within two steps; at 2 ms every force of the scan stays
+bounded, |qvel| < 5). A run whose velocities exceed 1e3 or are not finite is marked
+``diverged`` and never chosen.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from ..errors import DanoError
+from .tasks import PANDA_TORQUE, torque_controlled_arm
+
+PAD_INNER_HALF_THICKNESS = 0.01  # [m] pads thickened outwards to 2 cm
+GRIP_SITE_OFFSET = 0.1034  # [m] hand frame: the main pads' centre below the hand's origin
+OPEN_GAP = 0.083  # [m] between the pads' inner faces, fingers fully open (2 × 0.04 + 3 mm)
+HOME = np.array([0.0, 0.0, 0.0, -1.57079, 0.0, 1.57079, -0.7853])  # Menagerie's "home" keyframe
+ANGLE_WEIGHT = 0.02  # [m] score of a normal at 90° from the grip axis, against the torque arm
+PHASES = (("approach", 1.0), ("descend", 0.8), ("settle", 0.4), ("close", 0.5), ("lift", 0.8), ("hold", 1.0))
+
+
+@dataclass(frozen=True)
+class GraspPandaConfig:
+    """Settings of ``grasp-panda``."""
+
+    task: str = "grasp-panda"
+    """the task's name"""
+    dt: float = 0.002
+    """time step h [s] (at 0.01 s the stiff pads' contact diverges: see the module's notes)"""
+    sliding_friction: float = 0.8
+    """sliding friction μ of the pads and the table"""
+    pad_spring: float = 1e6
+    """impact spring k of the two finger-pad pairs [N per unit overlap]"""
+    pad_damper: float = 1e7
+    """impact damper c of the finger-pad pairs"""
+    lift_height: float = 0.10
+    """lift goal [m]"""
+    grip_forces: tuple[float, ...] = (10.0, 15.0, 20.0, 30.0, 40.0, 50.0)
+    """grip forces per finger scanned for the closing force [N]"""
+    slip_tolerance_mm: float = 5.0
+    """largest accepted slip of the object in the hand over the hold [mm]"""
+    friction_cone_deg: float = 15.0
+    """antipodal test: largest angle between a sample's normal and the grip axis [deg]"""
+    contact_model: str = "centroid"
+    """DANO contact model of the main run: centroid (the paper's) or per_sample"""
+    compare_models: bool = True
+    """also run the other contact model at the chosen grasp and force"""
+
+    def validate(self):
+        """Raises DanoError naming the first setting out of range."""
+        checks = [("task", self.task == "grasp-panda"), ("dt", 0 < self.dt <= 0.01),
+                  ("sliding_friction", 0 < self.sliding_friction < 10), ("pad_spring", 0 < self.pad_spring < 1e9),
+                  ("pad_damper", 0 <= self.pad_damper < 1e10), ("lift_height", 0 < self.lift_height <= 0.3),
+                  ("grip_forces", len(self.grip_forces) > 0 and all(0 < f <= 70 for f in self.grip_forces)),
+                  ("slip_tolerance_mm", self.slip_tolerance_mm > 0),
+                  ("friction_cone_deg", 0 < self.friction_cone_deg < 60),
+                  ("contact_model", self.contact_model in ("centroid", "per_sample"))]
+        for name, ok in checks:
+            if not ok:
+                raise DanoError(f"{name} out of range: {getattr(self, name)}")
+        return self
+
+
+def hand_spec() -> mujoco.MjSpec:
+    """The Menagerie Panda with its hand (``$MENAGERIE_ROOT``): a torque-controlled arm,
+    the finger tendon driven by a grip-force motor (ctrl[7] = force per finger [N], > 0
+    closes), damped finger joints, the two main fingertip pads as the only collision geoms
+    ("left_finger_pad", "right_finger_pad") and a site "grip" between them. Raises
+    DanoError if the Panda is not found."""
+    from ..sim.scenes import menagerie_panda
+
+    spec = mujoco.MjSpec.from_file(str(menagerie_panda("grasp-panda", hand=True)))
+    actuators = torque_controlled_arm(spec)
+    if len(actuators) != 8:
+        raise DanoError(f"expected the Panda's 8 actuators (7 joints and the hand), found {len(actuators)}")
+    grip = actuators[7]  # on the tendon "split" (0.5 per finger joint): −2 makes ctrl the force per finger
+    grip.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+    grip.gainprm[:] = 0.0
+    grip.gainprm[0] = -2.0
+    grip.biastype = mujoco.mjtBias.mjBIAS_NONE
+    grip.biasprm[:] = 0.0
+    grip.ctrlrange = [-20.0, 70.0]
+    grip.forcerange = [-140.0, 140.0]
+    for j in spec.joints:
+        if j.name.startswith("finger_joint"):
+            j.damping = [200.0, 0.0, 0.0]
+    for finger in ("left_finger", "right_finger"):
+        boxes = [g for g in spec.body(finger).geoms if g.type == mujoco.mjtGeom.mjGEOM_BOX]
+        if not boxes:
+            raise DanoError(f"the Panda's {finger} has no fingertip pad boxes")
+        pad = max(boxes, key=lambda g: g.size[0] * g.size[2])
+        inner = pad.pos[1] - pad.size[1]
+        pad.size = [pad.size[0], PAD_INNER_HALF_THICKNESS, pad.size[2]]
+        pad.pos = [pad.pos[0], inner + PAD_INNER_HALF_THICKNESS, pad.pos[2]]
+        pad.contype, pad.conaffinity = 2, 2
+        pad.name = f"{finger}_pad"
+    spec.body("hand").add_site(name="grip", pos=[0.0, 0.0, GRIP_SITE_OFFSET])
+    return spec
+
+
+@dataclass(frozen=True)
+class Grasp:
+    """An antipodal grasp: centre (3,) world [m], axis (3,) horizontal unit grip axis
+    (world), width [m] between the two contact samples, torque_arm [m] horizontal distance
+    of the centre from the object's centre of mass, candidates: how many pairs passed."""
+
+    center: np.ndarray
+    axis: np.ndarray
+    width: float
+    torque_arm: float
+    candidates: int
+
+
+def antipodal_grasp(points, normals, com, max_width: float = OPEN_GAP - 0.018, min_width: float = 0.015,
+                    cone_deg: float = 15.0, min_height: float = 0.025) -> Grasp:
+    """The best antipodal grasp among the DANO's contact samples.
+
+    points, normals: (N, 3) world frame [m] and outward unit normals; com: (3,) [m].
+    A pair (i, j) qualifies if min_width < |p_j − p_i| < max_width, the axis is within 0.1
+    of horizontal, n_i and n_j lie within ``cone_deg`` of −axis and +axis, the centre is
+    ``min_height`` above the table, and no sample lies in the open fingers' columns or the
+    pads' closing paths (pad faces 1.7 × 1.7 cm with 3 mm margins). The chosen pair has the
+    least score: the horizontal distance of its centre from ``com`` [m] (the lever of the
+    object's weight about the grip) + 0.02 m × sin of the larger angle between a normal and
+    the grip axis (a margin inside the friction cone). Raises DanoError if no pair qualifies.
+    """
+    P, n = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+    d = P[None] - P[:, None]
+    w = np.linalg.norm(d, axis=-1)
+    u = d / np.maximum(w, 1e-12)[..., None]
+    cos = np.cos(np.deg2rad(cone_deg))
+    ok = (w > min_width) & (w < max_width) & (np.abs(u[..., 2]) < 0.1)
+    ok &= (np.einsum("ik,ijk->ij", n, u) < -cos) & (np.einsum("jk,ijk->ij", n, u) > cos)
+    ok &= 0.5 * (P[:, None, 2] + P[None, :, 2]) > min_height
+    ok &= u[..., 0] >= 0  # each unordered pair once
+    i, j = np.nonzero(ok)
+    centers, axes, widths = 0.5 * (P[i] + P[j]), u[i, j], w[i, j]
+    worst = np.minimum(-np.einsum("kd,kd->k", n[i], axes), np.einsum("kd,kd->k", n[j], axes))
+    arms = np.linalg.norm(centers[:, :2] - np.asarray(com)[:2], axis=1)
+    score = arms + ANGLE_WEIGHT * np.sqrt(np.clip(1.0 - worst ** 2, 0.0, 1.0))
+    half_open = OPEN_GAP / 2 + 0.005
+    best, count = None, 0
+    for k in np.argsort(score, kind="stable"):
+        a = axes[k].copy()
+        a[2] = 0.0
+        a /= np.linalg.norm(a)
+        v = np.cross([0.0, 0.0, 1.0], a)
+        r = P - centers[k]
+        along, side, up = r @ a, r @ v, r[:, 2]
+        column = (np.abs(np.abs(along) - half_open) < 0.008) & (np.abs(side) < 0.0115) & (up > -0.0115) & (up < 0.09)
+        path = ((np.abs(along) > widths[k] / 2 + 0.003) & (np.abs(along) < half_open) & (np.abs(side) < 0.0115)
+                & (np.abs(up) < 0.0115))
+        if not np.any(column | path):
+            count += 1
+            if best is None:
+                best = Grasp(centers[k], a, float(widths[k]), float(arms[k]), 0)
+    if best is None:
+        raise DanoError(f"no antipodal grasp within the hand's opening ({max_width * 100:.1f} cm) is free of the "
+                        f"object: {len(i)} pairs passed the width and friction-cone tests")
+    return dataclasses.replace(best, candidates=count)
+
+
+def grip_ik(model: mujoco.MjModel, site: int, target, axis, q0, rotation=None) -> tuple[np.ndarray, float]:
+    """Joint angles (7,) placing ``site`` at ``target`` (3,) [m] with the hand's z axis down
+    and its finger axis (y) along ``axis`` (or the site's orientation equal to ``rotation``
+    (3, 3)), within the joint limits less 0.05 rad; bounded least squares (SciPy) from q0.
+    Returns (q, largest residual [m or unit-vector components])."""
+    from scipy.optimize import least_squares
+
+    data = mujoco.MjData(model)
+    lo, hi = model.jnt_range[:7, 0] + 0.05, model.jnt_range[:7, 1] - 0.05
+
+    def residual(q):
+        data.qpos[:7] = q
+        mujoco.mj_kinematics(model, data)
+        R = data.site_xmat[site].reshape(3, 3)
+        orient = (R - rotation).ravel() if rotation is not None else np.r_[R[:, 2] - [0, 0, -1], R[:, 1] - axis]
+        return np.r_[10.0 * (data.site_xpos[site] - target), orient, 1e-3 * (q - HOME)]
+
+    sol = least_squares(residual, np.clip(q0, lo, hi), bounds=(lo, hi))
+    return sol.x, float(np.abs(sol.fun[:-7]).max())
+
+
+@dataclass(frozen=True)
+class GraspRun:
+    """One simulated grasp: states (T + 1, nx), controls (T, nu), grip force per finger
+    [N], lift_height [m] (the object's centre of mass above its start at the end of the
+    hold), slip_mm (object motion relative to the hand over the hold [mm]), slip_deg (its
+    rotation relative to the hand [deg]), hold_start_lift [m] (at the hold's start),
+    diverged (non-finite or |qvel| > 1e3 somewhere: the other figures are then NaN)."""
+
+    states: np.ndarray
+    controls: np.ndarray
+    grip_force: float
+    lift_height: float
+    hold_start_lift: float
+    slip_mm: float
+    slip_deg: float
+    diverged: bool = False
+
+
+@dataclass(frozen=True)
+class GraspTask:
+    """The built task: scene, params (pads stiffened), x0 (nx,) (arm at Menagerie's home,
+    fingers open, bunny at rest), the grasp, waypoints (len(PHASES) + 1, 7): the arm's
+    joint targets at the phase boundaries [rad], and the config."""
+
+    scene: object
+    params: object
+    x0: np.ndarray
+    grasp: Grasp
+    waypoints: np.ndarray
+    config: GraspPandaConfig
+
+
+def build(config: GraspPandaConfig = GraspPandaConfig(), contact_model: str | None = None) -> GraspTask:
+    """Build the scene, choose the grasp and solve the IK waypoints."""
+    from ..data import load_builtin
+    from ..sim import DanoObject, compose
+    from ..sim.scene import add_ground
+    from ..sim.scenes import initial_state, resting_height
+
+    config.validate()
+    spec = hand_spec()
+    add_ground(spec)
+    bunny = load_builtin("bunny").scaled(0.15).with_mass(0.25)
+    start = np.array([0.5, 0.0, resting_height(bunny) + 0.0005])
+    scene = compose([DanoObject("bunny", bunny, tuple(start))], spec, dt=config.dt, name="grasp-panda",
+                    contact_model=contact_model or config.contact_model)
+    params = scene.default_params(sliding_friction=config.sliding_friction)
+    for pair in scene.pair_names:
+        if pair.endswith("_pad"):
+            params = scene.set_param(params, "impact_spring", config.pad_spring, pair)
+            params = scene.set_param(params, "impact_damper", config.pad_damper, pair)
+    free = initial_state(scene, {"bunny": (tuple(start), (1, 0, 0, 0))})
+    qpos = np.asarray(free.qpos, dtype=np.float64).copy()
+    qpos[:7], qpos[7:9] = HOME, 0.04
+    x0 = np.r_[qpos, np.zeros(scene.nv)]
+    points = np.asarray(scene.samples.points[0], np.float64).T + start  # identity orientation at rest
+    normals = np.asarray(scene.samples.normals[0], np.float64).T
+    grasp = antipodal_grasp(points, normals, start, cone_deg=config.friction_cone_deg)
+    m = scene.mj_model
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "grip")
+    best = None
+    for axis in (grasp.axis, -grasp.axis):  # the hand is symmetric: take the better-conditioned wrist
+        q_grasp, e1 = grip_ik(m, site, grasp.center, axis, HOME)
+        q_pre, e2 = grip_ik(m, site, grasp.center + [0, 0, 0.12], axis, q_grasp)
+        if best is None or max(e1, e2) < best[2]:
+            best = (q_grasp, q_pre, max(e1, e2))
+    q_grasp, q_pre, err = best
+    d = mujoco.MjData(m)
+    d.qpos[:7] = q_grasp
+    mujoco.mj_kinematics(m, d)
+    q_lift, e3 = grip_ik(m, site, grasp.center + [0, 0, config.lift_height], None, q_grasp,
+                         rotation=d.site_xmat[site].reshape(3, 3).copy())
+    if max(err, e3) > 1e-3:
+        raise DanoError(f"the Panda cannot reach the grasp at {np.round(grasp.center, 3).tolist()} "
+                        f"(IK residual {max(err, e3):.3g})")
+    waypoints = np.stack([HOME, q_pre, q_grasp, q_grasp, q_grasp, q_lift, q_lift])
+    return GraspTask(scene, params, x0, grasp, waypoints, config)
+
+
+def _schedules(task: GraspTask):
+    dt = task.config.dt
+    knots = np.cumsum([0.0] + [t for _, t in PHASES])
+    steps = int(round(knots[-1] / dt))
+    times = np.arange(steps) * dt
+    q_ref = np.stack([np.interp(times, knots, task.waypoints[:, k]) for k in range(7)], axis=1)
+    # grip: open (−10 N) until the close phase, then ramp to the force over 0.3 s
+    ramp = np.where(times < knots[3], -1.0, np.clip((times - knots[3]) / 0.3, 0.0, 1.0))
+    # the object's weight at the grip site, fed forward from the lift on
+    m = task.scene.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:7] = task.waypoints[-1]
+    mujoco.mj_kinematics(m, d)
+    mujoco.mj_comPos(m, d)
+    jac = np.zeros((3, m.nv))
+    mujoco.mj_jacSite(m, d, jac, None, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "grip"))
+    weight = float(task.scene.assets[0].mass) * 9.81
+    tau_ff = jac[:, :7].T @ np.array([0.0, 0.0, weight])
+    ff = np.where(times[:, None] >= knots[4], tau_ff[None], 0.0)
+    return knots, q_ref, ramp, ff
+
+
+def simulate(task: GraspTask, forces) -> tuple[list[GraspRun], float]:
+    """Simulate the grasp with each grip force per finger in ``forces`` [N] (one compiled
+    rollout, vmapped over the forces). Returns (runs, compile time [s])."""
+    from ..sim import make_data, step
+
+    scene, params = task.scene, task.params
+    nq = scene.nq
+    knots, q_ref, ramp, ff = _schedules(task)
+    kp = np.array([600.0] * 4 + [100.0] * 3)
+    kd = 2.0 * np.sqrt(kp)
+    open_force = 10.0
+
+    def one(force):
+        grip = jnp.where(jnp.asarray(ramp) < 0, -open_force, jnp.asarray(ramp) * force)
+
+        def body(x, inp):
+            qr, g, tff = inp
+            arm = jnp.clip(kp * (qr - x[:7]) - kd * x[nq:nq + 7] + tff, -PANDA_TORQUE, PANDA_TORQUE)
+            u = jnp.concatenate([arm, g[None]])
+            d = step(scene, params, make_data(scene, x[:nq], x[nq:], ctrl=u))
+            xn = jnp.concatenate([d.qpos, d.qvel]).astype(x.dtype)
+            return xn, (xn, u)
+
+        x0 = jnp.asarray(task.x0)
+        _, (X, U) = jax.lax.scan(body, x0, (jnp.asarray(q_ref), grip, jnp.asarray(ff)))
+        return jnp.concatenate([x0[None], X]), U
+
+    f = jnp.asarray(forces, dtype=jnp.asarray(task.x0).dtype)
+    t0 = time.perf_counter()
+    compiled = jax.jit(jax.vmap(one)).lower(f).compile()
+    compile_s = time.perf_counter() - t0
+    X, U = compiled(f)
+    X, U = np.asarray(X), np.asarray(U)
+    hold = int(round(knots[-2] / task.config.dt))
+    return [_measure(task, X[k], U[k], float(v), hold) for k, v in enumerate(forces)], compile_s
+
+
+def _measure(task: GraspTask, X, U, force: float, hold: int) -> GraspRun:
+    m = task.scene.mj_model
+    d = mujoco.MjData(m)
+    hand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "hand")
+    ba = task.scene.qpos_adr[0]
+
+    def in_hand(x):
+        d.qpos[:] = x[:m.nq]
+        mujoco.mj_kinematics(m, d)
+        R = d.xmat[hand].reshape(3, 3)
+        q = x[ba + 3:ba + 7]
+        Rb = np.zeros(9)
+        mujoco.mju_quat2Mat(Rb, q / np.linalg.norm(q))
+        return R.T @ (x[ba:ba + 3] - d.xpos[hand]), R.T @ Rb.reshape(3, 3)
+
+    z0 = task.x0[ba + 2]
+    if not (np.all(np.isfinite(X)) and np.abs(X[:, m.nq:]).max() < 1e3):
+        nan = float("nan")
+        return GraspRun(X, U, force, nan, nan, nan, nan, diverged=True)
+    p0, R0 = in_hand(X[hold])
+    p1, R1 = in_hand(X[-1])
+    cos = np.clip((np.trace(R0.T @ R1) - 1.0) / 2.0, -1.0, 1.0)
+    return GraspRun(X, U, force, float(X[-1, ba + 2] - z0), float(X[hold, ba + 2] - z0),
+                    float(1000.0 * np.linalg.norm(p1 - p0)), float(np.degrees(np.arccos(cos))))
+
+
+def succeeded(run: GraspRun, config: GraspPandaConfig) -> bool:
+    """Still lifted by ≥ 90 % of the goal at the end of the hold, slip within tolerance."""
+    return bool(not run.diverged and run.lift_height >= 0.9 * config.lift_height
+                and run.slip_mm <= config.slip_tolerance_mm)
+
+
+def run_grasp(config: GraspPandaConfig, progress=None) -> tuple[GraspTask, GraspRun, dict]:
+    """Build, choose the grasp, scan the grip forces (and compare the contact models).
+    Returns (task, chosen run, report). The report has ``lift_height``, ``slip_mm``,
+    ``slip_deg``, ``converged`` (a force in the scan lifted and held the object),
+    ``grip_force``, ``wall_time_s``, ``compile_time_s``, the grasp and the scan, and
+    ``contact_models`` {model: {lift_height, hold_start_lift, slip_mm, slip_deg}} at the chosen force."""
+    t0 = time.perf_counter()
+    if progress is not None:
+        progress(0, 3, "building the grasp task")
+    task = build(config)
+    if progress is not None:
+        progress(1, 3, "simulating the grip-force scan")
+    t1 = time.perf_counter()
+    runs, compile_s = simulate(task, config.grip_forces)
+    scan_s = time.perf_counter() - t1 - compile_s
+    ok = [r for r in runs if succeeded(r, config)]
+    chosen = min(ok, key=lambda r: r.grip_force) if ok else max(
+        runs, key=lambda r: (np.nan_to_num(r.lift_height, nan=-1.0), -np.nan_to_num(r.slip_mm, nan=1e9)))
+    models = {config.contact_model: _summary(chosen)}
+    if config.compare_models:
+        if progress is not None:
+            progress(2, 3, "the other contact model")
+        other = "per_sample" if config.contact_model == "centroid" else "centroid"
+        models[other] = _summary(simulate(build(config, contact_model=other), [chosen.grip_force])[0][0])
+    if progress is not None:
+        progress(3, 3, "done")
+    g = task.grasp
+    report = {
+        "task": config.task, "lift_height": chosen.lift_height, "hold_start_lift": chosen.hold_start_lift,
+        "slip_mm": chosen.slip_mm, "slip_deg": chosen.slip_deg, "converged": bool(ok),
+        "status": "lifted and held" if ok else "no force in the scan lifted and held the object",
+        "grip_force": chosen.grip_force, "contact_model": config.contact_model,
+        "grasp": {"center": g.center.tolist(), "axis": g.axis.tolist(), "width": g.width,
+                  "torque_arm": g.torque_arm, "candidates": g.candidates},
+        "scan": [{"grip_force": r.grip_force, **_summary(r), "success": succeeded(r, config)} for r in runs],
+        "contact_models": models, "scan_time_s": scan_s, "wall_time_s": time.perf_counter() - t0,
+        "compile_time_s": compile_s, "dt": config.dt, "hold_s": PHASES[-1][1],
+        "optimised": "grasp pose (antipodal search) and closing force (scan); approach scripted (PD on IK poses)",
+    }
+    return task, chosen, report
+
+
+def _summary(r: GraspRun) -> dict:
+    return {"lift_height": r.lift_height, "hold_start_lift": r.hold_start_lift, "slip_mm": r.slip_mm,
+            "slip_deg": r.slip_deg, "diverged": r.diverged}
