@@ -180,6 +180,11 @@ def overlaps(scene: Scene, params: SimParams, data) -> jax.Array:
     return _psi(scene, geos, d.qpos.dtype)
 
 
+#: a further constraint pass runs when the contact force at the solved velocity differs from
+#: the one MuJoCo's constraint solver saw by more than this fraction (NewtonOptions.constraint_passes)
+PASS_CHANGE = 0.05
+
+
 def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonOptions = NewtonOptions()):
     """:func:`step`, also returning its :class:`StepInfo`."""
     m = model_with_params(scene, params)
@@ -213,6 +218,19 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonOptions 
     Mh = (mjx.full_m(m, d) + h * jnp.diag(m.dof_damping)).astype(dtype)
     if scene.groups:
         v_next, diag = solve_velocity(models, newton, h, ImplicitProblem(Mh, d.qvel, f, jacs, states, gparams))
+        for _ in range(newton.constraint_passes - 1 if scene.has_constraints else 0):
+            # if the contact force at the new velocity differs from the one the constraint
+            # solver saw, show it that force and solve again
+            Q1 = contact_force(models, pr, v_next).astype(dtype)
+            Q0 = Q0.astype(dtype)
+
+            def again(Q1=Q1):
+                d1 = mjx.solve(m, mjx.fwd_acceleration(m, d.replace(qfrc_applied=user_qfrc + Q1)))
+                f1 = (d1.qfrc_smooth + d1.qfrc_constraint - Q1).astype(dtype)
+                return Q1, solve_velocity(models, newton, h, ImplicitProblem(Mh, d.qvel, f1, jacs, states, gparams))
+
+            changed = jnp.linalg.norm(Q1 - Q0) > PASS_CHANGE * (jnp.linalg.norm(Q0) + jnp.linalg.norm(Q1))
+            Q0, (v_next, diag) = jax.lax.cond(changed, again, lambda v=v_next, g=diag: (Q0, (v, g)))
     else:
         v_next = d.qvel + jnp.linalg.solve(Mh, h * f)
         diag = jnp.asarray([1.0, 0.0], d.qvel.dtype)

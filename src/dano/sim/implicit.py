@@ -40,11 +40,18 @@ from ..contact.base import Compacted
 class NewtonOptions:
     """max_iterations: Newton iterations per step; tolerance: relative step size below
     which the solve has converged (None: 1e-10 in float64, 1e-5 in float32);
-    max_backtracks: line-search halvings per iteration."""
+    max_backtracks: line-search halvings per iteration; constraint_passes: how many times
+    MuJoCo's constraint solver (joint limits, equalities, MuJoCo contacts) and the implicit
+    contact solve alternate in a step at most: 1 shows the constraint solver the contact
+    force at the step's start velocity only; each further pass, taken only when the contact
+    force at the solved velocity differs from the one the solver saw by more than 5 %,
+    shows it that force and solves again (stiff DANO contact on light constrained bodies,
+    e.g. fingers against their limits, diverged with 1 pass: docs/simulation.md)."""
 
     max_iterations: int = 25
     tolerance: float | None = None
     max_backtracks: int = 12
+    constraint_passes: int = 2
 
 
 @jax.tree_util.register_dataclass
