@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from dano.errors import DanoError
-from dano.trajopt.grasp import GraspPandaConfig, antipodal_grasp, build, simulate, succeeded
+from dano.trajopt.grasp import GraspPandaConfig, antipodal_grasp, build, simulate
 from dano.trajopt.run import load_config
 
 
@@ -61,17 +61,31 @@ def test_grasp_panda_takes_only_its_own_settings_and_reads_back_its_config(tmp_p
 
 
 @pytest.mark.slow
-def test_panda_hand_lifts_and_holds_the_bunny(shared, monkeypatch):
-    """The hand grasps the 15 cm bunny at the chosen antipodal pair, lifts it ≥ 9 cm (goal
-    10 cm) and holds it for 1 s with under 5 mm of slip at 40 N per finger; at 10 N it slips
-    more and the grasp fails (centroid model)."""
+def test_grasp_panda_cli_lifts_and_holds_the_bunny(shared, monkeypatch, tmp_path, capsys):
+    """`dano trajopt CONFIG --json` for grasp-panda with a two-force scan: the hand grasps the
+    15 cm bunny at the chosen antipodal pair, lifts it ≥ 9 cm (goal 10 cm) and holds it for
+    1 s with under 5 mm of slip at 40 N per finger; at 10 N it slips more and the scan does
+    not choose it (centroid model); the outputs are written."""
+    from dano.cli import main
+
     monkeypatch.setenv("MENAGERIE_ROOT", str(shared / "menagerie"))
-    task = build(GraspPandaConfig())
-    assert task.grasp.width < 0.065 and task.grasp.torque_arm < 0.06
-    (weak, firm), _ = simulate(task, [10.0, 40.0])
-    assert not firm.diverged and firm.lift_height > 0.09 and firm.slip_mm < 5.0, firm
-    assert succeeded(firm, task.config)
-    assert not weak.diverged and weak.slip_mm > firm.slip_mm and not succeeded(weak, task.config), weak
+    config = tmp_path / "grasp.json"
+    config.write_text(json.dumps({"task": "grasp-panda", "grip_forces": [10.0, 40.0], "compare_models": False}))
+    out = tmp_path / "out"
+    code = main(["trajopt", str(config), "--json", "--quiet", "--no-video", "--out-dir", str(out)])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    rep = json.loads(cap.out)
+    weak, firm = rep["scan"]
+    assert rep["converged"] and rep["grip_force"] == 40.0 and firm["success"] and not weak["success"], rep
+    assert rep["lift_height"] > 0.09 and rep["slip_mm"] < 5.0 and not firm["diverged"], rep
+    assert not weak["diverged"] and weak["slip_mm"] > firm["slip_mm"], rep
+    assert rep["grasp"]["width"] < 0.065 and rep["grasp"]["torque_arm"] < 0.06
+    assert list(rep["contact_models"]) == ["centroid"]
+    sol = np.load(out / "solution.npz")
+    assert sol["states"].shape[0] == sol["controls"].shape[0] + 1 and sol["controls"].shape[1] == 8
+    assert json.loads((out / "config.json").read_text())["grip_forces"] == [10.0, 40.0]
+    assert not (out / "grasp-panda.mp4").exists()
 
 
 @pytest.mark.slow
