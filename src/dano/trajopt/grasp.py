@@ -57,6 +57,7 @@ PAD_INNER_HALF_THICKNESS = 0.01  # [m] pads thickened outwards to 2 cm
 GRIP_SITE_OFFSET = 0.1034  # [m] hand frame: the main pads' centre below the hand's origin
 OPEN_GAP = 0.083  # [m] between the pads' inner faces, fingers fully open (2 × 0.04 + 3 mm)
 HOME = np.array([0.0, 0.0, 0.0, -1.57079, 0.0, 1.57079, -0.7853])  # Menagerie's "home" keyframe
+PAIR_BLOCK = 256  # sample rows per block of the pair search
 ANGLE_WEIGHT = 0.02  # [m] score of a normal at 90° from the grip axis, against the torque arm
 PHASES = (("approach", 1.0), ("descend", 0.8), ("settle", 0.4), ("close", 0.5), ("lift", 0.8), ("hold", 1.0))
 
@@ -167,16 +168,20 @@ def antipodal_grasp(points, normals, com, max_width: float = OPEN_GAP - 0.018, m
     the grip axis (a margin inside the friction cone). Raises DanoError if no pair qualifies.
     """
     P, n = np.asarray(points, np.float64), np.asarray(normals, np.float64)
-    d = P[None] - P[:, None]
-    w = np.linalg.norm(d, axis=-1)
-    u = d / np.maximum(w, 1e-12)[..., None]
     cos = np.cos(np.deg2rad(cone_deg))
-    ok = (w > min_width) & (w < max_width) & (np.abs(u[..., 2]) < 0.1)
-    ok &= (np.einsum("ik,ijk->ij", n, u) < -cos) & (np.einsum("jk,ijk->ij", n, u) > cos)
-    ok &= 0.5 * (P[:, None, 2] + P[None, :, 2]) > min_height
-    ok &= u[..., 0] >= 0  # each unordered pair once
-    i, j = np.nonzero(ok)
-    centers, axes, widths = 0.5 * (P[i] + P[j]), u[i, j], w[i, j]
+    pairs = []
+    for start in range(0, len(P), PAIR_BLOCK):  # rows in blocks: memory O(block × N), not O(N²)
+        rows = slice(start, start + PAIR_BLOCK)
+        d = P[None] - P[rows, None]
+        w = np.linalg.norm(d, axis=-1)
+        u = d / np.maximum(w, 1e-12)[..., None]
+        ok = (w > min_width) & (w < max_width) & (np.abs(u[..., 2]) < 0.1) & (u[..., 0] >= 0)  # each pair once
+        ok &= (np.einsum("ik,ijk->ij", n[rows], u) < -cos) & (np.einsum("jk,ijk->ij", n, u) > cos)
+        ok &= 0.5 * (P[rows, None, 2] + P[None, :, 2]) > min_height
+        bi, bj = np.nonzero(ok)
+        pairs.append((bi + start, bj, u[bi, bj], w[bi, bj]))
+    i, j, axes, widths = (np.concatenate(x) for x in zip(*pairs))
+    centers = 0.5 * (P[i] + P[j])
     worst = np.minimum(-np.einsum("kd,kd->k", n[i], axes), np.einsum("kd,kd->k", n[j], axes))
     arms = np.linalg.norm(centers[:, :2] - np.asarray(com)[:2], axis=1)
     score = arms + ANGLE_WEIGHT * np.sqrt(np.clip(1.0 - worst ** 2, 0.0, 1.0))
