@@ -197,3 +197,13 @@ def test_float32_drop_settles_with_finite_gradients():
 
     J = jax.jit(jax.jacfwd(final_x))(jnp.float32(0.3))
     assert J.dtype == jnp.float32 and np.all(np.isfinite(np.asarray(J)))
+
+
+@pytest.mark.parametrize("bad", [dict(constraint_passes=0), dict(max_iterations=0), dict(max_backtracks=-1),
+                                 dict(constraint_passes=1.5), dict(constraint_passes=True)])
+def test_newton_options_reject_counts_out_of_range(bad):
+    from dano.errors import DanoError
+    from dano.sim import NewtonOptions
+
+    with pytest.raises(DanoError, match=f"NewtonOptions.{next(iter(bad))} must be an integer"):
+        NewtonOptions(**bad)

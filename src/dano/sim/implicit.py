@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 
 from ..contact.base import Compacted
+from ..errors import DanoError
 
 
 @dataclass(frozen=True)
@@ -46,12 +47,20 @@ class NewtonOptions:
     force at the step's start velocity only; each further pass, taken only when the contact
     force at the solved velocity differs from the one the solver saw by more than 5 %,
     shows it that force and solves again (stiff DANO contact on light constrained bodies,
-    e.g. fingers against their limits, diverged with 1 pass: docs/simulation.md)."""
+    e.g. fingers against their limits, diverged with 1 pass: docs/simulation.md).
+    Raises DanoError for a count below 1 (0 for max_backtracks) or not an integer."""
 
     max_iterations: int = 25
     tolerance: float | None = None
     max_backtracks: int = 12
     constraint_passes: int = 2
+
+    def __post_init__(self):
+        for name in ("max_iterations", "max_backtracks", "constraint_passes"):
+            value = getattr(self, name)
+            least = 0 if name == "max_backtracks" else 1
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                raise DanoError(f"NewtonOptions.{name} must be an integer >= {least}, got {value!r}")
 
 
 @jax.tree_util.register_dataclass

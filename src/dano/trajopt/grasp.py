@@ -51,7 +51,7 @@ import mujoco
 import numpy as np
 
 from ..errors import DanoError
-from .tasks import PANDA_TORQUE, torque_controlled_arm
+from .tasks import PANDA_TORQUE, checked, torque_controlled_arm
 
 PAD_INNER_HALF_THICKNESS = 0.01  # [m] pads thickened outwards to 2 cm
 GRIP_SITE_OFFSET = 0.1034  # [m] hand frame: the main pads' centre below the hand's origin
@@ -98,10 +98,7 @@ class GraspPandaConfig:
                   ("slip_tolerance_mm", self.slip_tolerance_mm > 0),
                   ("friction_cone_deg", 0 < self.friction_cone_deg < 60),
                   ("contact_model", self.contact_model in ("centroid", "per_sample"))]
-        for name, ok in checks:
-            if not ok:
-                raise DanoError(f"{name} out of range: {getattr(self, name)}")
-        return self
+        return checked(self, checks)
 
 
 def hand_spec() -> mujoco.MjSpec:
@@ -260,14 +257,15 @@ class GraspTask:
     config: GraspPandaConfig
 
 
-def build(config: GraspPandaConfig = GraspPandaConfig(), contact_model: str | None = None) -> GraspTask:
-    """Build the scene, choose the grasp and solve the IK waypoints."""
+def grasp_scene(config: GraspPandaConfig, contact_model: str | None = None):
+    """The scene (the hand, the 15 cm, 0.25 kg bunny at rest at (0.5, 0) on the table), its
+    params (pads stiffened) and x0 = [qpos, qvel] (nx,): the arm at Menagerie's home, the
+    fingers open. contact_model: None for the config's."""
     from ..data import load_builtin
     from ..sim import DanoObject, compose
     from ..sim.scene import add_ground
     from ..sim.scenes import initial_state, resting_height
 
-    config.validate()
     spec = hand_spec()
     add_ground(spec)
     bunny = load_builtin("bunny").scaled(0.15).with_mass(0.25)
@@ -282,7 +280,22 @@ def build(config: GraspPandaConfig = GraspPandaConfig(), contact_model: str | No
     free = initial_state(scene, {"bunny": (tuple(start), (1, 0, 0, 0))})
     qpos = np.asarray(free.qpos, dtype=np.float64).copy()
     qpos[:7], qpos[7:9] = HOME, 0.04
-    x0 = np.r_[qpos, np.zeros(scene.nv)]
+    return scene, params, np.r_[qpos, np.zeros(scene.nv)]
+
+
+def with_contact_model(task: GraspTask, contact_model: str) -> GraspTask:
+    """The same task (grasp, waypoints, config) in a scene with another contact model."""
+    scene, params, x0 = grasp_scene(task.config, contact_model)
+    return dataclasses.replace(task, scene=scene, params=params, x0=x0)
+
+
+def build(config: GraspPandaConfig = GraspPandaConfig()) -> GraspTask:
+    """Build the scene, choose the grasp and solve the IK waypoints. Raises DanoError for
+    settings out of range, a missing Panda, no grasp within the hand or an unreachable one."""
+    config.validate()
+    scene, params, x0 = grasp_scene(config)
+    ba = scene.qpos_adr[0]
+    start = x0[ba:ba + 3]
     points = np.asarray(scene.samples.points[0], np.float64).T + start  # identity orientation at rest
     normals = np.asarray(scene.samples.normals[0], np.float64).T
     grasp = antipodal_grasp(points, normals, start, cone_deg=config.friction_cone_deg)
@@ -372,16 +385,14 @@ def _measure(task: GraspTask, X, U, force: float, hold: int) -> GraspRun:
     m = task.scene.mj_model
     d = mujoco.MjData(m)
     hand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "hand")
+    bunny = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "bunny")
     ba = task.scene.qpos_adr[0]
 
-    def in_hand(x):
+    def in_hand(x):  # the bunny's position and orientation in the hand's frame
         d.qpos[:] = x[:m.nq]
         mujoco.mj_kinematics(m, d)
         R = d.xmat[hand].reshape(3, 3)
-        q = x[ba + 3:ba + 7]
-        Rb = np.zeros(9)
-        mujoco.mju_quat2Mat(Rb, q / np.linalg.norm(q))
-        return R.T @ (x[ba:ba + 3] - d.xpos[hand]), R.T @ Rb.reshape(3, 3)
+        return R.T @ (d.xpos[bunny] - d.xpos[hand]), R.T @ d.xmat[bunny].reshape(3, 3)
 
     z0 = task.x0[ba + 2]
     if not (np.all(np.isfinite(X)) and np.abs(X[:, m.nq:]).max() < 1e3):
@@ -423,7 +434,7 @@ def run_grasp(config: GraspPandaConfig, progress=None) -> tuple[GraspTask, Grasp
         if progress is not None:
             progress(2, 3, "the other contact model")
         other = "per_sample" if config.contact_model == "centroid" else "centroid"
-        models[other] = _summary(simulate(build(config, contact_model=other), [chosen.grip_force])[0][0])
+        models[other] = _summary(simulate(with_contact_model(task, other), [chosen.grip_force])[0][0])
     if progress is not None:
         progress(3, 3, "done")
     g = task.grasp

@@ -112,7 +112,6 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
     ``log.csv`` (the iteration log), ``convergence.png`` and, if ``video``, ``<task>.mp4``
     into ``out_dir``: all published together, or none. Returns the paths."""
     from .._files import atomic_path
-    from ..sim import State, rollout
     from ..viz.plot import plot_trajopt
 
     if isinstance(task.config, GraspPandaConfig):
@@ -137,33 +136,45 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
                                           for i in range(len(log[keys[0]])))
     with ExitStack() as stack:
         paths = {n: stack.enter_context(atomic_path(out_dir / n)) for n in names}
-        paths["report.json"].write_text(json.dumps(rep, indent=2))
-        paths["config.json"].write_text(json.dumps(dataclasses.asdict(task.config), indent=2))
+        _write_report_and_config(paths, rep, task.config)
         with open(paths["solution.npz"], "wb") as f:
             np.savez(f, **arrays)
         paths["log.csv"].write_text(csv)
         plot_trajopt(task, solution, model_error, paths["convergence.png"])
         if video:
-            from ..viz.video import write_video
-
             if task.apply == "qfrc":
                 qfrc = np.zeros((len(U), task.scene.nv))
                 qfrc[:, task.control_dofs] = U
-                traj = rollout(task.scene, State(X[0, :nq], X[0, nq:]), None, task.params, len(U), qfrc=qfrc)
+                _replay_video(task.scene, task.params, X, None, paths[f"{task.config.task}.mp4"], progress, qfrc)
             else:
-                traj = rollout(task.scene, State(X[0, :nq], X[0, nq:]), U, task.params, len(U))
-            gap = float(np.abs(traj.qpos[-1] - X[-1, :nq]).max())
-            if gap > 1e-6:
-                raise DanoError(f"internal: the replayed solution ends {gap:.3g} m from the solver's states")
-            write_video(task.scene, traj, paths[f"{task.config.task}.mp4"], progress=progress)
+                _replay_video(task.scene, task.params, X, U, paths[f"{task.config.task}.mp4"], progress)
     return [out_dir / n for n in names]
+
+
+def _write_report_and_config(paths: dict, rep: dict, config) -> None:
+    paths["report.json"].write_text(json.dumps(rep, indent=2))
+    paths["config.json"].write_text(json.dumps(dataclasses.asdict(config), indent=2))
+
+
+def _replay_video(scene, params, X, U, path: Path, progress, qfrc=None) -> None:
+    """Replay the controls U (T, nu) (or the generalised forces qfrc (T, nv)) from X[0] and
+    render the video to ``path``; raises DanoError if the replay does not end where the
+    states X (T + 1, nx) do (1e-6 m)."""
+    from ..sim import State, rollout
+    from ..viz.video import write_video
+
+    nq, steps = scene.nq, len(X) - 1
+    traj = rollout(scene, State(X[0, :nq], X[0, nq:]), U, params, steps, qfrc=qfrc)
+    gap = float(np.abs(traj.qpos[-1] - X[-1, :nq]).max())
+    if gap > 1e-6:
+        raise DanoError(f"internal: the replayed controls end {gap:.3g} m from the computed states")
+    write_video(scene, traj, path, progress=progress)
 
 
 def _write_grasp(task, run, rep: dict, out_dir: Path, video: bool, progress) -> list:
     """grasp-panda's outputs: report.json, config.json, solution.npz (time, states,
     controls, qpos, qvel, the joint waypoints, the grasp) and the video, all or none."""
     from .._files import atomic_path
-    from ..sim import State, rollout
 
     names = ["report.json", "config.json", "solution.npz"] + (["grasp-panda.mp4"] if video else [])
     X, U = np.asarray(run.states), np.asarray(run.controls)
@@ -171,17 +182,10 @@ def _write_grasp(task, run, rep: dict, out_dir: Path, video: bool, progress) -> 
     g = task.grasp
     with ExitStack() as stack:
         paths = {n: stack.enter_context(atomic_path(out_dir / n)) for n in names}
-        paths["report.json"].write_text(json.dumps(rep, indent=2))
-        paths["config.json"].write_text(json.dumps(dataclasses.asdict(task.config), indent=2))
+        _write_report_and_config(paths, rep, task.config)
         with open(paths["solution.npz"], "wb") as f:
             np.savez(f, time=np.arange(len(X)) * task.scene.dt, states=X, controls=U, qpos=X[:, :nq],
                      qvel=X[:, nq:], waypoints=task.waypoints, grasp_center=g.center, grasp_axis=g.axis)
         if video:
-            from ..viz.video import write_video
-
-            traj = rollout(task.scene, State(X[0, :nq], X[0, nq:]), U, task.params, len(U))
-            gap = float(np.abs(traj.qpos[-1] - X[-1, :nq]).max())
-            if gap > 1e-6:
-                raise DanoError(f"internal: the replayed grasp ends {gap:.3g} m from the simulated states")
-            write_video(task.scene, traj, paths["grasp-panda.mp4"], progress=progress)
+            _replay_video(task.scene, task.params, X, U, paths["grasp-panda.mp4"], progress)
     return [out_dir / n for n in names]

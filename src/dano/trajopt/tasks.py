@@ -41,6 +41,15 @@ from .problem import Problem, mjx_dynamics
 G = 9.81
 
 
+def checked(config, checks):
+    """``config`` if every (setting name, ok) in ``checks`` holds; raises DanoError naming
+    the first setting out of range and its value."""
+    for name, ok in checks:
+        if not ok:
+            raise DanoError(f"{name} out of range: {getattr(config, name)}")
+    return config
+
+
 @dataclass(frozen=True)
 class PushConfig:
     """Settings shared by the push tasks."""
@@ -92,10 +101,7 @@ class PushConfig:
 
     def validate(self):
         """Raises DanoError naming the first setting out of range."""
-        for name, ok in self._checks():
-            if not ok:
-                raise DanoError(f"{name} out of range: {getattr(self, name)}")
-        return self
+        return checked(self, self._checks())
 
 
 @dataclass(frozen=True)
