@@ -124,3 +124,39 @@ def test_non_convex_block_rests_where_mujoco_c_puts_its_convex_decomposition(u_b
     angle = (Rotation.from_quat(q[3:7], scalar_first=True).inv() * Rotation.from_quat(c_quat, scalar_first=True))
     assert np.degrees(angle.magnitude()) < 1.0
     assert np.linalg.norm(q[:3] - c_com) < 1e-3
+
+
+def test_per_sample_block_search_gives_the_all_samples_wrench():
+    # the benchmark's bunny (bunny-drop) resting on the ground: the samples the two-level
+    # block search keeps give the wrench and its Jacobian of all samples, with the search
+    # holding them all and overflowing (too few blocks or samples: the full fallback)
+    import jax
+
+    from dano._mjx import mjx
+    from dano.contact.per_sample import PerSample, _AllSamples
+    from dano.sim.dynamics import _group_params, contact_geometry, make_data, model_with_params
+    from dano.sim.scenes import load_scene
+
+    setup = load_scene("bunny-drop", contact_model="per_sample")
+    scene, params = setup.scene, setup.params
+    rest = rollout(scene, setup.state0, None, params, 300)
+    m = model_with_params(scene, params)
+    d = mjx.fwd_position(m, make_data(scene, rest.qpos[-1], rest.qvel[-1]))
+    geos, _ = contact_geometry(scene, params, m, d)
+    g = jax.tree_util.tree_map(lambda x: x[0], geos[0])
+    p = jax.tree_util.tree_map(lambda x: x[0], _group_params(params, scene.groups[0], 1))
+    reach = int(np.sum(np.asarray(g.depth) > -1.0))
+    assert 30 < reach <= PerSample().max_active  # (104 samples within reach, in 28 blocks of 8)
+    full = _AllSamples(g, (g.depth > -1.0) & (g.weight > 0), jnp.asarray(0.01))
+    for model, overflows in ((PerSample(), False), (PerSample(blocks_searched=4), True),
+                             (PerSample(max_active=16), True)):
+        st = model.prepare(g, 0.01)
+        assert bool(st.overflow) == overflows
+        assert int(np.sum(np.asarray(st.active.weight) > 0)) == min(reach, model.max_active) or overflows
+        for u in (jnp.zeros(6), jnp.asarray([0.2, -0.1, -0.3, 0.5, 1.0, -2.0])):
+            expected = model.wrench(p, full, u)
+            np.testing.assert_allclose(model.wrench(p, st, u), expected, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(jax.jacfwd(lambda x: model.wrench(p, st, x))(u),
+                                       jax.jacfwd(lambda x: model.wrench(p, full, x))(u), rtol=1e-10, atol=1e-9)
+        if not overflows:
+            np.testing.assert_allclose(model.wrench(p, st.active, u), expected, rtol=1e-12, atol=1e-12)

@@ -74,3 +74,29 @@ def test_build_stores_samples_relative_to_centre_of_mass_with_mass_weights():
     assert m.is_watertight and m.volume > 0
     assert m.volume == pytest.approx(4 / 3 * np.pi * 0.3**3, rel=0.03)
     np.testing.assert_allclose(m.center_mass, 0.0, atol=5e-3)
+
+
+def test_scene_samples_come_in_compact_blocks_and_keep_every_sample():
+    from dano.contact.samples import SAMPLE_BLOCK, Samples
+
+    rng = np.random.default_rng(0)
+    points = [rng.normal(size=(1001, 3)), rng.normal(size=(37, 3))]
+    normals = [p / np.linalg.norm(p, axis=1, keepdims=True) for p in points]
+    weights = [rng.uniform(0.5, 1.0, len(p)) for p in points]
+    s = Samples.stack(points, normals, weights, [0.01, 0.01], np.zeros((2, 3)), [1.0, 1.0])
+    n = s.points.shape[-1]
+    assert n % SAMPLE_BLOCK == 0 and n >= 1001
+    for k in range(2):
+        P, W, Nn = np.asarray(s.points[k]).T, np.asarray(s.weights[k]), np.asarray(s.normals[k]).T
+        real = W > 0
+        assert real.sum() == len(points[k]) and not real[len(points[k]):].any()  # padding at the end
+        order = np.lexsort(points[k].T)  # the same samples, each with its own weight and normal
+        order_s = np.lexsort(P[real].T)
+        np.testing.assert_array_equal(P[real][order_s], points[k][order])
+        np.testing.assert_array_equal(W[real][order_s], weights[k][order])
+        np.testing.assert_array_equal(Nn[real][order_s], normals[k][order])
+        np.testing.assert_allclose(np.asarray(s.wp[k, :3]), (P * W[:, None]).T)
+    # blocks of neighbours: a block spans far less than the cloud (random order: about all of it)
+    blocks = np.asarray(s.points[0]).T[:1000].reshape(-1, SAMPLE_BLOCK, 3)
+    span = np.median(np.ptp(blocks, axis=1).max(axis=1))
+    assert span < 0.35 * np.ptp(points[0], axis=0).max()

@@ -10,8 +10,10 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 
+from ..errors import DanoError
 from .base import Compacted, PairGeometry, cross_columns, occupancy, register_contact_model, sample_rates
 from .law import check_drag, sample_forces
+from .samples import SAMPLE_BLOCK
 
 
 @jax.tree_util.register_dataclass
@@ -68,27 +70,47 @@ class PerSample:
     Only samples within one sample radius of contact at the step's start can act in it (as
     in the centroid model, a pair acts once it overlaps at the start of a step). The step
     then works on the first ``max_active`` of them, gathered once per step, instead of all
-    samples; if more are within reach, it uses all samples (same result, full cost).
-    Measured on the paper bunny resting on the ground (2926 distinct samples): 104 within
-    reach, 30 in contact; a flat face of a finely sampled box can hold more than 128 and then
-    runs at full cost."""
+    samples. The search is in two levels: the scene stores samples in spatially compact
+    blocks of :data:`~dano.contact.samples.SAMPLE_BLOCK` (:class:`~dano.contact.samples.Samples`);
+    the step finds the first ``blocks_searched`` blocks holding a sample within reach, then
+    the samples within reach among theirs (a prefix count over all samples cost as much as
+    the rest of the step). If more blocks or samples are within reach, it uses all samples
+    (same result, full cost). Measured on the paper bunny resting on the ground (2926
+    distinct samples in 366 blocks): 104 samples within reach, in 28 blocks; 30 in contact.
+    A flat face of a finely sampled box can hold more and then runs at full cost."""
 
     name: ClassVar[str] = "per_sample"
     drag: str = "normal_force"
     max_active: int = 128
+    blocks_searched: int = 48
 
     def __post_init__(self):
         check_drag(self.drag)
+        for name in ("max_active", "blocks_searched"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise DanoError(f"PerSample.{name} must be a positive integer, got {value!r}")
 
     def prepare(self, g: PairGeometry, h):
         reach = (g.depth > -1.0) & (g.weight > 0)  # padded samples have weight 0
         if g.depth.shape[-1] <= self.max_active:
             return _state(g, h, reach)
-        count = jnp.sum(reach)
-        idx = jnp.nonzero(reach, size=self.max_active, fill_value=0)[0]
+        full = _AllSamples(g, reach, jnp.asarray(h, g.psi.dtype))
+        block, S = SAMPLE_BLOCK, g.depth.shape[-1]
+        if S % block or S <= self.blocks_searched * block:  # search the samples one by one
+            candidates, within = jnp.arange(S), reach
+            over = jnp.zeros((), bool)
+        else:  # the first blocks holding a sample within reach, then the samples in them
+            blocks = jnp.any(reach.reshape(-1, block), axis=1)
+            first = jnp.nonzero(blocks, size=self.blocks_searched, fill_value=0)[0]
+            candidates = (first[:, None] * block + jnp.arange(block)).reshape(-1)
+            kept = jnp.repeat(jnp.arange(self.blocks_searched) < jnp.sum(blocks), block)
+            within = reach[candidates] & kept
+            over = jnp.sum(blocks) > self.blocks_searched
+        count = jnp.sum(within)
+        idx = candidates[jnp.nonzero(within, size=self.max_active, fill_value=0)[0]]
         valid = jnp.arange(self.max_active) < count
-        return Compacted(_state(_take(g, idx), h, valid), _AllSamples(g, reach, jnp.asarray(h, g.psi.dtype)),
-                         count > self.max_active)
+        return Compacted(_state(_take(g, idx), h, valid), full, over | (count > self.max_active))
 
     def wrench(self, p, st: PerSampleState | Compacted | _AllSamples, u):
         if isinstance(st, Compacted):  # one pair evaluated on its own (the step does this per group)
@@ -100,3 +122,4 @@ class PerSample:
         share = st.weight * occupancy(st.depth + st.h * (u @ st.rate))
         forces = sample_forces(p, share, st.normal, motion, self.drag)
         return jnp.concatenate([jnp.sum(forces, axis=1), jnp.sum(cross_columns(arm, forces), axis=1)])
+

@@ -7,12 +7,29 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.spatial import cKDTree
+
+#: samples come in blocks of this many neighbours (:meth:`Samples.stack`): a contact model
+#: can then find the few blocks near a contact instead of testing every sample
+#: (:class:`~dano.contact.per_sample.PerSample`)
+SAMPLE_BLOCK = 8
+
+
+def spatial_order(points: np.ndarray, block: int = SAMPLE_BLOCK) -> np.ndarray:
+    """A permutation (N,) of points (N, 3) that puts near points next to each other: the
+    leaf order of a median-split k-d tree with leaves of at most ``block`` points (SciPy's
+    cKDTree), so that consecutive runs of ``block`` samples are spatially compact."""
+    if len(points) <= block:
+        return np.arange(len(points))
+    return np.asarray(cKDTree(points, leafsize=block, balanced_tree=True).indices)
 
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
 class Samples:
-    """Contact samples of D DANOs, padded to a common count N with zero weights.
+    """Contact samples of D DANOs, padded to a common count N (a multiple of
+    :data:`SAMPLE_BLOCK`) with zero weights, each DANO's in :func:`spatial_order` (every
+    contact sum is a sum over samples, so the order changes no result).
 
     points: (D, 3, N) contact points, body frame (object axes, origin at the centre of
     mass) [m]; normals: (D, 3, N) outward unit normals, body frame; weights: (D, N) w_i per
@@ -40,9 +57,15 @@ class Samples:
 
     @staticmethod
     def stack(points, normals, weights, radius, com, rho_ref) -> "Samples":
-        """From per-DANO lists of (N_k, 3) points and normals and (N_k,) weights (NumPy),
-        padded to the largest N_k."""
+        """From per-DANO lists of (N_k, 3) points and normals and (N_k,) weights (NumPy):
+        each DANO's put in :func:`spatial_order`, all padded to the largest N_k rounded up
+        to a multiple of :data:`SAMPLE_BLOCK`."""
+        orders = [spatial_order(np.asarray(p)) for p in points]
+        points = [np.asarray(p)[o] for p, o in zip(points, orders)]
+        normals = [np.asarray(v)[o] for v, o in zip(normals, orders)]
+        weights = [np.asarray(w)[o] for w, o in zip(weights, orders)]
         n = max((len(p) for p in points), default=0)
+        n += -n % SAMPLE_BLOCK
 
         def pad(a, width):
             out = np.zeros((n,) + a.shape[1:])
