@@ -142,3 +142,19 @@ def test_energy_benchmark_json_contract(capsys, tmp_path):
     assert json.loads(out.read_text())["energy"]["drops"] == 3
     assert main(["bench", "--suite", "energy", "--drops", "0"]) != 0  # a clear error, not a traceback
     assert "drops" in capsys.readouterr().err
+
+
+def test_sim_benchmark_keys_and_interleaved_ratios(monkeypatch):
+    # the sim suite's keys (benchmarks/README.md) with a few steps; its ratios are medians of
+    # the ratios within each round of interleaved timings
+    from dano.bench import bench_sim
+
+    monkeypatch.delenv("MENAGERIE_ROOT", raising=False)
+    r = bench_sim(repeats=3, steps=20, mujoco_steps=200)
+    for key in ("bunny_drop", "bunny_drop_per_sample", "bunny_drop_float32", "mujoco_c_convex_hull"):
+        assert r[key]["repeats"] == 3 and 0 < r[key]["min_s"] <= r[key]["median_s"]
+        assert r[key]["steps_per_s"] > 0
+    assert r["bunny_drop"]["contact_model"] == "centroid" and r["bunny_drop"]["num_samples"] == 5000
+    assert r["ratio_per_sample_over_centroid_time"] > 0 and r["ratio_dano_over_mujoco_c"] > 0
+    assert r["panda_push_bunny"].startswith("skipped")
+    assert r["jacfwd_200"]["parameters"] == ["sliding_friction", "alpha"]

@@ -27,6 +27,26 @@ def _time(fn: Callable[[], object], repeats: int) -> dict:
     return {"first_s": first, "median_s": statistics.median(times), "min_s": min(times), "repeats": repeats}
 
 
+def _time_interleaved(fns: dict[str, Callable[[], object]], repeats: int) -> tuple[dict, dict]:
+    """Time several functions in turn, round after round (each first called once to compile),
+    so that a change in the machine's load falls on all of them alike. Returns ({name:
+    :func:`_time`-style dict}, {name: list of the rounds' times [s]})."""
+    firsts = {}
+    for name, fn in fns.items():
+        t0 = time.perf_counter()
+        fn()
+        firsts[name] = time.perf_counter() - t0
+    rounds: dict[str, list] = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            rounds[name].append(time.perf_counter() - t0)
+    stats = {name: {"first_s": firsts[name], "median_s": statistics.median(t), "min_s": min(t), "repeats": repeats}
+             for name, t in rounds.items()}
+    return stats, rounds
+
+
 def bench_build(repeats: int = 3, mesh_path=None) -> dict:
     """Time to build a 5000-sample asset from an analytic sphere and from a mesh field.
 
@@ -72,6 +92,9 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     * ``mujoco_c_convex_hull``: what a user would otherwise pick: MuJoCo C (``mujoco.rollout``,
       no Python loop) simulating the same bunny as a convex-hull mesh collider from the same
       state; ``ratio_dano_over_mujoco_c`` compares steps/s;
+    * these four are timed round after round (``repeats`` rounds, each round one run of each),
+      so that a change in the machine's load falls on all alike; the two ratios are medians
+      over the rounds of the ratio within each round;
     * ``panda_push_bunny``: the Panda + bunny scene (needs ``$MENAGERIE_ROOT``); a collapse
       of its steps/s would show the CPU fusion-emitter slowdown coming back;
     * ``jacfwd_200``: forward-mode Jacobian of a 200-step bunny rollout w.r.t. 2 parameters
@@ -90,19 +113,10 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     out: dict = {}
     setup = load_scene("bunny-drop")
     sc, s0, p = setup.scene, setup.state0, setup.params
-    out["bunny_drop"] = _steps_per_second(lambda: rollout_arrays(sc, s0, None, p, steps), steps, repeats)
-    out["bunny_drop"]["num_samples"] = sc.assets[0].num_samples
-    out["bunny_drop"]["contact_model"] = "centroid"
     ps = load_scene("bunny-drop", contact_model="per_sample")
-    out["bunny_drop_per_sample"] = _steps_per_second(
-        lambda: rollout_arrays(ps.scene, s0, None, ps.params, steps), steps, repeats)
-    out["bunny_drop_per_sample"]["contact_model"] = "per_sample"
-    out["ratio_per_sample_over_centroid_time"] = (out["bunny_drop_per_sample"]["median_s"]
-                                                  / out["bunny_drop"]["median_s"])
     sc32 = sc.astype(jnp.float32)
     p32 = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), p)
     s32 = State(jnp.asarray(s0.qpos, jnp.float32), jnp.asarray(s0.qvel, jnp.float32))
-    out["bunny_drop_float32"] = _steps_per_second(lambda: rollout_arrays(sc32, s32, None, p32, steps), steps, repeats)
 
     # MuJoCo C with the bunny as a convex hull of its samples
     bunny = sc.assets[0]
@@ -122,13 +136,29 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     d.qpos[:], d.qvel[:] = np.asarray(s0.qpos), np.asarray(s0.qvel)
     state0 = np.empty(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS))
     mujoco.mj_getState(m, d, state0, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    c = _time(lambda: mujoco.rollout.rollout(m, d, state0[None], nstep=mujoco_steps), repeats)
-    c["steps"] = mujoco_steps
-    c["steps_per_s"] = mujoco_steps / c["median_s"]
-    c["us_per_step"] = 1e6 * c["median_s"] / mujoco_steps
-    c["hull_vertices"] = int(len(hull.vertices))
-    out["mujoco_c_convex_hull"] = c
-    out["ratio_dano_over_mujoco_c"] = out["bunny_drop"]["steps_per_s"] / c["steps_per_s"]
+
+    # timed round after round, so that the machine's load falls on all of them alike
+    stats, rounds = _time_interleaved({
+        "bunny_drop": lambda: jax.block_until_ready(rollout_arrays(sc, s0, None, p, steps)),
+        "bunny_drop_per_sample": lambda: jax.block_until_ready(rollout_arrays(ps.scene, s0, None, ps.params, steps)),
+        "bunny_drop_float32": lambda: jax.block_until_ready(rollout_arrays(sc32, s32, None, p32, steps)),
+        "mujoco_c_convex_hull": lambda: mujoco.rollout.rollout(m, d, state0[None], nstep=mujoco_steps),
+    }, repeats)
+    for name, r in stats.items():
+        n = mujoco_steps if name == "mujoco_c_convex_hull" else steps
+        r.update(steps=n, steps_per_s=n / r["median_s"], us_per_step=1e6 * r["median_s"] / n)
+        if name != "mujoco_c_convex_hull":
+            r["compile_s"] = max(r["first_s"] - r["median_s"], 0.0)
+        out[name] = r
+    out["bunny_drop"].update(num_samples=sc.assets[0].num_samples, contact_model="centroid")
+    out["bunny_drop_per_sample"]["contact_model"] = "per_sample"
+    out["mujoco_c_convex_hull"]["hull_vertices"] = int(len(hull.vertices))
+    c_step = [t / mujoco_steps for t in rounds["mujoco_c_convex_hull"]]
+    # ratios: medians over the rounds of the ratio within each round
+    out["ratio_per_sample_over_centroid_time"] = statistics.median(
+        a / b for a, b in zip(rounds["bunny_drop_per_sample"], rounds["bunny_drop"]))
+    out["ratio_dano_over_mujoco_c"] = statistics.median(
+        c / (t / steps) for c, t in zip(c_step, rounds["bunny_drop"]))
 
     if os.environ.get("MENAGERIE_ROOT"):
         ps = load_scene("panda-push-bunny")
