@@ -1,6 +1,9 @@
 """Contact physics of the simulation core v2 (issue 7, "Must show"): energy, rest on the
 true surface, per-sample torsion, a non-convex object against MuJoCo C."""
 
+import functools
+
+import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
@@ -130,8 +133,6 @@ def test_per_sample_block_search_gives_the_all_samples_wrench():
     # the benchmark's bunny (bunny-drop) resting on the ground: the samples the two-level
     # block search keeps give the wrench and its Jacobian of all samples, with the search
     # holding them all and overflowing (too few blocks or samples: the full fallback)
-    import jax
-
     from dano._mjx import mjx
     from dano.contact.per_sample import PerSample, _AllSamples
     from dano.sim.dynamics import _group_params, contact_geometry, make_data, model_with_params
@@ -148,15 +149,21 @@ def test_per_sample_block_search_gives_the_all_samples_wrench():
     reach = int(np.sum(np.asarray(g.depth) > -1.0))
     assert 30 < reach <= PerSample().max_active  # (104 samples within reach, in 28 blocks of 8)
     full = _AllSamples(g, (g.depth > -1.0) & (g.weight > 0), jnp.asarray(0.01))
+
+    @functools.partial(jax.jit, static_argnums=0)
+    def wrench_and_jacobian(model, st, u):
+        return model.wrench(p, st, u), jax.jacfwd(lambda x: model.wrench(p, st, x))(u)
+
     for model, overflows in ((PerSample(), False), (PerSample(blocks_searched=4), True),
                              (PerSample(max_active=16), True)):
         st = model.prepare(g, 0.01)
         assert bool(st.overflow) == overflows
         assert int(np.sum(np.asarray(st.active.weight) > 0)) == min(reach, model.max_active) or overflows
         for u in (jnp.zeros(6), jnp.asarray([0.2, -0.1, -0.3, 0.5, 1.0, -2.0])):
-            expected = model.wrench(p, full, u)
-            np.testing.assert_allclose(model.wrench(p, st, u), expected, rtol=1e-12, atol=1e-12)
-            np.testing.assert_allclose(jax.jacfwd(lambda x: model.wrench(p, st, x))(u),
-                                       jax.jacfwd(lambda x: model.wrench(p, full, x))(u), rtol=1e-10, atol=1e-9)
-        if not overflows:
-            np.testing.assert_allclose(model.wrench(p, st.active, u), expected, rtol=1e-12, atol=1e-12)
+            expected, expected_jac = wrench_and_jacobian(model, full, u)
+            W, K = wrench_and_jacobian(model, st, u)
+            np.testing.assert_allclose(W, expected, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(K, expected_jac, rtol=1e-10, atol=1e-9)
+            if not overflows:  # the kept samples alone
+                np.testing.assert_allclose(wrench_and_jacobian(model, st.active, u)[0], expected, rtol=1e-12,
+                                           atol=1e-12)
