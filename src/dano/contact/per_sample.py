@@ -122,4 +122,3 @@ class PerSample:
         share = st.weight * occupancy(st.depth + st.h * (u @ st.rate))
         forces = sample_forces(p, share, st.normal, motion, self.drag)
         return jnp.concatenate([jnp.sum(forces, axis=1), jnp.sum(cross_columns(arm, forces), axis=1)])
-

@@ -29,7 +29,7 @@ def spatial_order(points: np.ndarray, block: int = SAMPLE_BLOCK) -> np.ndarray:
 class Samples:
     """Contact samples of D DANOs, padded to a common count N (a multiple of
     :data:`SAMPLE_BLOCK`) with zero weights, each DANO's in :func:`spatial_order` (every
-    contact sum is a sum over samples, so the order changes no result).
+    contact quantity is a sum over samples: the order changes results only by roundoff).
 
     points: (D, 3, N) contact points, body frame (object axes, origin at the centre of
     mass) [m]; normals: (D, 3, N) outward unit normals, body frame; weights: (D, N) w_i per

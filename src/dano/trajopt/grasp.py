@@ -296,8 +296,9 @@ def build(config: GraspPandaConfig = GraspPandaConfig()) -> GraspTask:
     scene, params, x0 = grasp_scene(config)
     ba = scene.qpos_adr[0]
     start = x0[ba:ba + 3]
-    points = np.asarray(scene.samples.points[0], np.float64).T + start  # identity orientation at rest
-    normals = np.asarray(scene.samples.normals[0], np.float64).T
+    real = np.asarray(scene.samples.weights[0]) > 0  # (the scene pads the samples with zero weights)
+    points = np.asarray(scene.samples.points[0], np.float64).T[real] + start  # identity orientation at rest
+    normals = np.asarray(scene.samples.normals[0], np.float64).T[real]
     grasp = antipodal_grasp(points, normals, start, cone_deg=config.friction_cone_deg)
     m = scene.mj_model
     site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "grip")
