@@ -167,3 +167,13 @@ def test_per_sample_block_search_gives_the_all_samples_wrench():
             if not overflows:  # the kept samples alone
                 np.testing.assert_allclose(wrench_and_jacobian(model, st.active, u)[0], expected, rtol=1e-12,
                                            atol=1e-12)
+
+
+@pytest.mark.parametrize("bad", [dict(max_active=0), dict(blocks_searched=0), dict(blocks_searched=2.5),
+                                 dict(max_active=True)])
+def test_per_sample_rejects_counts_out_of_range(bad):
+    from dano.contact.per_sample import PerSample
+    from dano.errors import DanoError
+
+    with pytest.raises(DanoError, match=f"PerSample.{next(iter(bad))} must be a positive integer"):
+        PerSample(**bad)
