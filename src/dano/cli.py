@@ -118,6 +118,7 @@ def build(
     visual_mesh: Path | None = None,
     density_rule: str = "solid",
     surface_opacity: float = 0.5,
+    calibrate_surface: bool = True,
     field_scale: float = 1.0,
     voxels: Path | None = None,
     quiet: bool = False,
@@ -141,6 +142,9 @@ def build(
             occupancy (1 - exp(-sigma*step)) or sigma (the paper's); see docs/fields-from-images.md.
         surface_opacity: field folders, solid rule: the surface is where the opacity accumulated from outside
             reaches this (0.5: a render's median depth).
+        calibrate_surface: field folders, solid rule: then move that surface along its normal so that the
+            solid's silhouettes cover as many pixels as the field's own renders from 12 views around it
+            (a soft field's median-depth surface lies inside the object).
         field_scale: field folders: metres per field unit (1 for fields trained on `dano render-dataset` views).
         voxels: field folders: also write the density grid as a voxel .npz (density, bounds), loadable anywhere.
         quiet: no progress bar.
@@ -154,9 +158,9 @@ def build(
     if not source.is_file() and kind != "field":
         raise FileNotFoundError(f"{source}: no such file")
     if kind != "field" and (voxels is not None or density_rule != "solid" or field_scale != 1.0
-                            or surface_opacity != 0.5):
-        raise ValueError("--density-rule, --surface-opacity, --field-scale and --voxels apply to trained-field "
-                         "folders only")
+                            or surface_opacity != 0.5 or not calibrate_surface):
+        raise ValueError("--density-rule, --surface-opacity, --no-calibrate-surface, --field-scale and --voxels "
+                         "apply to trained-field folders only")
     _check_resolution(resolution)
     if not 1 <= samples <= MAX_SAMPLES:
         raise ValueError(f"--samples {samples}: must be 1 to {MAX_SAMPLES}")
@@ -171,7 +175,13 @@ def build(
                 asset = asset.with_mass(mass if mass is not None else asset.mass * alpha / asset.alpha)
         else:
             if kind == "field":
-                field = _field_density(source, density_rule, resolution, field_scale, surface_opacity)
+                field, calibration = _field_density(source, density_rule, resolution, field_scale, surface_opacity,
+                                                    calibrate_surface)
+                if calibration:
+                    err.print(f"solid surface moved out by {calibration['surface_offset']:.4g} m "
+                              f"({calibration['surface_offset_nodes']:.2f} nodes): silhouette area "
+                              f"{calibration['silhouette_area_ratio_before']:.3f} -> "
+                              f"{calibration['silhouette_area_ratio_after']:.3f} of the field's renders")
             elif kind == "mesh":
                 field = mesh_field(source, resolution=resolution, edge_width=edge_width,
                                    progress=(lambda d, t: progress(d, t, "signed distance")) if progress else None)
@@ -187,14 +197,16 @@ def build(
     err.print(f"wrote {out} ({asset.num_samples} samples, mass {asset.mass:.6g})")
 
 
-def _field_density(source: Path, rule: str, resolution: int, scale: float, surface_opacity: float):
-    """A trained field's folder -> the VoxelField a DANO is built from."""
+def _field_density(source: Path, rule: str, resolution: int, scale: float, surface_opacity: float,
+                   calibrate: bool):
+    """A trained field's folder -> (the VoxelField a DANO is built from, the surface calibration or {})."""
     from .nerf import load_field
     from .nerf.density import density_grid
 
-    field, _, meta = load_field(source)
+    field, occupancy, meta = load_field(source)
     return density_grid(field, rule, resolution=resolution, step=meta.get("training", {}).get("sample_step"),
-                        scale=scale, surface_opacity=surface_opacity)
+                        scale=scale, surface_opacity=surface_opacity, occupancy=occupancy, calibrate=calibrate,
+                        details=True)
 
 
 def _summary_table(asset) -> Table:

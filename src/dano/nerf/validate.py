@@ -94,8 +94,6 @@ def ground_truth_loop(mesh_path: str | Path, minutes: float = 3.0, views: int = 
     """Render ``mesh_path``, train a field for ``minutes``, build DANOs with every rule and
     compare them with the mesh: a JSON-able dict (per rule: mass/CoM/inertia errors and the
     drop/slide differences from the mesh DANO, simulated at ``sim_size`` [m] across)."""
-    mesh = load_mesh(mesh_path)
-    diag = float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0]))
     with tempfile.TemporaryDirectory(dir=work_dir) as tmp:
         folder = Path(tmp) / "views"
         t0 = time.perf_counter()
@@ -105,21 +103,44 @@ def ground_truth_loop(mesh_path: str | Path, minutes: float = 3.0, views: int = 
     config = config or TrainConfig(minutes=minutes, background="random")
     train_set, held = data.split(max(1, views // 10))
     result = train(train_set, config, heldout=held)
-    reference = build(mesh_field(mesh_path), alpha=1.0, num_samples=5000, seed=0, name="mesh")
+    step = float(np.linalg.norm(data.bounds[1] - data.bounds[0])) / config.samples_across
     report = {"mesh": Path(mesh_path).name, "views": views, "size_px": size, "render_s": render_s,
               "psnr_heldout": result.psnr_heldout, "train_wall_time_s": result.wall_time_s,
-              "rays_per_s": result.rays_per_s, "mesh_field_dano": mass_property_errors(reference, mesh, "solid"),
-              "rules": {}}
-    step = float(np.linalg.norm(data.bounds[1] - data.bounds[0])) / config.samples_across
+              "rays_per_s": result.rays_per_s}
+    report.update(compare_with_mesh(result.field, result.occupancy, mesh_path, step, resolution, sim_size))
+    return report
+
+
+def compare_with_mesh(field, occupancy, mesh_path: str | Path, step: float, resolution: int = 96,
+                      sim_size: float = 0.2) -> dict:
+    """DANOs built from a trained ``field`` (field units = the mesh's) with every σ → density
+    rule, compared with the mesh: {"mesh_field_dano": its own DANO's errors,
+    "mesh_field_dano_other_seeds": drop/slide differences of mesh DANOs with other sample seeds
+    (the floor of that metric), "rules": {rule: mass/CoM/inertia errors, the solid rule's
+    surface calibration, drop/slide differences}}.
+    ``step``: the field's render sample step [field units]; ``occupancy``: its grid or None."""
+    mesh = load_mesh(mesh_path)
+    diag = float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0]))
+    reference = build(mesh_field(mesh_path), alpha=1.0, num_samples=5000, seed=0, name="mesh")
+    report = {"mesh_field_dano": mass_property_errors(reference, mesh, "solid"), "rules": {}}
     reference_poses = final_poses(reference, sim_size / diag)
-    for rule in DENSITY_RULES:
-        grid = density_grid(result.field, rule, resolution=resolution, step=step)
-        asset = build(grid, alpha=1.0, num_samples=5000, seed=0, name=f"images-{rule}")
+    # the metric's floor: mesh DANOs that differ from the reference only in their random samples
+    report["mesh_field_dano_other_seeds"] = [
+        simulation_difference(build(mesh_field(mesh_path), alpha=1.0, num_samples=5000, seed=seed, name="mesh"),
+                              reference_poses, sim_size / diag, diag) for seed in (1, 2)]
+    variants = [(rule, rule, {}) for rule in DENSITY_RULES]
+    variants.append(("solid_uncalibrated", "solid", {"calibrate": False}))
+    for rule_name, rule, options in variants:
+        grid, info = density_grid(field, rule, resolution=resolution, step=step, occupancy=occupancy, details=True,
+                                  **options)
+        asset = build(grid, alpha=1.0, num_samples=5000, seed=0, name=f"images-{rule_name}")
         entry = mass_property_errors(asset, mesh, rule)
+        entry.update(info)
         entry.update(simulation_difference(asset, reference_poses, sim_size / diag, diag))
-        report["rules"][rule] = entry
-    for opacity in (0.3, 0.7):  # how much the solid rule's surface level matters
-        grid = density_grid(result.field, "solid", resolution=resolution, step=step, surface_opacity=opacity)
+        report["rules"][rule_name] = entry
+    for opacity in (0.3, 0.7):  # how much the solid rule's surface level matters, calibrated
+        grid = density_grid(field, "solid", resolution=resolution, step=step, surface_opacity=opacity,
+                            occupancy=occupancy)
         asset = build(grid, alpha=1.0, num_samples=5000, seed=0, name=f"images-solid-{opacity}")
         report["rules"][f"solid_surface_opacity_{opacity}"] = mass_property_errors(asset, mesh, "solid")
     return report
