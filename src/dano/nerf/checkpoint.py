@@ -97,7 +97,8 @@ def load_field(directory: str | Path) -> tuple[HashGridField, OccupancyGrid, dic
     directory = Path(directory)
     meta = read_meta(directory)
     try:
-        config = FieldConfig(**meta["config"]).check()
+        # fields saved before sigma_unit existed had σ = exp(h)
+        config = FieldConfig(**{"sigma_unit": 1.0, **meta["config"]}).check()
         template = HashGridField.create(meta["bounds"], config)
     except Exception as exc:
         raise FileFormatError(f"{directory / 'field.json'}: bad field description ({exc})") from exc

@@ -19,7 +19,7 @@ implements :class:`dano.fields.DensityField` with σ [1/m] as its density.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import jax
 import jax.numpy as jnp
@@ -49,6 +49,12 @@ class FieldConfig:
     """Width of the density MLP's hidden layer."""
     color_hidden: int = 32
     """Width of the colour MLP's two hidden layers."""
+    sigma_unit: float | None = None
+    """σ = sigma_unit·exp(h) [1/field unit], h the density MLP's output. None: 3√3 / the box
+    diagonal, set when the field is created, so that σ·(sample step) and hence training are
+    the same at any scale (1 for the ±1.5 box of the NeRF synthetic scenes). With a fixed
+    unit, a 20 cm object in metres trained to 16.8 dB where the same views ×10 reached 35.1.
+    Fields saved before this setting existed have 1."""
 
     def check(self) -> "FieldConfig":
         """Raises DanoError on a configuration that cannot be built."""
@@ -61,6 +67,8 @@ class FieldConfig:
             raise DanoError("field config: max_resolution must be >= base_resolution")
         if self.log2_table_size > 24:
             raise DanoError("field config: log2_table_size must be <= 24")
+        if self.sigma_unit is not None and not (np.isfinite(self.sigma_unit) and self.sigma_unit > 0):
+            raise DanoError(f"field config: sigma_unit must be a positive number or None, got {self.sigma_unit!r}")
         return self
 
     def resolutions(self) -> np.ndarray:
@@ -69,6 +77,9 @@ class FieldConfig:
         growth = np.exp((np.log(self.max_resolution) - np.log(self.base_resolution)) / (self.levels - 1))
         return np.floor(self.base_resolution * growth ** np.arange(self.levels)).astype(np.int64)
 
+
+#: the box diagonal at which σ = exp(h) (the ±1.5 box of the NeRF synthetic scenes)
+SIGMA_UNIT_DIAGONAL = 3.0 * np.sqrt(3.0)
 
 _GEO = 15  # geometry features passed from the density MLP to the colour MLP
 _SH = 16  # spherical-harmonic terms of the view direction (degree 3)
@@ -147,6 +158,8 @@ class HashGridField:
         config = (config or FieldConfig()).check()
         b = check_bounds(bounds, "field bounds")
         box = (tuple(map(float, b[0])), tuple(map(float, b[1])))
+        if config.sigma_unit is None:
+            config = replace(config, sigma_unit=SIGMA_UNIT_DIAGONAL / float(np.linalg.norm(b[1] - b[0])))
         return cls(init_params(config, jax.random.PRNGKey(seed)), box, config)
 
     def bounds(self) -> np.ndarray:
@@ -193,7 +206,8 @@ class HashGridField:
     def _density_head(self, points):
         feats, inside = self.encode(points)
         h = _mlp(self.params["density"], feats)
-        sigma = jnp.where(inside, _trunc_exp(h[:, 0]), 0.0)
+        unit = 1.0 if self.config.sigma_unit is None else self.config.sigma_unit
+        sigma = jnp.where(inside, unit * _trunc_exp(h[:, 0]), 0.0)
         return sigma, h[:, 1:]
 
     def density(self, points: jax.Array) -> jax.Array:
