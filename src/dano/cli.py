@@ -899,6 +899,7 @@ def track(
     fps: float | None = None,
     field: Path | None = None,
     colour_weight: float = 0.0,
+    colour_rays: int = 1024,
     iterations: int = 60,
     stride: int = 2,
     smoothness_weight: float = 0.0,
@@ -923,6 +924,7 @@ def track(
         fps: frames per second (default: camera.json's).
         field: a trained field directory (dano train-field) in the DANO's object frame, for the colour term.
         colour_weight: weight of the colour (photometric) term; needs --field.
+        colour_rays: rays of the colour term per frame, drawn at random among those rendered (0: all).
         iterations: Adam steps per frame.
         stride: pixels per ray along each axis.
         smoothness_weight: weight of a prior toward the constant-velocity prediction.
@@ -934,14 +936,14 @@ def track(
 
     _check_new_folder(out)
     config = TrackConfig(iterations=iterations, stride=stride, colour_weight=colour_weight,
-                         smoothness_weight=smoothness_weight)
+                         smoothness_weight=smoothness_weight, colour_rays=colour_rays)
     config.check()
-    radiance = None
+    radiance = radiance_occupancy = None
     if field is not None:
         from .nerf import load_field
 
-        radiance = load_field(field)[0]
-    obj = TrackedObject.from_asset(_load_asset(object), radiance)
+        radiance, radiance_occupancy, _ = load_field(field)
+    obj = TrackedObject.from_asset(_load_asset(object), radiance, radiance_occupancy)
     data = load_video(video, camera=camera, masks=masks, background=background, fps=fps, threshold=threshold,
                       subtract_background=subtract_background)
     with _progress(not quiet and not json_) as progress:
