@@ -627,6 +627,7 @@ def bench(
     contact_model: str = "centroid",
     nerf_minutes: float = 3.0,
     nerf_loop_minutes: float = 3.0,
+    tracking_colour_minutes: float = 0.0,
     cube_data: Path | None = None,
     cube_tosses: int = 10,
     out: Path | None = None,
@@ -643,6 +644,8 @@ def bench(
         contact_model: contact model of the energy suite (centroid or per_sample).
         nerf_minutes: training time of the nerf suite's lego run (PSNR also at 1 minute).
         nerf_loop_minutes: training time per mesh of the nerf suite's ground-truth loop (0: skip it).
+        tracking_colour_minutes: tracking suite: also train a radiance field of the slide's bunny this long and
+            track 15 frames photometrically with colour weights 0, 0.02, 0.1 and 1 (0: skip it).
         cube_data: sysid suite: also time the contactnets-cube identification on this ContactNets .npz
             (not shipped with dano).
         cube_tosses: sysid suite: tosses of that run.
@@ -667,7 +670,8 @@ def bench(
                           "sysid": {"cube_data": None if cube_data is None else str(cube_data),
                                     "cube_tosses": cube_tosses},
                           "nerf": {"minutes": nerf_minutes, "loop_minutes": nerf_loop_minutes,
-                                   "eval_at": tuple(m for m in (1.0, 3.0) if m < nerf_minutes)}})
+                                   "eval_at": tuple(m for m in (1.0, 3.0) if m < nerf_minutes)},
+                          "tracking": {"colour_minutes": tracking_colour_minutes}})
     text = json.dumps(result, indent=None if json_ else 2)
     if out is not None:
         atomic_write(out, lambda f: f.write(text.encode()))

@@ -11,10 +11,11 @@ longest side):
   constrained), in [0, 1]; a hollow interior stays hollow;
 * ``"solid"``: the points hidden from outside along all six axis directions (accumulated
   opacity ≥ 0.5 from each face of the box, :func:`hidden_from_outside`), the largest connected
-  piece, smoothed over one node spacing: uniform density inside the seen surface, the
-  mesh-like answer. Its surface is then moved along its normal by the offset that makes its
-  silhouettes cover as many pixels as the field's own renders (:func:`silhouette_offset`): a
-  soft field's median-depth surface lies inside the object, its silhouettes do not.
+  piece, as a ramp one node wide of its signed distance (:func:`signed_distance_nodes`):
+  uniform density inside the seen surface, the mesh-like answer. Its surface is then moved
+  along its normal by the offset that makes its silhouettes cover as many pixels as the
+  field's own renders (:func:`silhouette_offset`): a soft field's median-depth surface lies
+  inside the object, its silhouettes do not.
 
 docs/fields-from-images.md reports which one gives the right mass properties.
 """
@@ -231,8 +232,8 @@ def density_grid(field, rule: str = "solid", resolution: int = 128, step: float 
     and ``_after``; empty for the other rules or without calibration).
 
     Returns the :class:`~dano.fields.VoxelField` (bounds [field units × scale]), or
-    ``(grid, details)``. Raises DanoError for an unknown rule, a bad resolution or scale, non-finite σ, or a
-    field that is empty under the rule.
+    ``(grid, details)``. Raises DanoError for an unknown rule, a bad resolution or scale,
+    non-finite σ, or a field that is empty under the rule.
     """
     if rule not in DENSITY_RULES:
         raise DanoError(f"--density-rule must be one of {DENSITY_RULES}, got {rule!r}")
@@ -251,22 +252,21 @@ def density_grid(field, rule: str = "solid", resolution: int = 128, step: float 
     if not np.all(np.isfinite(sigma)):
         raise DanoError(f"the field's density is not finite at {int(np.sum(~np.isfinite(sigma)))} grid nodes")
     sigma = np.maximum(sigma, 0.0)
+    node_bounds = np.stack([points.min(0), points.max(0)])
+    info = {}
     if rule == "sigma":
         values = sigma
     elif rule == "occupancy":
         values = -np.expm1(-sigma * step)
     else:
         solid = hidden_from_outside(sigma, spacing=spacing, opacity=surface_opacity)
+        if not solid.any():
+            raise DanoError("the field is empty under the 'solid' rule (no node hidden from outside; an untrained "
+                            "field?)")
         labels, count = ndimage.label(solid)
         if count > 1:
             sizes = ndimage.sum(solid, labels, index=np.arange(1, count + 1))
             solid = labels == (1 + int(np.argmax(sizes)))
-    node_bounds = np.stack([points.min(0), points.max(0)])
-    info = {}
-    if rule == "solid":
-        if not solid.any():
-            raise DanoError("the field is empty under the 'solid' rule (no node hidden from outside; an untrained "
-                            "field?)")
         distance = signed_distance_nodes(solid)
         offset_nodes = 0.0
         if calibrate:
