@@ -179,6 +179,8 @@ def test_training_is_the_same_at_any_scale(bunny_views):
     big = train(data, config, heldout=data)
     small = train(_scaled(data, 0.05), config, heldout=_scaled(data, 0.05))
     assert small.field.config.sigma_unit == pytest.approx(20 * big.field.config.sigma_unit)
+    # the unit keeps σ in the field's float32 (a NumPy scalar unit promoted it under x64, on in the tests)
+    assert small.field.density(jnp.zeros((2, 3), jnp.float32)).dtype == jnp.float32
     assert abs(small.psnr_heldout - big.psnr_heldout) < 0.5, (big.psnr_heldout, small.psnr_heldout)
 
 

@@ -79,7 +79,7 @@ class FieldConfig:
 
 
 #: the box diagonal at which σ = exp(h) (the ±1.5 box of the NeRF synthetic scenes)
-SIGMA_UNIT_DIAGONAL = 3.0 * np.sqrt(3.0)
+SIGMA_UNIT_DIAGONAL = 3.0 * 3.0**0.5
 
 _GEO = 15  # geometry features passed from the density MLP to the colour MLP
 _SH = 16  # spherical-harmonic terms of the view direction (degree 3)
@@ -159,7 +159,8 @@ class HashGridField:
         b = check_bounds(bounds, "field bounds")
         box = (tuple(map(float, b[0])), tuple(map(float, b[1])))
         if config.sigma_unit is None:
-            config = replace(config, sigma_unit=SIGMA_UNIT_DIAGONAL / float(np.linalg.norm(b[1] - b[0])))
+            # a Python float: a NumPy scalar would promote σ to float64 where x64 is enabled
+            config = replace(config, sigma_unit=float(SIGMA_UNIT_DIAGONAL / np.linalg.norm(b[1] - b[0])))
         return cls(init_params(config, jax.random.PRNGKey(seed)), box, config)
 
     def bounds(self) -> np.ndarray:
@@ -206,7 +207,7 @@ class HashGridField:
     def _density_head(self, points):
         feats, inside = self.encode(points)
         h = _mlp(self.params["density"], feats)
-        unit = 1.0 if self.config.sigma_unit is None else self.config.sigma_unit
+        unit = 1.0 if self.config.sigma_unit is None else float(self.config.sigma_unit)
         sigma = jnp.where(inside, unit * _trunc_exp(h[:, 0]), 0.0)
         return sigma, h[:, 1:]
 

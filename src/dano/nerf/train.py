@@ -239,9 +239,10 @@ def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None,
     opt_state = optimizer.init(field.params)
     start_step, clock0, log = 0, 0.0, []
     if resume:
+        fresh = field  # its config has the unit of σ resolved from the box, as the checkpoint's
         field, occupancy, meta = load_field(out_dir)
         opt_state = load_optimizer_state(out_dir, opt_state)
-        if field.config != config.field or not np.allclose(field.bounds(), bounds, atol=1e-6):
+        if field.config != fresh.config or not np.allclose(field.bounds(), bounds, atol=1e-6):
             raise DanoError(f"{out_dir}: the checkpoint's field architecture or box differs from this run's")
         start_step = int(meta["training"].get("step", 0))
         clock0 = float(meta["training"].get("elapsed_s", 0.0))
