@@ -555,29 +555,28 @@ def tracking_colour(folder, work_dir, minutes: float = 3.0, frames: int = 15,
     field's held-out PSNR and, per weight, RMS / max errors and the median time per frame."""
     import trimesh
 
-    from .asset import visual_mesh
     from .nerf import TrainConfig, load_dataset, train
     from .nerf.synthetic import render_dataset
     from .tracking import TrackConfig, TrackedObject, load_video, pose_errors, track
     from .tracking.real2sim import perturb
-    from .tracking.synthetic import slide_scene
+    from .tracking.synthetic import slide_scene, surface_mesh
     from .trajectory import load_trajectory
 
     asset = slide_scene()[0].assets[0]
-    vertices, faces = visual_mesh(asset.field, 0.0, 192, signed_distance=True)  # object frame, as the video
+    vertices, faces = surface_mesh(asset)  # what the video shows, body frame; the field's is the object frame
     mesh_path = Path(work_dir) / "surface.obj"
-    trimesh.Trimesh(vertices, faces, process=False).export(mesh_path)
+    trimesh.Trimesh(vertices + asset.center_of_mass, faces, process=False).export(mesh_path)
     render_dataset(mesh_path, Path(work_dir) / "views", views=100, size=128)
     train_set, held = load_dataset(Path(work_dir) / "views").split(10)
-    field = train(train_set, TrainConfig(minutes=minutes, background="random"), heldout=held)
+    trained = train(train_set, TrainConfig(minutes=minutes, background="random"), heldout=held)
     video = load_video(folder, subtract_background=True)
     truth = load_trajectory(Path(folder) / "truth.npz").qpos[:frames, :7]
     size = float(np.linalg.norm(np.ptp(asset.mesh_vertices, axis=0)))
     start = perturb(truth[0], 0.03, 3.0)
-    out = {"field_psnr_heldout": field.psnr_heldout, "field_minutes": minutes, "frames": frames, "runs": []}
+    out = {"field_psnr_heldout": trained.psnr_heldout, "field_minutes": minutes, "frames": frames, "runs": []}
     for weight in weights:
-        obj = TrackedObject.from_asset(asset, field.field if weight > 0 else None,
-                                       field.occupancy if weight > 0 else None)
+        obj = TrackedObject.from_asset(asset, trained.field if weight > 0 else None,
+                                       trained.occupancy if weight > 0 else None)
         result = track(video, obj, start, TrackConfig(colour_weight=weight), frames=slice(0, frames))
         dp, dr = pose_errors(result.poses, truth)
         rms = float(np.sqrt(np.mean(dp**2)))
