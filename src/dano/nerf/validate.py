@@ -121,13 +121,14 @@ def compare_with_mesh(field, occupancy, mesh_path: str | Path, step: float, reso
     ``step``: the field's render sample step [field units]; ``occupancy``: its grid or None."""
     mesh = load_mesh(mesh_path)
     diag = float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0]))
-    reference = build(mesh_field(mesh_path), alpha=1.0, num_samples=5000, seed=0, name="mesh")
+    exact = mesh_field(mesh_path)
+    reference = build(exact, alpha=1.0, num_samples=5000, seed=0, name="mesh")
     report = {"mesh_field_dano": mass_property_errors(reference, mesh, "solid"), "rules": {}}
     reference_poses = final_poses(reference, sim_size / diag)
     # the metric's floor: mesh DANOs that differ from the reference only in their random samples
     report["mesh_field_dano_other_seeds"] = [
-        simulation_difference(build(mesh_field(mesh_path), alpha=1.0, num_samples=5000, seed=seed, name="mesh"),
-                              reference_poses, sim_size / diag, diag) for seed in (1, 2)]
+        simulation_difference(build(exact, alpha=1.0, num_samples=5000, seed=seed, name="mesh"), reference_poses,
+                              sim_size / diag, diag) for seed in (1, 2)]
     variants = [(rule, rule, {}) for rule in DENSITY_RULES]
     variants.append(("solid_uncalibrated", "solid", {"calibrate": False}))
     for rule_name, rule, options in variants:
