@@ -36,9 +36,13 @@ class PairGeometry:
     o_i = :func:`occupancy` (z_i) (0 outside B, 1 deep inside); depth_grad (3, S) ∂z_i/∂x
     [1/m], world: how z_i changes when the sample point moves by x relative to the other
     object; moves (S,) 1 where the sample belongs to A (it moves with A relative to B), 0
-    where it belongs to B; points (3, S) positions, world [m]; sample_normal (3, S) unit
-    normal from B into A at each sample, world. Vectors of samples are columns (the (3, S)
-    layout keeps XLA from transposing them every step).
+    where it belongs to B; points (3, S) positions [m] in the frame (points_rotation (3, 3),
+    points_offset (3,)): world = points_rotation @ points + points_offset (A's body frame
+    for plane pairs, so that a model using a few samples transforms only those, and the
+    world frame, identity and 0, for the other kinds; :func:`world_points`);
+    sample_normal (3, S) unit normal from B into A at each sample, world. Vectors of samples
+    are columns (the (3, S) layout keeps XLA from transposing them every step); depth_grad
+    and sample_normal may be (3, 1) where they are the same for every sample (plane pairs).
     A contact model prepares this once per step (:meth:`ContactModel.prepare`).
     """
 
@@ -53,6 +57,20 @@ class PairGeometry:
     moves: jax.Array
     points: jax.Array
     sample_normal: jax.Array
+    points_rotation: jax.Array
+    points_offset: jax.Array
+
+
+def WORLD_FRAME(dtype):  # noqa: N802 (reads as a constant)
+    """(points_rotation, points_offset) of points given in the world frame: (I, 0)."""
+    return jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype)
+
+
+def world_points(g: PairGeometry, points: jax.Array | None = None) -> jax.Array:
+    """(3, K) world positions [m] of ``points`` (3, K) given in ``g``'s points frame
+    (default: all of ``g.points``)."""
+    p = g.points if points is None else points
+    return g.points_rotation @ p + g.points_offset[:, None]
 
 
 def occupancy(depth: jax.Array) -> jax.Array:
@@ -72,11 +90,12 @@ def sample_rates(g: PairGeometry):
     """(6, S) columns c_i with ż_i = c_i·u for the relative twist u = (v, ω) of A w.r.t. B at
     χ: a sample of A moves by v + ω × (x_i − χ) relative to B (c_i = [∇z_i; (x_i − χ) × ∇z_i]);
     a sample of B sees A's field move the opposite way (c_i negated)."""
-    return _rate_columns(g.depth_grad, g.moves, g.points - g.chi[:, None])
+    return _rate_columns(g.depth_grad, g.moves, world_points(g) - g.chi[:, None])
 
 
 def _rate_columns(depth_grad, moves, arm):
     sign = 2.0 * moves - 1.0
+    depth_grad = jnp.broadcast_to(depth_grad, arm.shape)
     return sign * jnp.concatenate([depth_grad, cross_columns(arm, depth_grad)], axis=0)
 
 

@@ -11,7 +11,8 @@ import jax
 import jax.numpy as jnp
 
 from ..errors import DanoError
-from .base import Compacted, PairGeometry, cross_columns, occupancy, register_contact_model, sample_rates
+from .base import (Compacted, PairGeometry, cross_columns, occupancy, register_contact_model, sample_rates,
+                   world_points)
 from .law import check_drag, sample_forces
 from .samples import SAMPLE_BLOCK
 
@@ -20,7 +21,8 @@ from .samples import SAMPLE_BLOCK
 @dataclass(frozen=True)
 class PerSampleState:
     """A pair prepared for the step: weight (K,), depth (K,), rate (6, K) dz/du, arm (3, K)
-    x_i − χ, moves (K,), normal (3, K) of the K samples taken into account; h ()."""
+    x_i − χ (world), moves (K,), normal (3, K) or (3, 1) of the K samples taken into account;
+    h ()."""
 
     weight: jax.Array
     depth: jax.Array
@@ -32,13 +34,14 @@ class PerSampleState:
 
 
 def _state(g: PairGeometry, h, valid) -> PerSampleState:
-    return PerSampleState(jnp.where(valid, g.weight, 0.0), g.depth, sample_rates(g), g.points - g.chi[:, None],
+    return PerSampleState(jnp.where(valid, g.weight, 0.0), g.depth, sample_rates(g), world_points(g) - g.chi[:, None],
                           g.moves, g.sample_normal, jnp.asarray(h, g.psi.dtype))
 
 
 def _take(g: PairGeometry, idx) -> PairGeometry:
-    """``g`` with its per-sample arrays reduced to the samples ``idx`` (K,)."""
-    take = lambda a: jnp.take(a, idx, axis=-1)  # noqa: E731
+    """``g`` with its per-sample arrays reduced to the samples ``idx`` (K,) (arrays of one
+    column, the same for every sample, stay as they are)."""
+    take = lambda a: a if a.shape[-1] == 1 else jnp.take(a, idx, axis=-1)  # noqa: E731
     return dataclasses.replace(g, weight=take(g.weight), depth=take(g.depth), depth_grad=take(g.depth_grad),
                                moves=take(g.moves), points=take(g.points), sample_normal=take(g.sample_normal))
 

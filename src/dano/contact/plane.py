@@ -31,7 +31,8 @@ class PlaneKind:
         n = inp["Rb"][:, 2]
         height = (R.T @ n) @ s.points + jnp.dot(n, x - inp["xb"])
         depth = -height / s.radius
-        s0 = inp["alpha"] * (s.wp[:4] @ occupancy(depth))  # [Σw·o·p; Σw·o]
+        # (all rows of wp: XLA would copy the first four rows of it to multiply them alone)
+        s0 = inp["alpha"] * (s.wp @ occupancy(depth))[:4]  # [Σw·o·p; Σw·o]
         s1 = inp["alpha"] * (s.wp @ occupancy_slope(depth))  # the same with o', and Σw·o'·p·pᵀ
         psi, d0 = s0[3], s1[3]
         lever = s0[:3] / jnp.where(psi > 0, psi, 1.0)
@@ -44,10 +45,10 @@ class PlaneKind:
         psi_rate = -jnp.concatenate([d0 * n, jnp.cross(first, n)]) / s.radius
         moment_rate = jnp.concatenate([psi * jnp.eye(3, dtype=x.dtype) - jnp.outer(first, n) / s.radius,
                                        -(second @ skew(n)) / s.radius], axis=1)
-        points = R @ s.points + x[:, None]
-        normals = jnp.broadcast_to(n[:, None], points.shape)
-        return PairGeometry(psi, chi, n, psi_rate, moment_rate, inp["alpha"] * s.weights, depth, -normals / s.radius,
-                            jnp.ones_like(depth), points, normals)
+        # the samples stay in the body frame and the normal is one column: a model that needs
+        # few samples (per_sample) transforms only those
+        return PairGeometry(psi, chi, n, psi_rate, moment_rate, inp["alpha"] * s.weights, depth,
+                            -n[:, None] / s.radius, jnp.ones_like(depth), s.points, n[:, None], R, x)
 
 
 register_pair_kind(PlaneKind())

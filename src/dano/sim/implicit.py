@@ -27,6 +27,7 @@ one linear solve, whatever the iteration count.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 
@@ -83,26 +84,47 @@ class ImplicitProblem:
     params: tuple
 
 
-def _on_state(fn, st):
-    """fn(state) on a group's prepared state; for a :class:`~dano.contact.base.Compacted`
-    one, on its active part unless a pair overflows."""
-    if isinstance(st, Compacted):
-        return jax.lax.cond(jnp.any(st.overflow), lambda: fn(st.full), lambda: fn(st.active))
-    return fn(st)
+def _pick(pr: ImplicitProblem, full: bool) -> ImplicitProblem:
+    """``pr`` with each :class:`~dano.contact.base.Compacted` state replaced by its ``full``
+    or its ``active`` part."""
+    pick = tuple((st.full if full else st.active) if isinstance(st, Compacted) else st for st in pr.state)
+    return dataclasses.replace(pr, state=pick)
+
+
+def _on_problem(fn, pr: ImplicitProblem, *more: ImplicitProblem):
+    """fn(pr, *more) with every group's prepared state plain: for
+    :class:`~dano.contact.base.Compacted` states, on their active parts unless a pair of any
+    group of ``pr`` overflows (then on the full ones: the same result at full cost); ``more``
+    (e.g. tangents of ``pr``) take the same parts. One branch per solve, not one per
+    evaluation of the force (under ``jax.vmap`` both branches run)."""
+    flags = [jnp.any(st.overflow) for st in pr.state if isinstance(st, Compacted)]
+    if not flags:
+        return fn(pr, *more)
+    probs = (pr,) + more
+    return jax.lax.cond(functools.reduce(jnp.logical_or, flags), lambda: fn(*(_pick(q, True) for q in probs)),
+                        lambda: fn(*(_pick(q, False) for q in probs)))
 
 
 def contact_force(models, pr: ImplicitProblem, v):
     """Generalized DANO contact force Q(v) (nv,) at the end of the step."""
+    return _on_problem(lambda p: _contact_force(models, p, v), pr)
+
+
+def _contact_force(models, pr: ImplicitProblem, v):
     Q = jnp.zeros_like(v)
     for model, J, st, p in zip(models, pr.jac, pr.state, pr.params):
         u = jnp.einsum("gvk,v->gk", J, v)
-        W = _on_state(lambda s, model=model, p=p, u=u: jax.vmap(model.wrench)(p, s, u), st)
+        W = jax.vmap(model.wrench)(p, st, u)
         Q = Q + jnp.einsum("gvk,gk->v", J, W)
     return Q
 
 
 def contact_force_and_jacobian(models, pr: ImplicitProblem, v):
     """Q(v) (nv,) and ∂Q/∂v (nv, nv) = Σ J·(∂W/∂u)·Jᵀ (6×6 wrench Jacobians, forward mode)."""
+    return _on_problem(lambda p: _contact_force_and_jacobian(models, p, v), pr)
+
+
+def _contact_force_and_jacobian(models, pr: ImplicitProblem, v):
     Q = jnp.zeros_like(v)
     D = jnp.zeros((v.shape[0], v.shape[0]), v.dtype)
     for model, J, st, p in zip(models, pr.jac, pr.state, pr.params):
@@ -116,14 +138,14 @@ def contact_force_and_jacobian(models, pr: ImplicitProblem, v):
             K, W = jax.jacfwd(w, has_aux=True)(u_)
             return W, K
 
-        W, K = _on_state(lambda s, p=p, u=u, f=value_and_jac: jax.vmap(f)(p, s, u), st)
+        W, K = jax.vmap(value_and_jac)(p, st, u)
         Q = Q + jnp.einsum("gvk,gk->v", J, W)
         D = D + jnp.einsum("gvi,gij,gwj->vw", J, K, J)
     return Q, D
 
 
 def _residual(models, h, pr: ImplicitProblem, v):
-    return pr.Mh @ (v - pr.v0) - h * (pr.f + contact_force(models, pr, v))
+    return pr.Mh @ (v - pr.v0) - h * (pr.f + _contact_force(models, pr, v))
 
 
 def _tolerance(opts: NewtonOptions, dtype) -> float:
@@ -133,6 +155,10 @@ def _tolerance(opts: NewtonOptions, dtype) -> float:
 
 
 def _newton(models, opts: NewtonOptions, h: float, pr: ImplicitProblem):
+    return _on_problem(functools.partial(_newton_plain, models, opts, h), pr)
+
+
+def _newton_plain(models, opts: NewtonOptions, h: float, pr: ImplicitProblem):
     """Returns (v', [iterations, final residual relative to the step's impulses]).
 
     An iteration solves A·Δ = −G, evaluates the residual at v + Δ (the force only), and
@@ -148,7 +174,7 @@ def _newton(models, opts: NewtonOptions, h: float, pr: ImplicitProblem):
     residual = functools.partial(_residual, models, h, pr)
 
     def matrix(v):
-        return pr.Mh - h * contact_force_and_jacobian(models, pr, v)[1]
+        return pr.Mh - h * _contact_force_and_jacobian(models, pr, v)[1]
 
     def small(G, G_ref):
         return jnp.max(jnp.abs(G)) <= 64 * eps * (impulse + jnp.max(jnp.abs(G_ref)))
@@ -189,7 +215,7 @@ def _newton(models, opts: NewtonOptions, h: float, pr: ImplicitProblem):
         k, _, _, _, done, *_ = state
         return (k < opts.max_iterations) & ~done
 
-    Q0, D0 = contact_force_and_jacobian(models, pr, pr.v0)
+    Q0, D0 = _contact_force_and_jacobian(models, pr, pr.v0)
     G0 = -h * (pr.f + Q0)
     init = (0, pr.v0, G0, pr.Mh - h * D0, jnp.zeros((), bool), G0, pr.v0, G0)
     k, v, G, _, done, G_first, v_best, G_best = jax.lax.while_loop(cond, body, init)
@@ -212,8 +238,12 @@ def solve_velocity(models: tuple, opts: NewtonOptions, h: float, pr: ImplicitPro
 @solve_velocity.defjvp
 def _solve_velocity_jvp(models, opts, h, primals, tangents):
     (pr,), (dpr,) = primals, tangents
-    v, info = _newton(models, opts, h, pr)
-    _, D = contact_force_and_jacobian(models, pr, v)
-    _, dG = jax.jvp(lambda p: _residual(models, h, p, v), (pr,), (dpr,))
-    dv = -jnp.linalg.solve(pr.Mh - h * D, dG)
-    return (v, info), (dv, jnp.zeros_like(info))
+
+    def solve_and_tangent(pr, dpr):
+        v, info = _newton_plain(models, opts, h, pr)
+        _, D = _contact_force_and_jacobian(models, pr, v)
+        _, dG = jax.jvp(lambda p: _residual(models, h, p, v), (pr,), (dpr,))
+        dv = -jnp.linalg.solve(pr.Mh - h * D, dG)
+        return (v, info), (dv, jnp.zeros_like(info))
+
+    return _on_problem(solve_and_tangent, pr, dpr)
