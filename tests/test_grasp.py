@@ -58,11 +58,16 @@ def test_grasp_panda_takes_only_its_own_settings_and_reads_back_its_config(tmp_p
     path.write_text(json.dumps({**dataclasses.asdict(cfg), "grip_forces": [30.0, 90.0]}))
     with pytest.raises(DanoError, match="grip_forces out of range"):
         load_config(str(path))
+    path.write_text(json.dumps({**dataclasses.asdict(cfg), "approach_iterations": 0}))
+    with pytest.raises(DanoError, match="approach_iterations out of range"):
+        load_config(str(path))
 
 
 @pytest.mark.slow
 def test_grasp_panda_cli_lifts_and_holds_the_bunny(shared, monkeypatch, tmp_path, capsys):
-    """`dano trajopt CONFIG --json` for grasp-panda with a two-force scan: the hand grasps the
+    """`dano trajopt CONFIG --json` for grasp-panda with a two-force scan: the constrained
+    iLQR's approach reaches the pre-grasp pose at rest (its constraints met, at a tenth of the
+    scripted approach's cost) and the executed motion follows it there; the hand grasps the
     15 cm bunny at the chosen antipodal pair, lifts it ≥ 9 cm (goal 10 cm) and holds it for
     1 s with under 5 mm of slip at 40 N per finger; at 10 N it slips more and the scan does
     not choose it (centroid model); the outputs are written."""
@@ -82,8 +87,17 @@ def test_grasp_panda_cli_lifts_and_holds_the_bunny(shared, monkeypatch, tmp_path
     assert not weak["diverged"] and weak["slip_mm"] > firm["slip_mm"], rep
     assert rep["grasp"]["width"] < 0.065 and rep["grasp"]["torque_arm"] < 0.06
     assert list(rep["contact_models"]) == ["centroid"]
+    a = rep["approach"]
+    assert a["optimised"] and a["converged"] and a["max_violation"] < 1e-3, a
+    assert a["final_error_rad"] < 1e-3 and a["final_speed_rad_s"] < 1e-3 and a["min_clearance_m"] > -1e-3, a
+    assert a["cost"] < 0.2 * a["scripted_cost"], a
+    # executed at 2 ms with the bunny and table present, the PD-tracked plan ends within 0.01
+    # rad of the pre-grasp; the scripted approach (its PD simulated in the planning scene)
+    # ends more than 0.1 rad behind it
+    assert a["executed_final_error_rad"] < 0.01 < 0.1 < a["scripted_final_error_rad"], a
     sol = np.load(out / "solution.npz")
     assert sol["states"].shape[0] == sol["controls"].shape[0] + 1 and sol["controls"].shape[1] == 8
+    assert sol["approach_states"].shape == (101, 18) and sol["approach_controls"].shape == (100, 7)
     assert json.loads((out / "config.json").read_text())["grip_forces"] == [10.0, 40.0]
     assert not (out / "grasp-panda.mp4").exists()
 

@@ -61,7 +61,7 @@ class PairGeometry:
     points_offset: jax.Array
 
 
-def WORLD_FRAME(dtype):  # noqa: N802 (reads as a constant)
+def world_frame(dtype):
     """(points_rotation, points_offset) of points given in the world frame: (I, 0)."""
     return jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype)
 

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .base import WORLD_FRAME, PairGeometry, centroid_rates, occupancy, register_pair_kind, unit
+from .base import PairGeometry, centroid_rates, occupancy, register_pair_kind, unit, world_frame
 
 
 def field_depth(phi, rho_ref):
@@ -65,7 +65,7 @@ class DanoPairKind:
         cat = lambda a, b: jnp.concatenate([a, b], axis=-1)  # noqa: E731
         weight, depth, grad, points = 0.5 * cat(ua, ub), cat(za, zb), cat(ga, gb), cat(pa, pb)
         return PairGeometry(0.5 * total, chi, normal, *centroid_rates(weight, depth, grad, moves, points, chi), weight,
-                            depth, grad, moves, points, cat(-na, nb), *WORLD_FRAME(chi.dtype))
+                            depth, grad, moves, points, cat(-na, nb), *world_frame(chi.dtype))
 
 
 register_pair_kind(DanoPairKind())

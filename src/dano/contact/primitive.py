@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..fields.base import safe_norm
-from .base import WORLD_FRAME, PairGeometry, centroid_rates, occupancy, register_pair_kind, unit, weighted_centroid
+from .base import PairGeometry, centroid_rates, occupancy, register_pair_kind, unit, weighted_centroid, world_frame
 
 # Signed distances of MuJoCo primitives: y (3, N) points in the geom frame [m], size: the
 # geom's MuJoCo size vector (3,); return (N,) [m], negative inside.
@@ -63,7 +63,7 @@ class PrimitiveKind:
         points = R @ s.points + x[:, None]
         weight, grad, moves = inp["alpha"] * s.weights, -sdf_grad / s.radius, jnp.ones_like(depth)
         return PairGeometry(psi, chi, normal, *centroid_rates(weight, depth, grad, moves, points, chi), weight, depth,
-                            grad, moves, points, unit(sdf_grad, normal[:, None], axis=0), *WORLD_FRAME(x.dtype))
+                            grad, moves, points, unit(sdf_grad, normal[:, None], axis=0), *world_frame(x.dtype))
 
 
 SDFS = {"sphere": sdf_sphere, "capsule": sdf_capsule, "box": sdf_box}

@@ -11,17 +11,20 @@ The pipeline, every stage on the DANO's own contact samples and dano's simulator
    (:func:`antipodal_grasp`).
 2. **Arm configurations** for the pre-grasp (12 cm above), grasp and lifted poses by inverse
    kinematics of the hand's grip site (SciPy's bounded least squares on MuJoCo's kinematics).
-3. **Motion**: joint-space PD tracking of approach → descend → settle → close → lift → hold,
-   with gravity compensation of the arm and a feedforward of the object's weight at the grip
-   site during lift and hold, simulated with :func:`dano.sim.step` (DANO contact between the
-   bunny, the two finger pads and the table).
-4. **Closing force**: a scan of the grip force per finger; the smallest force that lifts the
+3. **Approach** (home → pre-grasp): optimised by the constrained iLQR through
+   :func:`dano.sim.step` (joint torques within Franka's limits, joint limits, the hand kept
+   above the pre-grasp height, arriving at rest: :func:`optimise_approach`).
+4. **Motion**: joint-space PD tracking of the optimised approach (its torques fed forward),
+   then descend → settle → close → lift → hold, with gravity compensation of the arm and a
+   feedforward of the object's weight at the grip site during lift and hold, simulated with
+   :func:`dano.sim.step` (DANO contact between the bunny, the two finger pads and the table).
+5. **Closing force**: a scan of the grip force per finger; the smallest force that lifts the
    bunny by at least 90 % of the goal and holds it with less than ``slip_tolerance_mm`` of
    slip is chosen (all forces of the scan go through one compiled rollout).
 
-The approach is scripted (joint interpolation between the IK poses), not optimised by iLQR:
-that, and optimising the grasp pose and force through the simulator's gradients, remain to
-do (see docs/trajopt.md).
+The 12 cm descent and the lift stay joint interpolations between IK poses, and the grasp
+pose and force are chosen by a search and a scan rather than through the simulator's
+gradients (docs/trajopt.md says why).
 
 Decisions where the issue is silent: the finger motor is a force motor on the hand's tendon
 (ctrl = grip force per finger [N], −20 to 70 N: Franka's hand holds 70 N continuously),
@@ -59,6 +62,9 @@ OPEN_GAP = 0.083  # [m] between the pads' inner faces, fingers fully open (2 × 
 HOME = np.array([0.0, 0.0, 0.0, -1.57079, 0.0, 1.57079, -0.7853])  # Menagerie's "home" keyframe
 PAIR_BLOCK = 256  # sample rows per block of the pair search
 ANGLE_WEIGHT = 0.02  # [m] score of a normal at 90° from the grip axis, against the torque arm
+ARM_KP = np.array([600.0] * 4 + [100.0] * 3)  # joint PD gains of the executed motion [N m/rad]
+ARM_KD = 2.0 * np.sqrt(ARM_KP)  # [N m s/rad]
+OPEN_FORCE = 10.0  # [N] per finger, holding the hand open
 PHASES = (("approach", 1.0), ("descend", 0.8), ("settle", 0.4), ("close", 0.5), ("lift", 0.8), ("hold", 1.0))
 
 
@@ -88,6 +94,11 @@ class GraspPandaConfig:
     """DANO contact model of the main run: centroid (the paper's) or per_sample"""
     compare_models: bool = True
     """also run the other contact model at the chosen grasp and force"""
+    optimise_approach: bool = True
+    """optimise the approach (home to pre-grasp) with the constrained iLQR; false: PD
+    tracking of a joint-space interpolation"""
+    approach_iterations: int = 100
+    """iLQR iteration budget of the approach"""
 
     def validate(self):
         """Raises DanoError naming the first setting out of range."""
@@ -97,7 +108,8 @@ class GraspPandaConfig:
                   ("grip_forces", len(self.grip_forces) > 0 and all(0 < f <= 70 for f in self.grip_forces)),
                   ("slip_tolerance_mm", self.slip_tolerance_mm > 0),
                   ("friction_cone_deg", 0 < self.friction_cone_deg < 60),
-                  ("contact_model", self.contact_model in ("centroid", "per_sample"))]
+                  ("contact_model", self.contact_model in ("centroid", "per_sample")),
+                  ("approach_iterations", isinstance(self.approach_iterations, int) and self.approach_iterations >= 1)]
         return checked(self, checks)
 
 
@@ -225,6 +237,97 @@ def grip_ik(model: mujoco.MjModel, site: int, target, axis, q0, rotation=None) -
     return sol.x, float(np.abs(sol.fun[:-7]).max())
 
 
+APPROACH_DT = 0.01  # [s] stage of the approach's iLQR (free space: no stiff contact to resolve)
+APPROACH_CLEARANCE = 0.01  # [m] the grip site stays at most this far below the pre-grasp height
+
+
+@dataclass(frozen=True)
+class ApproachPlan:
+    """The approach optimised by the constrained iLQR (:func:`optimise_approach`): states
+    (T + 1, 18) [qpos (9), qvel (9)] of the arm and hand and torques (T, 7) [N m] at
+    ``dt`` = :data:`APPROACH_DT`; report: the solve's figures (iterations, status, cost,
+    max_violation, final_error_rad, min_clearance_m, and the same for the scripted PD
+    approach it starts from: scripted_final_error_rad, scripted_cost)."""
+
+    states: np.ndarray
+    controls: np.ndarray
+    dt: float
+    report: dict
+
+
+def optimise_approach(task: GraspTask) -> ApproachPlan:
+    """Optimise the arm's motion from Menagerie's home pose to the pre-grasp pose (the first
+    phase, :data:`PHASES`) with the constrained iLQR (:func:`dano.trajopt.solve`) through
+    :func:`dano.sim.step` of the arm and hand in free space (stage h = :data:`APPROACH_DT`):
+    controls the 7 joint torques within Franka's limits (fingers held open); stage cost
+    ½‖q̇_arm‖² + ½‖τ/τ_max‖²; inequalities: joint limits and the grip site no lower than
+    :data:`APPROACH_CLEARANCE` below the pre-grasp height (the hand comes from above, where
+    the grasp search checked the fingers' descent columns); terminal equalities: the arm at
+    the pre-grasp joint angles, at rest. Started from the scripted approach (PD tracking of
+    the joint interpolation). The bunny is not in this problem: the constraint keeps the hand
+    above it, and the executed grasp simulates everything together."""
+    from ..sim import compose, make_data
+    from .ilqr import Options, solve
+    from .problem import Problem, mjx_dynamics
+    from .._mjx import mjx
+
+    cfg = task.config
+    scene = compose([], hand_spec(), dt=APPROACH_DT, name="grasp-panda-approach", ground=False)
+    params = scene.default_params()
+    nq, nv = scene.nq, scene.nv
+    T = int(round(PHASES[0][1] / APPROACH_DT))
+    q_pre = np.asarray(task.waypoints[1])
+    x0 = np.r_[HOME, 0.04, 0.04, np.zeros(nv)]
+    step = mjx_dynamics(scene, "ctrl")
+    open_grip = jnp.asarray([-OPEN_FORCE])
+
+    def dynamics(x, u, t, p):
+        return step(x, jnp.concatenate([u, open_grip.astype(u.dtype)]), t, p)
+
+    m, site = scene.model, mujoco.mj_name2id(scene.mj_model, mujoco.mjtObj.mjOBJ_SITE, "grip")
+
+    def grip_height(x):
+        return mjx.kinematics(m, make_data(scene, x[:nq])).site_xpos[site, 2]
+
+    z_pre = float(grip_height(jnp.asarray(np.r_[q_pre, 0.04, 0.04, np.zeros(nv)])))
+    tau = jnp.asarray(PANDA_TORQUE)
+    lo, hi = (jnp.asarray(scene.mj_model.jnt_range[:7, k]) for k in (0, 1))
+
+    def stage_cost(x, u, t, p):
+        return 0.5 * jnp.sum(x[nq:nq + 7] ** 2) + 0.5 * jnp.sum((u / tau) ** 2)
+
+    problem = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 7,
+                      inequality=lambda x, u, t, p: jnp.concatenate(
+                          [x[:7] - hi, lo - x[:7], (z_pre - APPROACH_CLEARANCE - grip_height(x))[None]]),
+                      terminal_equality=lambda x, p: jnp.concatenate([x[:7] - jnp.asarray(q_pre), x[nq:nq + 7]]),
+                      u_lower=-PANDA_TORQUE, u_upper=PANDA_TORQUE)
+    # the initial guess: the scripted approach (PD tracking of the joint interpolation)
+    times = np.arange(T) * APPROACH_DT
+    q_ref = np.stack([np.interp(times, [0.0, T * APPROACH_DT], [HOME[k], q_pre[k]]) for k in range(7)], 1)
+
+    def pd(x, q_r):
+        u = jnp.clip(ARM_KP * (q_r - x[:7]) - ARM_KD * x[nq:nq + 7], -PANDA_TORQUE, PANDA_TORQUE)
+        x = dynamics(x, u, 0, params)
+        return x, (x, u)
+
+    _, (X0, U0) = jax.jit(lambda x: jax.lax.scan(pd, x, jnp.asarray(q_ref)))(jnp.asarray(x0))
+    X0, U0 = np.asarray(X0), np.asarray(U0)
+    sol = solve(problem, x0, U0, params, Options(max_iterations=cfg.approach_iterations))
+    X, U = np.asarray(sol.states), np.asarray(sol.controls)
+    heights = np.asarray(jax.jit(jax.vmap(grip_height))(jnp.asarray(X)))
+    scripted_cost = float(sum(stage_cost(jnp.asarray(x), jnp.asarray(u), 0, None) for x, u in zip(
+        np.concatenate([x0[None], X0[:-1]]), U0)))
+    report = {"optimised": True, "status": sol.status, "converged": bool(sol.converged),
+              "iterations": int(sol.iterations), "cost": float(sol.cost), "max_violation": float(sol.max_violation),
+              "final_error_rad": float(np.abs(X[-1, :7] - q_pre).max()),
+              "final_speed_rad_s": float(np.abs(X[-1, nq:nq + 7]).max()),
+              "min_clearance_m": float(heights.min() - (z_pre - APPROACH_CLEARANCE)),
+              "scripted_cost": scripted_cost, "scripted_final_error_rad": float(np.abs(X0[-1, :7] - q_pre).max()),
+              "dt": APPROACH_DT, "stages": T, "wall_time_s": float(sol.wall_time_s),
+              "compile_time_s": float(sol.compile_time_s)}
+    return ApproachPlan(X, U, APPROACH_DT, report)
+
+
 @dataclass(frozen=True)
 class GraspRun:
     """One simulated grasp: states (T + 1, nx), controls (T, nu), grip force per finger
@@ -247,7 +350,8 @@ class GraspRun:
 class GraspTask:
     """The built task: scene, params (pads stiffened), x0 (nx,) (arm at Menagerie's home,
     fingers open, bunny at rest), the grasp, waypoints (len(PHASES) + 1, 7): the arm's
-    joint targets at the phase boundaries [rad], and the config."""
+    joint targets at the phase boundaries [rad], the config, and the optimised approach
+    (:func:`optimise_approach`; None: the approach interpolates the waypoints)."""
 
     scene: object
     params: object
@@ -255,6 +359,7 @@ class GraspTask:
     grasp: Grasp
     waypoints: np.ndarray
     config: GraspPandaConfig
+    approach: ApproachPlan | None = None
 
 
 def grasp_scene(config: GraspPandaConfig, contact_model: str | None = None):
@@ -340,7 +445,18 @@ def _schedules(task: GraspTask):
     weight = float(task.scene.assets[0].mass) * 9.81
     tau_ff = jac[:, :7].T @ np.array([0.0, 0.0, weight])
     ff = np.where(times[:, None] >= knots[4], tau_ff[None], 0.0)
-    return knots, q_ref, ramp, ff
+    qd_ref = np.zeros_like(q_ref)
+    plan = task.approach
+    if plan is not None:  # the approach tracks the optimised joint path and speeds, its torques fed forward
+        first = times < knots[1]
+        t_plan = np.arange(len(plan.states)) * plan.dt
+        nq = plan.states.shape[1] // 2
+        for k in range(7):
+            q_ref[first, k] = np.interp(times[first], t_plan, plan.states[:, k])
+            qd_ref[first, k] = np.interp(times[first], t_plan, plan.states[:, nq + k])
+        stage = np.minimum((times[first] / plan.dt).astype(int), len(plan.controls) - 1)
+        ff[first] = plan.controls[stage]
+    return knots, q_ref, qd_ref, ramp, ff
 
 
 def simulate(task: GraspTask, forces, newton=None) -> tuple[list[GraspRun], float]:
@@ -352,24 +468,21 @@ def simulate(task: GraspTask, forces, newton=None) -> tuple[list[GraspRun], floa
     newton = newton or NewtonOptions()
     scene, params = task.scene, task.params
     nq = scene.nq
-    knots, q_ref, ramp, ff = _schedules(task)
-    kp = np.array([600.0] * 4 + [100.0] * 3)
-    kd = 2.0 * np.sqrt(kp)
-    open_force = 10.0
+    knots, q_ref, qd_ref, ramp, ff = _schedules(task)
 
     def one(force):
-        grip = jnp.where(jnp.asarray(ramp) < 0, -open_force, jnp.asarray(ramp) * force)
+        grip = jnp.where(jnp.asarray(ramp) < 0, -OPEN_FORCE, jnp.asarray(ramp) * force)
 
         def body(d, inp):  # MJX Data carried: time and the constraint solver's warm start go on
-            qr, g, tff = inp
-            arm = jnp.clip(kp * (qr - d.qpos[:7]) - kd * d.qvel[:7] + tff, -PANDA_TORQUE, PANDA_TORQUE)
+            qr, qdr, g, tff = inp
+            arm = jnp.clip(ARM_KP * (qr - d.qpos[:7]) + ARM_KD * (qdr - d.qvel[:7]) + tff, -PANDA_TORQUE, PANDA_TORQUE)
             u = jnp.concatenate([arm, g[None]]).astype(d.ctrl.dtype)
             d = step(scene, params, d.replace(ctrl=u), newton)
             return d, (jnp.concatenate([d.qpos, d.qvel]), u)
 
         x0 = jnp.asarray(task.x0)
         d0 = make_data(scene, x0[:nq], x0[nq:])
-        _, (X, U) = jax.lax.scan(body, d0, (jnp.asarray(q_ref), grip, jnp.asarray(ff)))
+        _, (X, U) = jax.lax.scan(body, d0, (jnp.asarray(q_ref), jnp.asarray(qd_ref), grip, jnp.asarray(ff)))
         return jnp.concatenate([x0[None], X.astype(x0.dtype)]), U
 
     f = jnp.asarray(forces, dtype=jnp.asarray(task.x0).dtype)
@@ -416,31 +529,45 @@ def run_grasp(config: GraspPandaConfig, progress=None) -> tuple[GraspTask, Grasp
     """Build, choose the grasp, scan the grip forces (and compare the contact models).
     Returns (task, chosen run, report). The report has ``lift_height``, ``slip_mm``,
     ``slip_deg``, ``converged`` (a force in the scan lifted and held the object),
-    ``grip_force``, ``wall_time_s``, ``compile_time_s``, the grasp and the scan, and
-    ``contact_models`` {model: {lift_height, hold_start_lift, slip_mm, slip_deg}} at the chosen force."""
+    ``grip_force``, ``wall_time_s``, ``compile_time_s``, the grasp and the scan,
+    ``contact_models`` {model: {lift_height, hold_start_lift, slip_mm, slip_deg}} at the chosen
+    force, and ``approach`` (:class:`ApproachPlan`'s report and executed_final_error_rad, or
+    {"optimised": false})."""
     t0 = time.perf_counter()
     if progress is not None:
-        progress(0, 3, "building the grasp task")
+        progress(0, 4, "building the grasp task")
     task = build(config)
+    approach = {"optimised": False}
+    compile_s = 0.0
+    if config.optimise_approach:
+        if progress is not None:
+            progress(1, 4, "optimising the approach (iLQR)")
+        task = dataclasses.replace(task, approach=optimise_approach(task))
+        approach = dict(task.approach.report)
+        compile_s += approach["compile_time_s"]
     if progress is not None:
-        progress(1, 3, "simulating the grip-force scan")
+        progress(2, 4, "simulating the grip-force scan")
     t1 = time.perf_counter()
-    runs, compile_s = simulate(task, config.grip_forces)
-    scan_s = time.perf_counter() - t1 - compile_s
+    runs, scan_compile_s = simulate(task, config.grip_forces)
+    compile_s += scan_compile_s
+    scan_s = time.perf_counter() - t1 - scan_compile_s
     ok = [r for r in runs if succeeded(r, config)]
     chosen = min(ok, key=lambda r: r.grip_force) if ok else max(
         runs, key=lambda r: (np.nan_to_num(r.lift_height, nan=-1.0), -np.nan_to_num(r.slip_mm, nan=1e9)))
     models = {config.contact_model: _summary(chosen)}
     if config.compare_models:
         if progress is not None:
-            progress(2, 3, "the other contact model")
+            progress(3, 4, "the other contact model")
         other = "per_sample" if config.contact_model == "centroid" else "centroid"
         other_runs, other_compile_s = simulate(with_contact_model(task, other), [chosen.grip_force])
         models[other] = _summary(other_runs[0])
         compile_s += other_compile_s
     if progress is not None:
-        progress(3, 3, "done")
+        progress(4, 4, "done")
     g = task.grasp
+    if not chosen.diverged:  # the executed approach (2 ms steps, PD on the plan, bunny and table present)
+        end = int(round(PHASES[0][1] / config.dt))
+        approach["executed_final_error_rad"] = float(np.abs(chosen.states[end, :7] - task.waypoints[1]).max())
     report = {
         "task": config.task, "lift_height": chosen.lift_height, "hold_start_lift": chosen.hold_start_lift,
         "slip_mm": chosen.slip_mm, "slip_deg": chosen.slip_deg, "converged": bool(ok),
@@ -451,7 +578,9 @@ def run_grasp(config: GraspPandaConfig, progress=None) -> tuple[GraspTask, Grasp
         "scan": [{"grip_force": r.grip_force, **_summary(r), "success": succeeded(r, config)} for r in runs],
         "contact_models": models, "scan_time_s": scan_s, "wall_time_s": time.perf_counter() - t0,
         "compile_time_s": compile_s, "dt": config.dt, "hold_s": PHASES[-1][1],
-        "optimised": "grasp pose (antipodal search) and closing force (scan); approach scripted (PD on IK poses)",
+        "optimised": "grasp pose (antipodal search), closing force (scan) and " + (
+            "approach (constrained iLQR)" if config.optimise_approach else "no approach (PD on IK poses)"),
+        "approach": approach,
     }
     return task, chosen, report
 

@@ -173,7 +173,8 @@ def _replay_video(scene, params, X, U, path: Path, progress, qfrc=None) -> None:
 
 def _write_grasp(task, run, rep: dict, out_dir: Path, video: bool, progress) -> list:
     """grasp-panda's outputs: report.json, config.json, solution.npz (time, states,
-    controls, qpos, qvel, the joint waypoints, the grasp) and the video, all or none."""
+    controls, qpos, qvel, the joint waypoints, the grasp and, when optimised, the approach
+    plan: approach_states, approach_controls at approach_dt) and the video, all or none."""
     from .._files import atomic_path
 
     names = ["report.json", "config.json", "solution.npz"] + (["grasp-panda.mp4"] if video else [])
@@ -184,8 +185,10 @@ def _write_grasp(task, run, rep: dict, out_dir: Path, video: bool, progress) -> 
         paths = {n: stack.enter_context(atomic_path(out_dir / n)) for n in names}
         _write_report_and_config(paths, rep, task.config)
         with open(paths["solution.npz"], "wb") as f:
+            a = task.approach
+            plan = {} if a is None else dict(approach_states=a.states, approach_controls=a.controls, approach_dt=a.dt)
             np.savez(f, time=np.arange(len(X)) * task.scene.dt, states=X, controls=U, qpos=X[:, :nq],
-                     qvel=X[:, nq:], waypoints=task.waypoints, grasp_center=g.center, grasp_axis=g.axis)
+                     qvel=X[:, nq:], waypoints=task.waypoints, grasp_center=g.center, grasp_axis=g.axis, **plan)
         if video:
             _replay_video(task.scene, task.params, X, U, paths["grasp-panda.mp4"], progress)
     return [out_dir / n for n in names]
