@@ -517,11 +517,12 @@ def bench_nerf(repeats: int = 1, minutes: float = 3.0, eval_at: tuple[float, ...
 
 def tracking_success_curve(folder, translations=(0.01, 0.02, 0.04, 0.06, 0.08, 0.10, 0.15, 0.20, 0.30),
                            rotations=(2.0, 5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 90.0), seeds: int = 4,
-                           frames: int = 10) -> list:
-    """Silhouette tracking of the first ``frames`` frames of the synthetic-slide video in
-    ``folder`` from the true first pose perturbed by (translation · object size, rotation
-    [deg]) about ``seeds`` random directions per size: per size, the success rate (final frame
-    within 2 % of the size and 5°) and the final errors."""
+                           frames: int = 10, obj=None, config=None) -> list:
+    """Tracking of the first ``frames`` frames of the synthetic-slide video in ``folder`` from
+    the true first pose perturbed by (translation · object size, rotation [deg]) about
+    ``seeds`` random directions per size: per size, the success rate (final frame within 2 %
+    of the size and 5°) and the final errors. obj: the TrackedObject (default: the slide's
+    DANO, silhouettes only); config: its TrackConfig (default: TrackConfig())."""
     from .tracking import TrackConfig, TrackedObject, load_video, pose_errors, track
     from .tracking.real2sim import perturb
     from .tracking.synthetic import slide_scene
@@ -531,13 +532,13 @@ def tracking_success_curve(folder, translations=(0.01, 0.02, 0.04, 0.06, 0.08, 0
     truth = load_trajectory(Path(folder) / "truth.npz").qpos[:, :7]
     asset = slide_scene()[0].assets[0]
     size = float(np.linalg.norm(np.ptp(asset.mesh_vertices, axis=0)))
-    obj = TrackedObject.from_asset(asset)
+    obj = TrackedObject.from_asset(asset) if obj is None else obj
+    config = TrackConfig() if config is None else config
     curve = []
     for dt, dr in zip(translations, rotations):
         runs = []
         for seed in range(seeds):
-            result = track(video, obj, perturb(truth[0], dt * size, dr, seed + 1), TrackConfig(),
-                           frames=slice(0, frames))
+            result = track(video, obj, perturb(truth[0], dt * size, dr, seed + 1), config, frames=slice(0, frames))
             ep, er = pose_errors(result.poses[-1:], truth[frames - 1 : frames])
             runs.append({"translation_error_percent": float(ep[0] / size * 100), "rotation_error_deg": float(er[0]),
                          "success": bool(ep[0] < 0.02 * size and er[0] < 5.0)})
