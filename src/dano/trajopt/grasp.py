@@ -65,6 +65,7 @@ ANGLE_WEIGHT = 0.02  # [m] score of a normal at 90° from the grip axis, against
 ARM_KP = np.array([600.0] * 4 + [100.0] * 3)  # joint PD gains of the executed motion [N m/rad]
 ARM_KD = 2.0 * np.sqrt(ARM_KP)  # [N m s/rad]
 OPEN_FORCE = 10.0  # [N] per finger, holding the hand open
+FINGERS_OPEN = 0.04  # [m] each finger joint, fully open
 PHASES = (("approach", 1.0), ("descend", 0.8), ("settle", 0.4), ("close", 0.5), ("lift", 0.8), ("hold", 1.0))
 
 
@@ -277,7 +278,7 @@ def optimise_approach(task: GraspTask) -> ApproachPlan:
     nq, nv = scene.nq, scene.nv
     T = int(round(PHASES[0][1] / APPROACH_DT))
     q_pre = np.asarray(task.waypoints[1])
-    x0 = np.r_[HOME, 0.04, 0.04, np.zeros(nv)]
+    x0 = np.r_[HOME, FINGERS_OPEN, FINGERS_OPEN, np.zeros(nv)]
     step = mjx_dynamics(scene, "ctrl")
     open_grip = jnp.asarray([-OPEN_FORCE])
 
@@ -289,7 +290,7 @@ def optimise_approach(task: GraspTask) -> ApproachPlan:
     def grip_height(x):
         return mjx.kinematics(m, make_data(scene, x[:nq])).site_xpos[site, 2]
 
-    z_pre = float(grip_height(jnp.asarray(np.r_[q_pre, 0.04, 0.04, np.zeros(nv)])))
+    z_pre = float(grip_height(jnp.asarray(np.r_[q_pre, FINGERS_OPEN, FINGERS_OPEN, np.zeros(nv)])))
     tau = jnp.asarray(PANDA_TORQUE)
     lo, hi = (jnp.asarray(scene.mj_model.jnt_range[:7, k]) for k in (0, 1))
 
@@ -315,8 +316,8 @@ def optimise_approach(task: GraspTask) -> ApproachPlan:
     sol = solve(problem, x0, U0, params, Options(max_iterations=cfg.approach_iterations))
     X, U = np.asarray(sol.states), np.asarray(sol.controls)
     heights = np.asarray(jax.jit(jax.vmap(grip_height))(jnp.asarray(X)))
-    speeds = np.concatenate([x0[None], X0[:-1]])[:, nq:nq + 7]  # the stage costs' states x_0 … x_{T−1}
-    scripted_cost = float(0.5 * np.sum(speeds**2) + 0.5 * np.sum((U0 / PANDA_TORQUE) ** 2))
+    starts = np.concatenate([x0[None], X0[:-1]])  # the stage costs' states x_0 … x_{T−1}
+    scripted_cost = float(jnp.sum(jax.vmap(stage_cost, (0, 0, None, None))(starts, U0, 0, None)))
     report = {"optimised": True, "status": sol.status, "converged": bool(sol.converged),
               "iterations": int(sol.iterations), "cost": float(sol.cost), "max_violation": float(sol.max_violation),
               "final_error_rad": float(np.abs(X[-1, :7] - q_pre).max()),
@@ -384,7 +385,7 @@ def grasp_scene(config: GraspPandaConfig, contact_model: str | None = None):
             params = scene.set_param(params, "impact_damper", config.pad_damper, pair)
     free = initial_state(scene, {"bunny": (tuple(start), (1, 0, 0, 0))})
     qpos = np.asarray(free.qpos, dtype=np.float64).copy()
-    qpos[:7], qpos[7:9] = HOME, 0.04
+    qpos[:7], qpos[7:9] = HOME, FINGERS_OPEN
     return scene, params, np.r_[qpos, np.zeros(scene.nv)]
 
 
@@ -578,8 +579,8 @@ def run_grasp(config: GraspPandaConfig, progress=None) -> tuple[GraspTask, Grasp
         "scan": [{"grip_force": r.grip_force, **_summary(r), "success": succeeded(r, config)} for r in runs],
         "contact_models": models, "scan_time_s": scan_s, "wall_time_s": time.perf_counter() - t0,
         "compile_time_s": compile_s, "dt": config.dt, "hold_s": PHASES[-1][1],
-        "optimised": "grasp pose (antipodal search), closing force (scan) and " + (
-            "approach (constrained iLQR)" if config.optimise_approach else "no approach (PD on IK poses)"),
+        "optimised": "grasp pose (antipodal search), closing force (scan)" + (
+            " and approach (constrained iLQR)" if config.optimise_approach else "; approach scripted (PD on IK poses)"),
         "approach": approach,
     }
     return task, chosen, report
