@@ -349,3 +349,20 @@ def test_carving_keeps_every_cell_of_the_object_and_drops_most_others(bunny_view
     assert keep[cells[:, 0], cells[:, 1], cells[:, 2]].all()
     # six 32-px views with a 2-px margin carve a loose hull: 65 % of the box kept (measured)
     assert keep.mean() < 0.8
+
+
+def test_ground_truth_loop_runs_slide_where_they_are_thrown():
+    """The loop's level slides go along their direction at the paper's default friction and
+    a DANO compared with itself differs by nothing; an unknown run is refused."""
+    from dano.asset import build
+    from dano.nerf.validate import LEVEL_SLIDE_FRICTION, _final_pose, simulation_difference
+
+    box = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=0)
+    p, q = _final_pose(box, "slide_90deg", 1.0)
+    travel = 1.5**2 / (2 * LEVEL_SLIDE_FRICTION * 9.81)  # Coulomb alone; the paper's drag shortens it
+    assert abs(p[0]) < 0.01 and 0.5 * travel < p[1] < travel and abs(q[0]) > 0.999
+    reference = {"slide_90deg": (p, q)}
+    diff = simulation_difference(box, reference, 1.0, 0.2)
+    assert diff["slide_90deg_position_error"] == 0.0 and diff["level_slides_position_error_max"] == 0.0
+    with pytest.raises(ValueError, match="unknown run"):
+        _final_pose(box, "roll", 1.0)

@@ -1,6 +1,8 @@
 """Honest uncertainty (issue 8, item 5): standard errors only at a converged interior minimum,
 warnings that say why, and a bootstrap over trajectories that covers the truth."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -8,7 +10,8 @@ from dano.asset import build
 from dano.errors import DanoError
 from dano.fields import BoxField
 from dano.sim import DanoObject, compose
-from dano.sysid import FitParameter, Observation, SysIdProblem, SysIdResult, Weights, bootstrap, identify
+from dano.sysid import (FitParameter, Observation, SysIdProblem, SysIdResult, Weights, bootstrap, cramer_rao,
+                        identify)
 from dano.sysid.examples import analytic_slides, bootstrap_coverage
 from dano.sysid.solve import _disagreement
 
@@ -84,3 +87,72 @@ def test_bootstrap_needs_two_trajectories(box):
     obs = Observation(time=np.arange(5) * 0.01, poses={"box": np.tile([0, 0, 0.05, 1, 0, 0, 0.0], (5, 1))})
     assert SysIdProblem(box, [obs, obs], [FitParameter("sliding_friction", 0.3, 0, 1)], substeps=4
                         ).residual_observations().tolist() == [0] * 24 + [1] * 24
+
+
+def _clean_slides(noise: float, seed: int = 0, trajectories: int = 2) -> list:
+    """Analytic slides whose first frame is exact and later frames carry ``noise`` [m] (x, y)."""
+    rng = np.random.default_rng(seed)
+    obs = analytic_slides(0, 0.05, trajectories, noise=0.0)
+    for o in obs:
+        o.poses["box"][1:, :2] += rng.normal(0.0, noise, (len(o.time) - 1, 2))
+    return obs
+
+
+def test_residual_noise_follows_the_residual_layout_and_gives_the_cramer_rao_bound(box):
+    """residual_noise scales each residual's noise like the residual itself (checked entry by
+    entry against the residuals that move when one trajectory's y positions move), and the
+    Cramér–Rao bound at the truth agrees with the standard error a fit to noisy data reports."""
+    weights = Weights((1.0, 4.0, 0.0), 9.0)
+    clean = _clean_slides(0.0)
+    problem = SysIdProblem(box, clean, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], weights=weights,
+                           substeps=4, base_params=box.default_params(sliding_drag=0.0))
+    sd = problem.residual_noise(1e-3, 0.5)
+    assert sd.shape == (problem.num_residuals,)
+    assert set(np.round(sd, 12)) == {1e-3, 2e-3, round(3 * np.radians(0.5) / np.sqrt(3), 12)}
+    moved = [dataclasses.replace(o, poses={"box": o.poses["box"] + (k == 1) * np.r_[0, 1e-3, 0, 0, 0, 0, 0]})
+             for k, o in enumerate(clean)]
+    moved[1].poses["box"][0, 1] -= 1e-3  # the first frame (the initial state) stays
+    shifted = SysIdProblem(box, moved, problem.parameters, weights=weights, substeps=4,
+                           base_params=problem.base_params)
+    theta = np.array([0.45])
+    diff = np.asarray(shifted.residual_function()(theta)) - np.asarray(problem.residual_function()(theta))
+    changed = np.abs(diff) > 1e-9
+    assert np.array_equal(changed, np.isclose(sd, 2e-3) & (problem.residual_observations() == 1))
+    np.testing.assert_allclose(diff[changed], -2e-3, rtol=1e-9)  # -√w_y · 1 mm
+    # the bound at the truth vs a fit's σ²(JᵀJ)⁻¹ on data with that noise
+    noisy = SysIdProblem(box, _clean_slides(3e-3, seed=1, trajectories=4),
+                         [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], weights=Weights((1.0, 1.0, 0.0), 0.0),
+                         substeps=4, base_params=problem.base_params)
+    fit = identify(noisy)
+    bound = np.sqrt(cramer_rao(noisy, theta, noisy.residual_noise(3e-3, 0.0))[0, 0])
+    assert 0.7 < fit.standard_errors[0] / bound < 1.4, (fit.standard_errors[0], bound)
+    assert abs(fit.estimates[0] - 0.45) < 4 * bound
+    with pytest.raises(DanoError, match="theta"):
+        cramer_rao(noisy, np.array([0.45, 1.0]), 3e-3)
+    with pytest.raises(DanoError, match="noise"):
+        cramer_rao(noisy, theta, 0.0)
+    with pytest.raises(DanoError, match="noise level"):
+        noisy.residual_noise(-1e-3, 0.0)
+
+
+def test_initial_pose_offsets_are_identified(box):
+    """fit_position / fit_rotation: a first frame observed 4 mm and -3 mm off in x, y (one
+    slide) and turned 3 degrees about z (the other) is corrected by the nuisance offsets,
+    and the friction is the one of the clean data."""
+    obs = _clean_slides(0.0)
+    obs[0].poses["box"][0, :2] += (4e-3, -3e-3)
+    yaw = np.radians(3.0)
+    obs[1].poses["box"][0, 3:] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
+    problem = SysIdProblem(box, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)],
+                           weights=Weights((1.0, 1.0, 1.0), 1.0), substeps=4, fit_position="xy", fit_rotation="z",
+                           base_params=box.default_params(sliding_drag=0.0))
+    assert problem.labels == ["sliding_friction", "p0[0]:box:x", "p0[0]:box:y", "r0[0]:box:z",
+                              "p0[1]:box:x", "p0[1]:box:y", "r0[1]:box:z"]
+    res = identify(problem)
+    est = dict(zip(res.labels, res.estimates))
+    assert abs(est["p0[0]:box:x"] + 4e-3) < 3e-4 and abs(est["p0[0]:box:y"] - 3e-3) < 3e-4
+    assert abs(est["r0[1]:box:z"] + yaw) < np.radians(0.1)
+    assert abs(est["r0[0]:box:z"]) < np.radians(0.1) and abs(est["p0[1]:box:x"]) < 3e-4
+    assert abs(est["sliding_friction"] - 0.45) < 0.02
+    with pytest.raises(DanoError, match="fit_rotation"):
+        SysIdProblem(box, obs, problem.parameters, substeps=4, fit_rotation="zz")

@@ -4,7 +4,8 @@ The paper claims DANOs from images simulate "nearly indistinguishably" from grou
 this makes it a number. A mesh is rendered (:func:`~dano.nerf.synthetic.render_dataset`),
 a field is trained on the views, DANOs are built with each σ -> density rule and compared
 with the mesh's exact mass properties (trimesh, equal density) and, in simulation, with
-the DANO of the mesh itself (:func:`dano.fields.mesh_field`) in a drop and a slide.
+the DANO of the mesh itself (:func:`dano.fields.mesh_field`) in a drop, a high-friction
+slide (the bunny tips over in it) and four level slides at the paper's default friction.
 """
 
 from __future__ import annotations
@@ -51,40 +52,64 @@ def mass_property_errors(asset, mesh, rule: str) -> dict:
     }
 
 
+#: the level slides: the paper's default sliding friction (``bunny-slide``), thrown upright
+#: at 1.5 m/s along four directions in the ground plane [deg from +x]
+LEVEL_SLIDE_FRICTION = 0.2
+LEVEL_SLIDE_DIRECTIONS_DEG = (0, 90, 180, 270)
+#: every simulated run: the drop, the high-friction slide and the level slides
+SIMULATION_KINDS = ("drop", "slide") + tuple(f"slide_{d}deg" for d in LEVEL_SLIDE_DIRECTIONS_DEG)
+
+
 def _final_pose(asset, kind: str, scale: float, duration: float = 2.0):
-    """Final (CoM position, quaternion) of ``asset`` scaled by ``scale`` at 1 kg: dropped
-    tumbling, or thrown sliding along +x, on the ground (friction 0.3, h = 0.01 s)."""
+    """Final (CoM position, quaternion) of ``asset`` scaled by ``scale`` at 1 kg on the ground
+    (h = 0.01 s): ``drop``, dropped tumbling (friction 0.3); ``slide``, thrown upright along
+    +x at 1.5 m/s with friction 0.3 (the bunny tips over forwards: a bifurcation that
+    amplifies any difference); ``slide_<d>deg``, thrown upright at 1.5 m/s along the direction
+    d [deg from +x] with friction :data:`LEVEL_SLIDE_FRICTION`."""
     from ..sim import rollout
     from ..sim.scene import DanoObject, compose
     from ..sim.scenes import PAPER_DROP_QUAT, initial_state, resting_height
 
     a = asset.scaled(scale).with_mass(1.0)
+    friction = 0.3
     if kind == "drop":
         pos, quat, vel, omega = (0, 0, 0.35), PAPER_DROP_QUAT, (0.4, 0.4, 0.2), (0.5, 1.0, 1.0)
-    else:
+    elif kind == "slide":
         pos, quat, vel, omega = (0, 0, resting_height(a)), (1, 0, 0, 0), (1.5, 0, 0), (0, 0, 0)
+    elif kind.startswith("slide_") and kind.endswith("deg"):
+        d = np.radians(float(kind[len("slide_"):-len("deg")]))
+        pos, quat, omega = (0, 0, resting_height(a)), (1, 0, 0, 0), (0, 0, 0)
+        vel = (1.5 * np.cos(d), 1.5 * np.sin(d), 0)
+        friction = LEVEL_SLIDE_FRICTION
+    else:
+        raise ValueError(f"unknown run {kind!r}; one of {', '.join(SIMULATION_KINDS)}")
     scene = compose([DanoObject("object", a, pos, quat)], dt=0.01, name=f"loop-{kind}")
     state = initial_state(scene, {"object": (pos, quat)}, {"object": (vel, omega)})
-    traj = rollout(scene, state, params=scene.default_params(sliding_friction=0.3), steps=int(duration / 0.01))
+    traj = rollout(scene, state, params=scene.default_params(sliding_friction=friction), steps=int(duration / 0.01))
     p, q = traj.dano_pose("object")
     return p[-1], q[-1]
 
 
 def final_poses(asset, scale: float) -> dict:
-    """{"drop"|"slide": (CoM position (3,) [m], quaternion (4,) wxyz)} at the end of
-    :func:`_final_pose`'s two runs."""
-    return {kind: _final_pose(asset, kind, scale) for kind in ("drop", "slide")}
+    """{kind: (CoM position (3,) [m], quaternion (4,) wxyz)} at the end of each of
+    :func:`_final_pose`'s runs (:data:`SIMULATION_KINDS`)."""
+    return {kind: _final_pose(asset, kind, scale) for kind in SIMULATION_KINDS}
 
 
 def simulation_difference(asset, reference: dict, scale: float, size: float) -> dict:
-    """Final-pose differences (drop, slide) of ``asset`` scaled by ``scale`` to 1 kg from
-    ``reference`` (:func:`final_poses` of the mesh DANO): position / (size·scale) and rotation
-    angle [deg]."""
+    """Final-pose differences of ``asset`` scaled by ``scale`` to 1 kg from ``reference``
+    (:func:`final_poses` of the mesh DANO), per run: ``<kind>_position_error``, position /
+    (size·scale), and ``<kind>_rotation_error_deg``; over the level slides also
+    ``level_slides_position_error_max`` and ``level_slides_rotation_error_deg_max``."""
     out = {}
     for kind, (pb, qb) in reference.items():
         pa, qa = _final_pose(asset, kind, scale)
         out[f"{kind}_position_error"] = float(np.linalg.norm(pa - pb)) / (size * scale)
         out[f"{kind}_rotation_error_deg"] = float(pose_errors(np.r_[pa, qa][None], np.r_[pb, qb][None])[1][0])
+    level = [f"slide_{d}deg" for d in LEVEL_SLIDE_DIRECTIONS_DEG if f"slide_{d}deg" in reference]
+    if level:
+        out["level_slides_position_error_max"] = max(out[f"{k}_position_error"] for k in level)
+        out["level_slides_rotation_error_deg_max"] = max(out[f"{k}_rotation_error_deg"] for k in level)
     return out
 
 
@@ -93,7 +118,8 @@ def ground_truth_loop(mesh_path: str | Path, minutes: float = 3.0, views: int = 
                       work_dir: str | Path | None = None) -> dict:
     """Render ``mesh_path``, train a field for ``minutes``, build DANOs with every rule and
     compare them with the mesh: a JSON-able dict (per rule: mass/CoM/inertia errors and the
-    drop/slide differences from the mesh DANO, simulated at ``sim_size`` [m] across)."""
+    differences (:func:`simulation_difference`) from the mesh DANO, simulated at ``sim_size``
+    [m] across)."""
     with tempfile.TemporaryDirectory(dir=work_dir) as tmp:
         folder = Path(tmp) / "views"
         t0 = time.perf_counter()
@@ -115,9 +141,9 @@ def compare_with_mesh(field, occupancy, mesh_path: str | Path, step: float, reso
                       sim_size: float = 0.2) -> dict:
     """DANOs built from a trained ``field`` (field units = the mesh's) with every σ → density
     rule, compared with the mesh: {"mesh_field_dano": its own DANO's errors,
-    "mesh_field_dano_other_seeds": drop/slide differences of mesh DANOs with other sample seeds
+    "mesh_field_dano_other_seeds": simulated differences of mesh DANOs with other sample seeds
     (the floor of that metric), "rules": {rule: mass/CoM/inertia errors, the solid rule's
-    surface calibration, drop/slide differences}}.
+    surface calibration, simulated differences}}.
     ``step``: the field's render sample step [field units]; ``occupancy``: its grid or None."""
     mesh = load_mesh(mesh_path)
     diag = float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0]))

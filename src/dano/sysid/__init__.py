@@ -2,7 +2,7 @@
 from observed trajectories (paper §V-A, Eq. 13)."""
 
 from .problem import FitParameter, Observation, SysIdProblem, Weights, finite_difference_velocity, quat_log_error
-from .solve import SysIdResult, bootstrap, identify
+from .solve import SysIdResult, bootstrap, cramer_rao, identify
 
 __all__ = ["FitParameter", "Observation", "SysIdProblem", "SysIdResult", "Weights", "bootstrap",
-           "finite_difference_velocity", "identify", "quat_log_error"]
+           "cramer_rao", "finite_difference_velocity", "identify", "quat_log_error"]

@@ -66,7 +66,7 @@ import numpy as np
 from .._config import read_table, typed_table
 from ..errors import DanoError, FileFormatError
 from .problem import FitParameter, Observation, SysIdProblem, Weights
-from .solve import identify
+from .solve import cramer_rao, identify
 
 EXAMPLES = ("soap", "bunny-pushes", "bunny-dynamics")
 
@@ -397,6 +397,14 @@ def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) 
     report.update(extra)
     if config == "bunny-dynamics":
         report["recovery"] = dynamics_recovery(dict(zip(result.labels, result.estimates)), extra["truth"])
+        # what the paper's noise lets any unbiased estimator reach from these pushes, at the truth
+        truth = extra["truth"]
+        theta = np.zeros(problem.num_parameters)
+        theta[:8] = np.r_[truth["alpha"], truth["sliding_friction"], truth["com_offset"], truth["second_moment_scale"]]
+        bound = dynamics_recovery(dict(zip(result.labels, theta)), truth,
+                                  cramer_rao(problem, theta, problem.residual_noise(1e-3, 0.5, 1e-3)))
+        report["recovery"]["cramer_rao"] = {"noise": {"position_m": 1e-3, "rotation_deg": 0.5, "pusher_m": 1e-3},
+                                            **{k: v for k, v in bound.items() if k.endswith("_std")}}
     if config == "soap":
         sens = {}
         for scale in (0.9, 1.1):

@@ -221,27 +221,47 @@ def push_dynamics_problem(position_noise: float = 0.0, rotation_noise_deg: float
     params += [FitParameter(f"com_offset_{a}", 0.0, -bound, bound, target="bunny") for a in "xyz"]
     params += [FitParameter(f"second_moment_scale_{a}", 1.0, 0.25, 4.0, target="bunny") for a in "xyz"]
     w_rot = (1e-3 / np.radians(0.5)) ** 2
-    problem = SysIdProblem(scene, obs, params, weights=Weights((1.0, 1.0, 1.0), w_rot, 1.0))
+    # the start of each push is averaged over its noisy rest frames: its position and heading
+    # are nuisance parameters (with them left out, the start's error biases the moments)
+    problem = SysIdProblem(scene, obs, params, weights=Weights((1.0, 1.0, 1.0), w_rot, 1.0),
+                           fit_position="xy" if position_noise else "", fit_rotation="z" if rotation_noise_deg else "")
     body = scene.body_names.index("bunny")
     moments = np.asarray(model_with_params(scene, truth).body_inertia)[body] / PUSH_TRUTH["alpha"]
     return problem, {**PUSH_TRUTH, "com_offset": offset.tolist(), "second_moment_scale": scale.tolist(),
                      "size": size, "principal_moments": moments.tolist(), "base_moments": base.tolist()}
 
 
-def dynamics_recovery(estimates: dict, truth: dict) -> dict:
+def dynamics_recovery(estimates: dict, truth: dict, covariance: np.ndarray | None = None) -> dict:
     """How well :func:`push_dynamics_problem`'s fit recovered the truth: centre-of-mass error
     as a fraction of the size (per axis and its norm), relative errors of the principal
-    moments (3,), of α and of the friction."""
-    com = np.array([estimates[f"bunny:com_offset_{a}"] for a in "xyz"])
-    scale = np.array([estimates[f"bunny:second_moment_scale_{a}"] for a in "xyz"])
+    moments (3,), of α and of the friction. With ``covariance`` (n, n), of the parameters in
+    ``estimates``' order (e.g. :func:`~dano.sysid.cramer_rao` at the truth), also their
+    standard deviations on the same scales (``*_std``, the moments' by the delta method)."""
     from ..sim.dynamics import moments_of_inertia, second_moments
 
-    moments = moments_of_inertia(second_moments(np.asarray(truth["base_moments"])) * scale)
+    labels = list(estimates)
+    com_keys = [f"bunny:com_offset_{a}" for a in "xyz"]
+    scale_keys = [f"bunny:second_moment_scale_{a}" for a in "xyz"]
+    com = np.array([estimates[k] for k in com_keys])
+    base = second_moments(np.asarray(truth["base_moments"]))
+    moments = moments_of_inertia(base * np.array([estimates[k] for k in scale_keys]))
     com_err = (com - np.asarray(truth["com_offset"])) / truth["size"]
-    return {"com_error_of_size": com_err.tolist(), "com_error_norm_of_size": float(np.linalg.norm(com_err)),
-            "moment_relative_error": (moments / np.asarray(truth["principal_moments"]) - 1).tolist(),
-            "alpha_relative_error": estimates["bunny:alpha"] / truth["alpha"] - 1,
-            "friction_relative_error": estimates["bunny/ground:sliding_friction"] / truth["sliding_friction"] - 1}
+    truth_moments = np.asarray(truth["principal_moments"])
+    out = {"com_error_of_size": com_err.tolist(), "com_error_norm_of_size": float(np.linalg.norm(com_err)),
+           "moment_relative_error": (moments / truth_moments - 1).tolist(),
+           "alpha_relative_error": estimates["bunny:alpha"] / truth["alpha"] - 1,
+           "friction_relative_error": estimates["bunny/ground:sliding_friction"] / truth["sliding_friction"] - 1}
+    if covariance is not None:
+        cov = np.asarray(covariance)
+        idx = lambda keys: [labels.index(k) for k in keys]  # noqa: E731
+        G = np.stack([moments_of_inertia(base * e) for e in np.eye(3)], axis=1)  # the moments are linear in the scales
+        s = idx(scale_keys)
+        out["moment_relative_std"] = (np.sqrt(np.diag(G @ cov[np.ix_(s, s)] @ G.T)) / truth_moments).tolist()
+        out["com_std_of_size"] = (np.sqrt(np.diag(cov)[idx(com_keys)]) / truth["size"]).tolist()
+        a, f = idx(["bunny:alpha", "bunny/ground:sliding_friction"])
+        out["alpha_relative_std"] = float(np.sqrt(cov[a, a]) / truth["alpha"])
+        out["friction_relative_std"] = float(np.sqrt(cov[f, f]) / truth["sliding_friction"])
+    return out
 
 
 # ContactNets' acrylic cube (../shared/README.md): side 0.1048 m, 0.37 kg, 147 frames/s

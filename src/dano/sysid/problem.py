@@ -293,6 +293,27 @@ def _to_table(qpos0, qvel0, qadr, dadr, height, R):
     return qpos0, qvel0
 
 
+def _with_offsets(qpos0, qvel0, block, qadr, dadr, axes):
+    """Initial state of one segment with its nuisance offsets added: ``block`` (tracked DANOs,
+    len(axes)), ``axes`` as :attr:`SysIdProblem.fit_axes`: 0–2 linear velocity [m/s, world],
+    3–5 angular velocity [rad/s, body], 6–8 position [m, world], 9–11 a rotation vector
+    [rad, world] applied to the orientation (q ← exp(r) ⊗ q)."""
+    import jaxlie
+
+    rot = [k for k, a in enumerate(axes) if a >= 9]
+    rot_axes = jnp.asarray([axes[k] - 9 for k in rot], dtype=jnp.int32)
+    for b, (qa, da) in enumerate(zip(qadr, dadr)):
+        for k, a in enumerate(axes):
+            if a < 6:
+                qvel0 = qvel0.at[da + a].add(block[b, k])
+            elif a < 9:
+                qpos0 = qpos0.at[qa + a - 6].add(block[b, k])
+        if rot:
+            r = jnp.zeros(3, dtype=block.dtype).at[rot_axes].set(block[b, jnp.asarray(rot)])
+            qpos0 = qpos0.at[qa + 3 : qa + 7].set((jaxlie.SO3.exp(r) @ jaxlie.SO3(qpos0[qa + 3 : qa + 7])).wxyz)
+    return qpos0, qvel0
+
+
 def _check_ground_only(scene, observations) -> None:
     """fit_ground shifts the observed DANOs; that equals moving the ground only if the
     ground plane (at z = 0, horizontal) is the world's only collidable geometry, every
@@ -345,10 +366,12 @@ class SysIdProblem:
     def __init__(self, scene: Scene, observations: Sequence[Observation], parameters: Sequence[FitParameter],
                  weights: Weights = Weights(), base_params: SimParams | None = None, substeps: int = 1,
                  fit_velocity: str = "", window: int | None = None, fit_ground: bool = False,
-                 fit_angular_velocity: str = "", fit_tilt: bool = False):
+                 fit_angular_velocity: str = "", fit_tilt: bool = False, fit_position: str = "",
+                 fit_rotation: str = ""):
+        self._cache: dict = {}  # compiled functions (dano.sysid.solve), shared by with_initial
         self._args = dict(weights=weights, base_params=base_params, substeps=substeps, fit_velocity=fit_velocity,
                           window=window, fit_ground=fit_ground, fit_angular_velocity=fit_angular_velocity,
-                          fit_tilt=fit_tilt)
+                          fit_tilt=fit_tilt, fit_position=fit_position, fit_rotation=fit_rotation)
         if fit_tilt and not fit_ground:
             raise DanoError("fit_tilt needs fit_ground: the tilt is the ground plane's, fitted with its height")
         self.fit_ground, self.fit_tilt = bool(fit_ground), bool(fit_tilt)
@@ -356,7 +379,7 @@ class SysIdProblem:
             _check_ground_only(scene, observations)
         if not observations:
             raise DanoError("no observed trajectories given")
-        if not parameters and not fit_velocity and not fit_angular_velocity:
+        if not parameters and not (fit_velocity or fit_angular_velocity or fit_position or fit_rotation):
             raise DanoError("no parameters to identify")
         self.scene, self.observations = scene, list(observations)
         self.parameters, self.weights = list(parameters), weights
@@ -377,12 +400,14 @@ class SysIdProblem:
         labels = [p.label for p in self.parameters]
         if len(set(labels)) != len(labels):
             raise DanoError(f"parameters are listed twice: {sorted({x for x in labels if labels.count(x) > 1})}")
-        for name, axes in (("fit_velocity", fit_velocity), ("fit_angular_velocity", fit_angular_velocity)):
-            if set(axes) - set("xyz"):
-                raise DanoError(f"{name} must be made of the letters x, y, z, got {axes!r}")
-        # offsets in a free joint's 6 dofs: linear x y z (world), then angular x y z (body)
-        self.fit_axes = tuple("xyz".index(c) for c in fit_velocity) + tuple(
-            3 + "xyz".index(c) for c in fit_angular_velocity)
+        kinds = (("fit_velocity", fit_velocity), ("fit_angular_velocity", fit_angular_velocity),
+                 ("fit_position", fit_position), ("fit_rotation", fit_rotation))
+        for name, axes in kinds:
+            if not isinstance(axes, str) or set(axes) - set("xyz") or len(set(axes)) != len(axes):
+                raise DanoError(f"{name} must be made of the letters x, y, z, each at most once, got {axes!r}")
+        # nuisance offsets of the initial state: linear velocity x y z (world), angular velocity
+        # x y z (body), position x y z (world), rotation vector x y z (world) (_with_offsets)
+        self.fit_axes = tuple(3 * k + "xyz".index(c) for k, (_, axes) in enumerate(kinds) for c in axes)
         for p in self.parameters:
             if p.name not in ("alpha",) + INERTIAL_PARAMETERS + ContactParams.names():
                 raise DanoError(f"unknown parameter {p.name!r}; known: alpha, {', '.join(INERTIAL_PARAMETERS)}, "
@@ -419,7 +444,9 @@ class SysIdProblem:
         """The same problem with the global parameters' initial guesses set from θ."""
         params = [dataclasses.replace(p, initial=float(np.clip(v, p.lower, p.upper)))
                   for p, v in zip(self.parameters, theta)]
-        return SysIdProblem(self.scene, self.observations, params, **self._args)
+        out = SysIdProblem(self.scene, self.observations, params, **self._args)
+        out._cache = self._cache  # the same residual function: its compilation is shared
+        return out
 
     # -- layout
     def _segments(self, window):
@@ -447,13 +474,15 @@ class SysIdProblem:
     def labels(self) -> list[str]:
         """Names of θ's entries: the global parameters (``name`` or ``target:name``) first,
         then for each segment, each tracked DANO (sorted by name) and each fitted axis, the
-        initial linear velocity offset [m/s, world frame] added to the finite-difference
-        estimate, ``v0[segment]:dano:axis``, then the angular ones [rad/s, body frame],
-        ``w0[segment]:dano:axis``."""
+        initial linear velocity offset [m/s, world frame] added to the measured or
+        finite-difference estimate, ``v0[segment]:dano:axis``, the angular ones [rad/s, body
+        frame], ``w0[segment]:dano:axis``, the initial position offsets [m, world frame],
+        ``p0[segment]:dano:axis``, and the components of a rotation vector [rad, world frame]
+        applied to the initial orientation, ``r0[segment]:dano:axis``."""
         names = [p.label for p in self.parameters]
         for i, s in enumerate(self.segments):
             for d in self._tracked[s.obs]:
-                names += [f"{'vw'[a // 3]}0[{i}]:{d}:{'xyz'[a % 3]}" for a in self.fit_axes]
+                names += [f"{'vwpr'[a // 3]}0[{i}]:{d}:{'xyz'[a % 3]}" for a in self.fit_axes]
         return names + self.ground_labels
 
     @property
@@ -580,30 +609,61 @@ class SysIdProblem:
             groups.setdefault((qadr, dadr, jadr, settle), []).append((i, data, steps))
         return groups
 
-    def _columns(self, qadr, jadr) -> list[int]:
-        """Residual columns per frame of a segment: per tracked DANO the weighted position
-        axes and the rotation vector, then one per joint (zero weights left out)."""
+    def _column_kinds(self, qadr, jadr) -> list[tuple[str, int]]:
+        """Residual blocks of a segment as (kind, columns per frame): per tracked DANO the
+        weighted position axes ("position") and the rotation vector ("rotation"), then one
+        per joint ("joint"); zero weights left out."""
         npos, wrot, wjoint = len(self._pos_axes()), self.weights.rotation > 0, self.weights.joints > 0
-        return [c for _ in qadr for c in ((npos,) if npos else ()) + ((3,) if wrot else ())] + (
-            [1] * len(jadr) if wjoint else [])
+        return [k for _ in qadr for k in ((("position", npos),) if npos else ()) + (
+            (("rotation", 3),) if wrot else ())] + ([("joint", 1)] * len(jadr) if wjoint else [])
+
+    def _columns(self, qadr, jadr) -> list[int]:
+        """Residual columns per frame of each block of a segment (:meth:`_column_kinds`)."""
+        return [c for _, c in self._column_kinds(qadr, jadr)]
+
+    def _residual_blocks(self):
+        """(observation index, kind, columns, frames) of each block of the residual vector, in
+        the order of :meth:`residual_function`'s output; kind: "position", "rotation", "joint"."""
+        for (qadr, _, jadr, _), items in self._groups().items():
+            for i, _, steps in items:
+                for kind, cols in self._column_kinds(qadr, jadr):
+                    yield self.segments[i].obs, kind, cols, steps // self.substeps
 
     def residual_observations(self) -> np.ndarray:
         """(m,) int: the observation (trajectory index) each residual belongs to, in the order
         of :meth:`residual_function`'s output (used to resample whole trajectories)."""
-        owner = []
-        for (qadr, _, jadr, _), items in self._groups().items():
-            per_frame = sum(self._columns(qadr, jadr))
-            for i, _, steps in items:
-                owner.append(np.full(steps // self.substeps * per_frame, self.segments[i].obs))
-        return np.concatenate(owner).astype(np.int64)
+        return np.concatenate([np.full(cols * frames, obs) for obs, _, cols, frames in self._residual_blocks()]
+                              ).astype(np.int64)
+
+    def residual_noise(self, position: float, rotation_deg: float, joints: float = 0.0) -> np.ndarray:
+        """(m,) standard deviation of each residual [residual units] when the observed poses
+        carry independent Gaussian noise: ``position`` [m] per axis, ``rotation_deg`` [deg] the
+        rms rotation angle (a rotation vector with ``rotation_deg``/√3 per axis, as
+        :func:`~dano.sysid.examples.push_observations` draws it) and ``joints`` [joint units];
+        scaled by the weights' square roots like the residuals. Raises DanoError if a level
+        is negative or not finite, or if a weighted component would have no noise."""
+        levels = {"position": position, "rotation": np.radians(rotation_deg) / np.sqrt(3), "joint": joints}
+        for name, v in (("position", position), ("rotation_deg", rotation_deg), ("joints", joints)):
+            if not (np.isfinite(v) and v >= 0):
+                raise DanoError(f"noise level {name} must be a finite number >= 0, got {v}")
+        wpos = np.sqrt(np.asarray(self.weights.position, dtype=np.float64))[list(self._pos_axes())]
+        scale = {"position": wpos, "rotation": np.full(3, np.sqrt(self.weights.rotation)),
+                 "joint": np.full(1, np.sqrt(self.weights.joints))}
+        out = []
+        for _, kind, cols, frames in self._residual_blocks():
+            if levels[kind] <= 0:
+                raise DanoError(f"the residuals include {kind} observations but their noise level is zero")
+            out.append(np.tile(levels[kind] * scale[kind][:cols], frames))  # frame by frame, columns inside
+        return np.concatenate(out)
 
     def residual_function(self):
         """(θ) -> residual vector (m,), a pure JAX function (jit/jacfwd it). Segments of the
         same layout (tracked bodies, joints, settling) are batched with ``vmap`` whatever their
         lengths: shorter ones are padded to the longest (extra steps simulated, their frames
         dropped by a fixed gather), so one trace and one compilation serve them all. Residuals
-        are ordered by batch, then segment, then tracked DANO (position axes with non-zero
-        weight [m·√w], rotation vector [rad·√w]) and joints, frame by frame."""
+        are ordered by batch, then segment, then block (per tracked DANO its position axes
+        with non-zero weight [m·√w] and its rotation vector [rad·√w], then each joint), each
+        block frame by frame (:meth:`_column_kinds`)."""
         groups = self._groups()
         pos_axes = jnp.asarray(self._pos_axes(), dtype=jnp.int32)
         wpos = jnp.sqrt(jnp.asarray(self.weights.position, dtype=jnp.float64))[pos_axes]
@@ -633,19 +693,16 @@ class SysIdProblem:
                     sim_scene = self._tilted_scene(R)
             out = []
             for (qadr, dadr, jadr, n_steps, settle), seg_ids, data, keep in batches:
-                # nuisance initial velocities of this batch's segments
-                dv = jnp.zeros((len(seg_ids), scene.nv), dtype=theta.dtype)
-                if axes:
-                    for row, sid in enumerate(seg_ids):
-                        block = theta[offsets[sid] : offsets[sid + 1]].reshape(-1, len(axes))
-                        for b, d in enumerate(dadr):
-                            dv = dv.at[row, jnp.asarray([d + a for a in axes])].add(block[b])
+                # nuisance offsets of the initial states of this batch's segments
+                blocks = jnp.stack([theta[offsets[sid] : offsets[sid + 1]].reshape(len(qadr), len(axes))
+                                    for sid in seg_ids])
 
-                def one(qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, dv_):
+                def one(qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, block):
                     if fit_ground:  # observations in the frame of the table (at z = height, tilted by R)
                         qpos0, qvel0 = _to_table(qpos0, qvel0, qadr, dadr, height, R)
                         obs_pose = jax.vmap(lambda p: _poses_to_table(p, height, R))(obs_pose)
-                    qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0 + dv_), ctrl, params, n_steps, qfrc)
+                    qpos0, qvel0 = _with_offsets(qpos0, qvel0, block, qadr, dadr, axes)
+                    qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, n_steps, qfrc)
                     frames = qpos[settle + substeps :: substeps]  # states at frames 1..F-1
                     res = []  # components with zero weight are left out (they would dilute σ²)
                     for b, a in enumerate(qadr):
@@ -660,7 +717,7 @@ class SysIdProblem:
                     return jnp.concatenate(res)
 
                 r = jax.vmap(one)(data["qpos0"], data["qvel0"], data["ctrl"], data["qfrc"], data["obs_pose"],
-                                  data["obs_joint"], dv)
+                                  data["obs_joint"], blocks)
                 out.append(r.ravel()[keep])  # padded frames dropped
             return jnp.concatenate(out)
 
@@ -676,16 +733,13 @@ class SysIdProblem:
         # zeros, states cut afterwards): one compilation instead of one per distinct length
         longest = max(settle + steps for _, (_, _, _, steps, settle) in segments)
         for sid, (data, (qadr, dadr, jadr, steps, settle)) in enumerate(segments):
-            qvel0 = np.array(data["qvel0"])
-            if axes:
-                block = np.asarray(theta)[offsets[sid] : offsets[sid + 1]].reshape(-1, len(axes))
-                for b, d in enumerate(dadr):
-                    qvel0[[d + a for a in axes]] += block[b]
-            qpos0, qvel0, sim_scene = jnp.asarray(data["qpos0"]), jnp.asarray(qvel0), self.scene
+            qpos0, qvel0, sim_scene = jnp.asarray(data["qpos0"]), jnp.asarray(data["qvel0"]), self.scene
             if self.fit_ground:
                 height, R = self._table(jnp.asarray(theta))
                 qpos0, qvel0 = _to_table(qpos0, qvel0, qadr, dadr, height, R)
                 sim_scene = self._tilted_scene(R) if self.fit_tilt else self.scene
+            block = jnp.asarray(theta)[offsets[sid] : offsets[sid + 1]].reshape(len(qadr), len(axes))
+            qpos0, qvel0 = _with_offsets(qpos0, qvel0, block, qadr, dadr, axes)
             ctrl, qfrc = (jnp.asarray(_pad(np.asarray(data[k]), k, 0, longest)) for k in ("ctrl", "qfrc"))
             qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, longest, qfrc)
             qpos = jnp.asarray(qpos)[settle : settle + steps + 1 : self.substeps]

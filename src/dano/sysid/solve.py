@@ -220,11 +220,12 @@ def _identify(problem: SysIdProblem, *, jacobian: str, max_iterations: int, xtol
 def _compile(problem: SysIdProblem):
     """(residual function, its jit, the jit of its forward-mode Jacobian): one trace of the
     problem, kept on it (freed with it) and shared by every local solve from another
-    starting point and by the bootstrap's refits."""
-    if getattr(problem, "_compiled", None) is None:
+    starting point, by the problems :meth:`~SysIdProblem.with_initial` derives from it
+    (continuation stages, :func:`cramer_rao` after a fit) and by the bootstrap's refits."""
+    if "residual" not in problem._cache:
         r_fn = problem.residual_function()
-        problem._compiled = (r_fn, jax.jit(r_fn), jax.jit(jax.jacfwd(r_fn)))  # the Jacobian compiles only when used
-    return problem._compiled
+        problem._cache["residual"] = (r_fn, jax.jit(r_fn), jax.jit(jax.jacfwd(r_fn)))  # Jacobian: compiled when used
+    return problem._cache["residual"]
 
 
 def _finite(a, fill: float) -> np.ndarray:
@@ -309,6 +310,36 @@ def _standard_errors(problem: SysIdProblem, sol, max_iterations: int) -> tuple[n
     except np.linalg.LinAlgError:
         notes.append("JᵀJ is singular: the data do not determine every parameter; no standard errors")
     return se, notes
+
+
+def cramer_rao(problem: SysIdProblem, theta, noise) -> np.ndarray:
+    """The Cramér–Rao bound at θ: the smallest covariance (n, n) of θ that any unbiased
+    estimator reaches from data like the problem's when its residuals carry independent
+    Gaussian noise of standard deviation ``noise`` ((m,) or a scalar, residual units: e.g.
+    :meth:`SysIdProblem.residual_noise`), (Jᵀ diag(noise⁻²) J)⁻¹ with the forward-mode
+    Jacobian J at θ (the inverse Fisher information). Unlike a fit's standard errors it needs
+    no fit, so it says in advance what data can determine (at the truth, for synthetic data).
+    Raises DanoError if θ or the noise has the wrong size or is not finite and positive, the
+    rollout is not finite at θ, or the information matrix is singular (a parameter the data
+    cannot determine)."""
+    theta = np.asarray(theta, dtype=np.float64)
+    if theta.shape != (problem.num_parameters,) or not np.all(np.isfinite(theta)):
+        raise DanoError(f"theta must be {problem.num_parameters} finite values ({', '.join(problem.labels)}), "
+                        f"got shape {theta.shape}")
+    noise = np.broadcast_to(np.asarray(noise, dtype=np.float64), (problem.num_residuals,)) \
+        if np.ndim(noise) == 0 else np.asarray(noise, dtype=np.float64)
+    if noise.shape != (problem.num_residuals,) or not np.all(np.isfinite(noise) & (noise > 0)):
+        raise DanoError(f"noise must be {problem.num_residuals} positive standard deviations (or one), got shape "
+                        f"{noise.shape}")
+    _, _, jac_fn = _compile(problem)
+    J = np.asarray(jac_fn(jnp.asarray(theta)))
+    if not np.all(np.isfinite(J)):
+        raise DanoError("the simulation's Jacobian is not finite at theta")
+    Jw = J / noise[:, None]
+    info = Jw.T @ Jw
+    if np.linalg.cond(info) > 1e14:
+        raise DanoError("the Fisher information is singular: the data cannot determine every parameter")
+    return np.linalg.inv(info)
 
 
 def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) -> SysIdResult:
