@@ -345,6 +345,7 @@ substeps = 1
     ("substeps = 1", "substeps = 1\nwindow = 5\nauto_windows = true", "auto_windows = true, not both"),
     ("substeps = 1", "substeps = 1\nnoise_rms = -1.0", "[options].noise_rms: a positive rms residual"),
     ("substeps = 1", "substeps = 1\nbootstrap = 5", "at least two [[trajectory]] to resample"),
+    ("substeps = 1", 'substeps = 1\nfit_position = "xw"', "fit_position must be made of the letters x, y, z"),
     ('name = "sliding_friction"\ninitial = 0.2\nlower = 0.0', 'name = "second_moment_scale_x"\ninitial = 0.2\n'
      'lower = -0.5', "lower bound -0.5 is negative; contact parameters, alpha and second moment scales"),
 ])
@@ -366,10 +367,11 @@ def test_configuration_accepts_signed_dynamics_parameters(tmp_path):
     cfg.write_text(_GOOD_TOML.replace('name = "sliding_friction"\ninitial = 0.2\nlower = 0.0',
                                       'name = "com_offset_x"\ntarget = "box"\ninitial = 0.0\nlower = -0.05')
                    .replace("substeps = 1", "substeps = 1\nauto_windows = true\nbootstrap = 0\nnoise_rms = 0.002\n"
-                            'fit_angular_velocity = "z"'))
+                            'fit_angular_velocity = "z"\nfit_position = "xy"\nfit_rotation = "z"'))
     c = read_config(cfg)
     assert c.parameter[0].lower == -0.05 and c.options.auto_windows and c.options.noise_rms == 0.002
     assert c.options.fit_angular_velocity == "z"
+    assert (c.options.fit_position, c.options.fit_rotation) == ("xy", "z")
 
 
 def test_trajectory_in_millimetres_is_refused(tmp_path, capsys):

@@ -349,6 +349,9 @@ class SysIdProblem:
     None: whole trajectories. Windows start from the observed pose and the measured
     velocities when given (``Observation.velocities``), else finite differences.
     fit_angular_velocity: axes of the initial angular velocity (body frame) to fit likewise.
+    fit_position / fit_rotation: axes of an offset of each segment's initial position (world
+    frame) and of a rotation vector (world frame) applied to its initial orientation, fitted
+    likewise: an observed start carries the tracking noise of its frame(s).
     fit_ground: fit the height [m] of the ground plane (a real table is never exactly at
     z = 0) as one more nuisance parameter, ``ground_height``, the last entry of θ. It is
     applied by shifting the observed heights (exact, since a vertical shift leaves gravity
@@ -478,7 +481,8 @@ class SysIdProblem:
         finite-difference estimate, ``v0[segment]:dano:axis``, the angular ones [rad/s, body
         frame], ``w0[segment]:dano:axis``, the initial position offsets [m, world frame],
         ``p0[segment]:dano:axis``, and the components of a rotation vector [rad, world frame]
-        applied to the initial orientation, ``r0[segment]:dano:axis``."""
+        applied to the initial orientation, ``r0[segment]:dano:axis`` (with ``fit_ground``, the
+        world-frame offsets are in the table's frame); the ground's parameters last."""
         names = [p.label for p in self.parameters]
         for i, s in enumerate(self.segments):
             for d in self._tracked[s.obs]:

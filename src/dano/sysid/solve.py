@@ -337,9 +337,12 @@ def cramer_rao(problem: SysIdProblem, theta, noise) -> np.ndarray:
         raise DanoError("the simulation's Jacobian is not finite at theta")
     Jw = J / noise[:, None]
     info = Jw.T @ Jw
-    if np.linalg.cond(info) > 1e14:
-        raise DanoError("the Fisher information is singular: the data cannot determine every parameter")
-    return np.linalg.inv(info)
+    d = np.sqrt(np.diag(info))  # scaled to unit diagonal, so that the parameters' units do not matter
+    if np.any(d == 0) or np.linalg.cond(info / np.outer(d, d)) > 1e12:
+        unseen = [lab for lab, v in zip(problem.labels, d) if v == 0]
+        raise DanoError("the Fisher information is singular: the data cannot determine every parameter"
+                        + (f" (no effect at all: {', '.join(unseen)})" if unseen else ""))
+    return np.linalg.inv(info / np.outer(d, d)) / np.outer(d, d)
 
 
 def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) -> SysIdResult:
