@@ -67,7 +67,7 @@ import numpy as np
 
 from .._config import read_table, typed_table
 from ..errors import DanoError, FileFormatError
-from .problem import FitParameter, Observation, SysIdProblem, Weights
+from .problem import SEGMENT_NUISANCE_PREFIXES, FitParameter, Observation, SysIdProblem, Weights
 from .solve import cramer_rao, identify
 
 EXAMPLES = ("soap", "bunny-pushes", "bunny-dynamics")
@@ -399,7 +399,7 @@ def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) 
                       noise_rms=solver.get("noise_rms"), bootstrap_samples=solver.get("bootstrap_samples", 0))
     report = {}
     for label, v, s in zip(result.labels, result.estimates, result.standard_errors):
-        if not label.startswith(("v0[", "w0[")):
+        if not label.startswith(SEGMENT_NUISANCE_PREFIXES):  # per-segment nuisance: in "parameters" only
             key = label.split(":")[-1] if sum(lab.split(":")[-1] == label.split(":")[-1]
                                               for lab in result.labels) == 1 else label
             report[key], report[f"{key}_std"] = float(v), float(s)

@@ -293,6 +293,10 @@ def _to_table(qpos0, qvel0, qadr, dadr, height, R):
     return qpos0, qvel0
 
 
+#: label prefixes of the per-segment nuisance parameters (:attr:`SysIdProblem.labels`)
+SEGMENT_NUISANCE_PREFIXES = ("v0[", "w0[", "p0[", "r0[")
+
+
 def _with_offsets(qpos0, qvel0, block, qadr, dadr, axes):
     """Initial state of one segment with its nuisance offsets added: ``block`` (tracked DANOs,
     len(axes)), ``axes`` as :attr:`SysIdProblem.fit_axes`: 0–2 linear velocity [m/s, world],

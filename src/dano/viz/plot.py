@@ -50,6 +50,8 @@ def plot_sysid(problem, result, path, max_trajectories: int = 4) -> Path:
     import matplotlib
     from matplotlib.figure import Figure
 
+    from ..sysid.problem import SEGMENT_NUISANCE_PREFIXES
+
     segs = problem.segments[:max_trajectories]
     profiles = (result.scan or {}).get("profile", {})
     fig = Figure(figsize=(15 + 5 * bool(profiles), 4.5))
@@ -85,7 +87,8 @@ def plot_sysid(problem, result, path, max_trajectories: int = 4) -> Path:
         axes[3].set(xlabel="parameter value", ylabel="lowest cost on the scan", title="global scan (dotted: estimate)")
         axes[3].legend(fontsize=7)
     est = ", ".join(f"{k} = {v:.4g} ± {s:.2g}" for k, v, s in
-                    zip(result.labels, result.estimates, result.standard_errors) if not k.startswith("v0["))
+                    zip(result.labels, result.estimates, result.standard_errors)
+                    if not k.startswith(SEGMENT_NUISANCE_PREFIXES))
     fig.suptitle(est, fontsize=10)
     fig.tight_layout()
     path = Path(path)
