@@ -345,7 +345,8 @@ substeps = 1
     ("substeps = 1", "substeps = 1\nwindow = 5\nauto_windows = true", "auto_windows = true, not both"),
     ("substeps = 1", "substeps = 1\nnoise_rms = -1.0", "[options].noise_rms: a positive rms residual"),
     ("substeps = 1", "substeps = 1\nbootstrap = 5", "at least two [[trajectory]] to resample"),
-    ("substeps = 1", 'substeps = 1\nfit_position = "xw"', "fit_position must be made of the letters x, y, z"),
+    ("substeps = 1", 'substeps = 1\nfit_position = "xw"',
+     "[options].fit_position: must be made of the letters x, y, z"),
     ('name = "sliding_friction"\ninitial = 0.2\nlower = 0.0', 'name = "second_moment_scale_x"\ninitial = 0.2\n'
      'lower = -0.5', "lower bound -0.5 is negative; contact parameters, alpha and second moment scales"),
 ])

@@ -138,11 +138,15 @@ def test_residual_noise_follows_the_residual_layout_and_gives_the_cramer_rao_bou
 def test_initial_pose_offsets_are_identified(box):
     """fit_position / fit_rotation: a first frame observed 4 mm and -3 mm off in x, y (one
     slide) and turned 3 degrees about z (the other) is corrected by the nuisance offsets,
-    and the friction is the one of the clean data."""
+    and the friction is the one of the clean data. The square box slides turned by 90° about
+    z, so that offsets in its body frame would come out as (-3, -4) mm: they are in the world's."""
     obs = _clean_slides(0.0)
+    turned = np.radians(90.0)
+    for o in obs:
+        o.poses["box"][:, 3:] = (np.cos(turned / 2), 0.0, 0.0, np.sin(turned / 2))
     obs[0].poses["box"][0, :2] += (4e-3, -3e-3)
     yaw = np.radians(3.0)
-    obs[1].poses["box"][0, 3:] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
+    obs[1].poses["box"][0, 3:] = (np.cos((turned + yaw) / 2), 0.0, 0.0, np.sin((turned + yaw) / 2))
     problem = SysIdProblem(box, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)],
                            weights=Weights((1.0, 1.0, 1.0), 1.0), substeps=4, fit_position="xy", fit_rotation="z",
                            base_params=box.default_params(sliding_drag=0.0))
@@ -156,3 +160,27 @@ def test_initial_pose_offsets_are_identified(box):
     assert abs(est["sliding_friction"] - 0.45) < 0.02
     with pytest.raises(DanoError, match="fit_rotation"):
         SysIdProblem(box, obs, problem.parameters, substeps=4, fit_rotation="zz")
+
+
+def test_dynamics_recovery_propagates_a_covariance_to_the_principal_moments():
+    """The moments are linear in the second-moment scales (I_x = Σ_y + Σ_z, ...): their
+    standard deviations follow from the scales' by the delta method, exactly."""
+    from dano.sim.dynamics import second_moments
+    from dano.sysid.examples import dynamics_recovery
+
+    base = np.array([3.0, 2.6, 1.5])
+    truth = {"alpha": 0.1, "sliding_friction": 0.3, "com_offset": [0.0, 0.0, 0.0], "size": 2.0,
+             "principal_moments": base.tolist(), "base_moments": base.tolist()}
+    labels = ["bunny:alpha", "bunny/ground:sliding_friction"] + [f"bunny:com_offset_{a}" for a in "xyz"] + [
+        f"bunny:second_moment_scale_{a}" for a in "xyz"]
+    estimates = dict(zip(labels, [0.1, 0.3, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0]))
+    sd = np.array([0.001, 0.003, 0.01, 0.02, 0.04, 0.01, 0.02, 0.03])
+    out = dynamics_recovery(estimates, truth, np.diag(sd**2))
+    b = second_moments(base)
+    expected = np.sqrt([(b[1] * sd[6]) ** 2 + (b[2] * sd[7]) ** 2, (b[0] * sd[5]) ** 2 + (b[2] * sd[7]) ** 2,
+                        (b[0] * sd[5]) ** 2 + (b[1] * sd[6]) ** 2]) / base
+    np.testing.assert_allclose(out["moment_relative_std"], expected, rtol=1e-12)
+    np.testing.assert_allclose(out["com_std_of_size"], [0.005, 0.01, 0.02])
+    assert abs(out["alpha_relative_std"] - 0.01) < 1e-12 and abs(out["friction_relative_std"] - 0.01) < 1e-12
+    np.testing.assert_allclose(out["moment_relative_error"], 0.0, atol=1e-12)
+    assert "moment_relative_std" not in dynamics_recovery(estimates, truth)

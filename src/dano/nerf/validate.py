@@ -76,7 +76,7 @@ def _final_pose(asset, kind: str, scale: float, duration: float = 2.0):
         pos, quat, vel, omega = (0, 0, 0.35), PAPER_DROP_QUAT, (0.4, 0.4, 0.2), (0.5, 1.0, 1.0)
     elif kind == "slide":
         pos, quat, vel, omega = (0, 0, resting_height(a)), (1, 0, 0, 0), (1.5, 0, 0), (0, 0, 0)
-    elif kind.startswith("slide_") and kind.endswith("deg"):
+    elif kind.startswith("slide_") and kind.endswith("deg") and kind[len("slide_"):-len("deg")].isdigit():
         d = np.radians(float(kind[len("slide_"):-len("deg")]))
         pos, quat, omega = (0, 0, resting_height(a)), (1, 0, 0, 0), (0, 0, 0)
         vel = (1.5 * np.cos(d), 1.5 * np.sin(d), 0)

@@ -531,7 +531,7 @@ class SysIdProblem:
         return tuple(k for k in range(3) if self.weights.position[k] > 0)
 
     def _nuisance_offsets(self) -> np.ndarray:
-        """Start of each segment's block of nuisance velocities in θ (after the global ones)."""
+        """Start of each segment's block of nuisance offsets (velocities, pose) in θ (after the global ones)."""
         counts = [len(self._tracked[s.obs]) * len(self.fit_axes) for s in self.segments]
         return len(self.parameters) + np.cumsum([0] + counts)
 

@@ -319,13 +319,22 @@ def cramer_rao(problem: SysIdProblem, theta, noise) -> np.ndarray:
     :meth:`SysIdProblem.residual_noise`), (Jᵀ diag(noise⁻²) J)⁻¹ with the forward-mode
     Jacobian J at θ (the inverse Fisher information). Unlike a fit's standard errors it needs
     no fit, so it says in advance what data can determine (at the truth, for synthetic data).
-    Raises DanoError if θ or the noise has the wrong size or is not finite and positive, the
-    rollout is not finite at θ, or the information matrix is singular (a parameter the data
-    cannot determine)."""
+    It assumes the residuals' noise independent; where an observed start is averaged from
+    frames that are also residuals, or a start's error is not among the fitted nuisance
+    parameters, it is an approximation.
+    Raises DanoError if the scene is not float64, θ or the noise has the wrong size or is not
+    finite and positive, the Jacobian is not finite at θ, or the information matrix is
+    singular (a parameter the data cannot determine)."""
+    if problem.scene.dtype != jnp.float64:
+        raise DanoError(f"the Cramér–Rao bound needs a float64 scene, got {problem.scene.dtype}: call "
+                        "dano.enable_float64() before composing the scene")
     theta = np.asarray(theta, dtype=np.float64)
-    if theta.shape != (problem.num_parameters,) or not np.all(np.isfinite(theta)):
-        raise DanoError(f"theta must be {problem.num_parameters} finite values ({', '.join(problem.labels)}), "
+    if theta.shape != (problem.num_parameters,):
+        raise DanoError(f"theta must hold {problem.num_parameters} values ({', '.join(problem.labels)}), "
                         f"got shape {theta.shape}")
+    if not np.all(np.isfinite(theta)):
+        bad = [lab for lab, v in zip(problem.labels, theta) if not np.isfinite(v)]
+        raise DanoError(f"theta must be finite; not finite: {', '.join(bad)}")
     noise = np.broadcast_to(np.asarray(noise, dtype=np.float64), (problem.num_residuals,)) \
         if np.ndim(noise) == 0 else np.asarray(noise, dtype=np.float64)
     if noise.shape != (problem.num_residuals,) or not np.all(np.isfinite(noise) & (noise > 0)):
@@ -334,7 +343,7 @@ def cramer_rao(problem: SysIdProblem, theta, noise) -> np.ndarray:
     _, _, jac_fn = _compile(problem)
     J = np.asarray(jac_fn(jnp.asarray(theta)))
     if not np.all(np.isfinite(J)):
-        raise DanoError("the simulation's Jacobian is not finite at theta")
+        raise DanoError("the simulation's Jacobian is not finite at theta: no bound")
     Jw = J / noise[:, None]
     info = Jw.T @ Jw
     d = np.sqrt(np.diag(info))  # scaled to unit diagonal, so that the parameters' units do not matter
@@ -348,7 +357,7 @@ def cramer_rao(problem: SysIdProblem, theta, noise) -> np.ndarray:
 def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) -> SysIdResult:
     n = len(problem.parameters)
     if n == 0:
-        raise DanoError("a global scan needs global parameters (only nuisance velocities are fitted)")
+        raise DanoError("a global scan needs global parameters (only per-segment nuisance offsets are fitted)")
     if not 2 <= scan <= 64 or not 1 <= starts <= 16:
         raise DanoError(f"scan must be 2 to 64 points per axis and starts 1 to 16, got {scan} and {starts}")
     lo = np.array([p.lower for p in problem.parameters])
