@@ -238,6 +238,20 @@ def grip_ik(model: mujoco.MjModel, site: int, target, axis, q0, rotation=None) -
     return sol.x, float(np.abs(sol.fun[:-7]).max())
 
 
+def arm_torque(q, qd, q_ref, qd_ref, tau_ff):
+    """The executed arm law: joint PD (:data:`ARM_KP`, :data:`ARM_KD`) on the reference angles
+    q_ref [rad] and speeds qd_ref [rad/s] plus the feedforward tau_ff [N m], clipped to
+    Franka's torque limits; all (7,) (jnp or NumPy)."""
+    return jnp.clip(ARM_KP * (q_ref - q) + ARM_KD * (qd_ref - qd) + tau_ff, -PANDA_TORQUE, PANDA_TORQUE)
+
+
+def joint_reference(waypoints: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """(len(times), 7) joint angles [rad] interpolated linearly between ``waypoints``
+    (len(PHASES) + 1, 7) at the phase boundaries (:data:`PHASES`); ``times`` [s]."""
+    knots = np.cumsum([0.0] + [t for _, t in PHASES])[: len(waypoints)]
+    return np.stack([np.interp(times, knots, waypoints[:, k]) for k in range(7)], axis=1)
+
+
 APPROACH_DT = 0.01  # [s] stage of the approach's iLQR (free space: no stiff contact to resolve)
 APPROACH_CLEARANCE = 0.01  # [m] the grip site stays at most this far below the pre-grasp height
 
@@ -303,11 +317,10 @@ def optimise_approach(task: GraspTask) -> ApproachPlan:
                       terminal_equality=lambda x, p: jnp.concatenate([x[:7] - jnp.asarray(q_pre), x[nq:nq + 7]]),
                       u_lower=-PANDA_TORQUE, u_upper=PANDA_TORQUE)
     # the initial guess: the scripted approach (PD tracking of the joint interpolation)
-    times = np.arange(T) * APPROACH_DT
-    q_ref = np.stack([np.interp(times, [0.0, T * APPROACH_DT], [HOME[k], q_pre[k]]) for k in range(7)], 1)
+    q_ref = joint_reference(np.stack([HOME, q_pre]), np.arange(T) * APPROACH_DT)
 
     def pd(x, q_r):
-        u = jnp.clip(ARM_KP * (q_r - x[:7]) - ARM_KD * x[nq:nq + 7], -PANDA_TORQUE, PANDA_TORQUE)
+        u = arm_torque(x[:7], x[nq:nq + 7], q_r, 0.0, 0.0)
         x = dynamics(x, u, 0, params)
         return x, (x, u)
 
@@ -432,7 +445,7 @@ def _schedules(task: GraspTask):
     knots = np.cumsum([0.0] + [t for _, t in PHASES])
     steps = int(round(knots[-1] / dt))
     times = np.arange(steps) * dt
-    q_ref = np.stack([np.interp(times, knots, task.waypoints[:, k]) for k in range(7)], axis=1)
+    q_ref = joint_reference(task.waypoints, times)
     # grip: open (−10 N) until the close phase, then ramp to the force over 0.3 s
     ramp = np.where(times < knots[3], -1.0, np.clip((times - knots[3]) / 0.3, 0.0, 1.0))
     # the object's weight at the grip site, fed forward from the lift on
@@ -476,7 +489,7 @@ def simulate(task: GraspTask, forces, newton=None) -> tuple[list[GraspRun], floa
 
         def body(d, inp):  # MJX Data carried: time and the constraint solver's warm start go on
             qr, qdr, g, tff = inp
-            arm = jnp.clip(ARM_KP * (qr - d.qpos[:7]) + ARM_KD * (qdr - d.qvel[:7]) + tff, -PANDA_TORQUE, PANDA_TORQUE)
+            arm = arm_torque(d.qpos[:7], d.qvel[:7], qr, qdr, tff)
             u = jnp.concatenate([arm, g[None]]).astype(d.ctrl.dtype)
             d = step(scene, params, d.replace(ctrl=u), newton)
             return d, (jnp.concatenate([d.qpos, d.qvel]), u)
