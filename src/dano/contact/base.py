@@ -62,7 +62,8 @@ class PairGeometry:
 
 
 def world_frame(dtype):
-    """(points_rotation, points_offset) of points given in the world frame: (I, 0)."""
+    """(points_rotation (3, 3), points_offset (3,)) of points given in the world frame: the
+    identity and zero [m], of ``dtype``."""
     return jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype)
 
 
