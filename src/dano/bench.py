@@ -237,15 +237,12 @@ def _compile_by_lengths(count: int = 20) -> dict:
     """Compile time of an identification's residual and Jacobian for ``count`` trajectories of
     ``count`` different lengths (11, 12, … frames) against one trajectory of the longest
     length: the lengths are padded into one batch, so the first should not cost much more."""
-    import jax.numpy as jnp
-
     from . import enable_float64
     from .asset import build
     from .fields import BoxField
     from .sim import DanoObject, compose
     from .sysid import FitParameter, SysIdProblem, Weights
     from .sysid.examples import analytic_slides
-    from .sysid.solve import _compile
 
     enable_float64()
     asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
@@ -260,9 +257,8 @@ def _compile_by_lengths(count: int = 20) -> dict:
         problem = SysIdProblem(scene, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)],
                                weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=4)
         t0 = time.perf_counter()
-        _, fun, jac = _compile(problem)
-        theta = jnp.asarray(problem.initial())
-        jax.block_until_ready((fun(theta), jac(theta)))
+        theta = problem.initial()
+        problem.residuals(theta), problem.jacobian(theta)  # compiled on first use (NumPy results: done)
         out[key] = time.perf_counter() - t0
     out["ratio"] = out["distinct_lengths_s"] / out["one_length_s"]
     return out

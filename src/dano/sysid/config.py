@@ -13,8 +13,8 @@ interactive-perception experiment). A TOML file describes a user problem::
     pos = [0.0, 0.0, 0.4]
     quat = [1.0, 0.0, 0.0, 0.0]
 
-    [contact]                     # fixed contact parameters (all pairs); the rest: paper defaults
-    sliding_drag = 0.0
+    [contact]                     # fixed contact parameters (all pairs); the rest: paper defaults, except
+    sliding_drag = 0.0            # sliding_drag, held at 0 when sliding_friction is identified
 
     [[trajectory]]
     file = "run1.csv"             # CSV columns t,x,y,z,qw,qx,qy,qz (header line), a .npz with arrays
@@ -40,14 +40,19 @@ interactive-perception experiment). A TOML file describes a user problem::
     window = 0                    # >0: multiple shooting windows of this many frames
     auto_windows = false          # true: a window from just before each observed impact instead
     horizons = []                 # continuation, e.g. [0.4]
-    scan = 0                      # global start: >0 scans the bounds (points per parameter)
-    starts = 3                    # local solves from the best scan points
+    scan = 16                     # global start: points per parameter of a scan of the bounds; left out:
+                                  # 16 for one parameter, 8 x 8 for two, 64 Sobol points beyond; 0: off
+    starts = 2                    # local solves from the best scan points (the initial guess among them)
+    profile_points = 32           # verification and interval: a profile through the estimate along each
+                                  # parameter (left out: 32 for one or two parameters, 16 beyond; 0: off)
+    level = 0.95                  # the interval's level
     fit_ground = false            # fit the ground plane's height (nuisance "ground_height" [m])
     fit_tilt = false              # with fit_ground: also its tilt ("ground_tilt_x", "ground_tilt_y" [rad])
     noise_rms = 0.002             # optional: rms residual of the noise alone; warn when the fit is worse
     bootstrap = 0                 # >0: resample whole trajectories this many times (percentile interval)
-    position_weights = [1.0, 1.0, 1.0]
-    rotation_weight = 1.0
+    position_weights = [1.0, 1.0, 1.0]  # [1/m^2]
+    rotation_weight = 1.0         # [1/rad^2]; left out: rotations weighed by the object's size (a rotation
+                                  # of theta rad counts as theta x sqrt(tr J / 3m) metres)
     jacobian = "ad"
 
 Relative paths are resolved against the file's folder. The file is read into typed
@@ -68,7 +73,8 @@ import numpy as np
 from .._config import read_table, typed_table
 from ..errors import DanoError, FileFormatError
 from .problem import SEGMENT_NUISANCE_PREFIXES, FitParameter, Observation, SysIdProblem, Weights
-from .solve import cramer_rao, identify
+from .solve import identify
+from .uncertainty import cramer_rao
 
 EXAMPLES = ("soap", "bunny-pushes", "bunny-dynamics")
 
@@ -200,10 +206,12 @@ class OptionsConfig:
     auto_windows: bool = False
     horizons: tuple[float, ...] = ()
     position_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    rotation_weight: float = 1.0
+    rotation_weight: float | None = None
     jacobian: str = "ad"
-    scan: int = 0
-    starts: int = 3
+    scan: int | None = None
+    starts: int = 2
+    profile_points: int | None = None
+    level: float = 0.95
     fit_ground: bool = False
     fit_tilt: bool = False
     noise_rms: float | None = None
@@ -254,12 +262,14 @@ def _check_values(c: SysIdConfig) -> None:
         raise DanoError("[options]: give window (a fixed length) or auto_windows = true, not both")
     if any(not 0 < h < 1 for h in o.horizons):
         raise DanoError(f"[options].horizons: fractions of the trajectory in (0, 1), got {list(o.horizons)}")
-    if o.scan != 0 and not 2 <= o.scan <= 64:
+    if o.scan is not None and o.scan != 0 and not 2 <= o.scan <= 64:
         raise DanoError(f"[options].scan: 0 (no global scan) or 2 to 64 points per parameter, got {o.scan}")
     if not 1 <= o.starts <= 16:
         raise DanoError(f"[options].starts: 1 to 16 local starts, got {o.starts}")
-    if o.scan and any(p.upper is None for p in c.parameter):
-        raise DanoError("[options].scan: a global scan needs an upper bound on every [[parameter]]")
+    if o.profile_points is not None and o.profile_points != 0 and not 8 <= o.profile_points <= 256:
+        raise DanoError(f"[options].profile_points: 0 (off) or 8 to 256 points, got {o.profile_points}")
+    if not 0 < o.level < 1:
+        raise DanoError(f"[options].level: the interval's level, in (0, 1), got {o.level}")
     if o.noise_rms is not None and not 0 < o.noise_rms < np.inf:
         raise DanoError(f"[options].noise_rms: a positive rms residual, got {o.noise_rms}")
     if o.bootstrap != 0 and not (2 <= o.bootstrap <= 10_000 and len(c.trajectory) >= 2):
@@ -267,7 +277,7 @@ def _check_values(c: SysIdConfig) -> None:
                         f"(got {o.bootstrap} with {len(c.trajectory)})")
     if o.jacobian not in ("ad", "fd"):
         raise DanoError(f"[options].jacobian: 'ad' or 'fd', got {o.jacobian!r}")
-    if not all(0 <= w < np.inf for w in (*o.position_weights, o.rotation_weight)):
+    if not all(0 <= w < np.inf for w in (*o.position_weights, 0.0 if o.rotation_weight is None else o.rotation_weight)):
         raise DanoError("[options]: weights must be finite and non-negative")
 
 
@@ -332,7 +342,8 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
     except DanoError as exc:
         raise DanoError(exc.args[0] if str(path) in str(exc) else f"{path}: {exc}") from exc
     solver = {"jacobian": opt.jacobian, "horizons": opt.horizons, "scan": opt.scan, "starts": opt.starts,
-              "noise_rms": opt.noise_rms, "bootstrap_samples": opt.bootstrap}
+              "noise_rms": opt.noise_rms, "bootstrap_samples": opt.bootstrap, "profile_points": opt.profile_points,
+              "level": opt.level}
     return problem, solver, dataclasses.asdict(_absolute(cfg, base))
 
 
@@ -382,7 +393,7 @@ def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) 
             noise = noise and not (isinstance(noise_saved, dict) and noise_saved.get("position_m") == 0)
             config = saved["example"]
     if config == "soap":
-        problem, solver = soap_problem(substeps=4), {"jacobian": "ad", "horizons": ()}
+        problem, solver = soap_problem(substeps=4), {"jacobian": "ad", "horizons": ()}  # default scan, profile
         resolved = {"example": "soap", "substeps": 4, "length_scale": 1.0,
                     "data": "soap_pose_traj.csv (real video, 120 fps) + bluesoap collider (paper)",
                     "time_scale": "Froude: sqrt(15.342) s of simulation per s of video",
@@ -391,14 +402,16 @@ def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) 
     elif config == "bunny-dynamics":
         noise_levels = (1e-3, 0.5) if noise else (0.0, 0.0)
         problem, truth = push_dynamics_problem(*noise_levels)
-        solver = {"jacobian": "ad", "horizons": (0.4,), "max_iterations": 100}
+        # continuation from the distant guess, no scan; no profiles (8 parameters: minutes more; its
+        # uncertainty is the Cramér–Rao bound reported beside it)
+        solver = {"jacobian": "ad", "horizons": (0.4,), "max_iterations": 100, "scan": 0, "profile_points": 0}
         resolved = {"example": "bunny-dynamics", "truth": truth, "initial_guess": PUSH_GUESS,
                     "noise": {"position_m": noise_levels[0], "rotation_deg": noise_levels[1]}, "pushes": 10,
                     "horizons": [0.4]}
         extra["truth"] = truth
     elif config == "bunny-pushes":
         noise_levels = (1e-3, 0.5) if noise else (0.0, 0.0)
-        problem, solver = push_problem(*noise_levels), {"jacobian": "ad", "horizons": (0.4,)}
+        problem, solver = push_problem(*noise_levels), {"jacobian": "ad", "horizons": (0.4,), "scan": 0}
         resolved = {"example": "bunny-pushes", "truth": PUSH_TRUTH, "initial_guess": PUSH_GUESS,
                     "noise": {"position_m": noise_levels[0], "rotation_deg": noise_levels[1]}, "pushes": 10,
                     "horizons": [0.4]}
@@ -416,15 +429,19 @@ def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) 
     else:
         resolved["solver"] = {**solver, "method": "scipy.optimize.least_squares (trf), bounds"}
     result = identify(problem, jacobian=solver["jacobian"], horizons=solver["horizons"],
-                      scan=solver.get("scan", 0), starts=solver.get("starts", 3),
+                      scan=solver.get("scan"), starts=solver.get("starts", 2),
                       max_iterations=solver.get("max_iterations", 50),
-                      noise_rms=solver.get("noise_rms"), bootstrap_samples=solver.get("bootstrap_samples", 0))
+                      noise_rms=solver.get("noise_rms"), bootstrap_samples=solver.get("bootstrap_samples", 0),
+                      profile_points=solver.get("profile_points"), level=solver.get("level", 0.95))
     report = {}
     for label, v, s in zip(result.labels, result.estimates, result.standard_errors):
         if not label.startswith(SEGMENT_NUISANCE_PREFIXES):  # per-segment nuisance: in "parameters" only
             key = label.split(":")[-1] if sum(lab.split(":")[-1] == label.split(":")[-1]
                                               for lab in result.labels) == 1 else label
             report[key], report[f"{key}_std"] = float(v), float(s)
+            if result.interval is not None and label in result.interval["lower"]:
+                report[f"{key}_lower"] = result.interval["lower"][label]
+                report[f"{key}_upper"] = result.interval["upper"][label]
     report.update(result.as_dict())
     report.update(extra)
     if config == "bunny-dynamics":
@@ -433,7 +450,8 @@ def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) 
     if config == "soap":
         sens = {}
         for scale in (0.9, 1.1):
-            r = identify(soap_problem(length_scale=scale, substeps=4))
+            r = identify(soap_problem(length_scale=scale, substeps=4, initial_friction=float(result.estimates[0])),
+                         scan=0, profile_points=0)  # from the estimate: the sensitivity of the local answer
             sens[str(scale)] = float(r.estimates[0])
         mu = report["sliding_friction"]
         report["length_scale_sensitivity"] = {

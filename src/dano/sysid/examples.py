@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -38,6 +40,21 @@ def soap_poses(length_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     return np.arange(len(pos)) * SOAP_FRAME_DT, np.concatenate([pos, quat], axis=1)
 
 
+def _soap_scene(substeps: int):
+    import jax
+
+    return _soap_scene_cached(substeps, bool(jax.config.jax_enable_x64))
+
+
+@functools.lru_cache(maxsize=4)
+def _soap_scene_cached(substeps: int, x64: bool):
+    """The soap on the table (one scene per substep count: problems at other length scales
+    share its compiled residual; each observation sets the initial pose)."""
+    soap = load_builtin("bluesoap")
+    _, poses = soap_poses(1.0)
+    return compose([DanoObject("soap", soap, poses[0, :3], poses[0, 3:])], dt=SOAP_FRAME_DT / substeps, name="soap")
+
+
 def soap_problem(length_scale: float = 1.0, substeps: int = 1, initial_friction: float = 0.3) -> SysIdProblem:
     """Identify the sliding friction of the real soap (paper §VI-A) from its video track.
 
@@ -50,13 +67,11 @@ def soap_problem(length_scale: float = 1.0, substeps: int = 1, initial_friction:
     in the paper authors' own soap script (a Coulomb fit); the other contact parameters are
     the paper's defaults.
     """
-    soap = load_builtin("bluesoap")
+    scene = _soap_scene(substeps)
     time, poses = soap_poses(length_scale)
-    z_rest = resting_height(soap, poses[0, 3:])
+    z_rest = resting_height(scene.assets[0], poses[0, 3:])
     poses = poses.copy()
     poses[:, 2] += z_rest - poses[0, 2]
-    scene = compose([DanoObject("soap", soap, poses[0, :3], poses[0, 3:])], dt=SOAP_FRAME_DT / substeps,
-                    name="soap")
     obs = Observation(time=time, poses={"soap": poses}, name="soap_pose_traj.csv")
     return SysIdProblem(scene, [obs], [FitParameter("sliding_friction", initial_friction, 0.0, 2.0)],
                         weights=Weights(position=(1.0, 1.0, 0.0), rotation=0.0), substeps=substeps,
@@ -167,7 +182,8 @@ def push_problem(position_noise: float = 0.0, rotation_noise_deg: float = 0.0, n
     params = [FitParameter("alpha", PUSH_GUESS["alpha"], 0.01, 1.0, target="bunny"),
               FitParameter("sliding_friction", PUSH_GUESS["sliding_friction"], 0.0, 2.0, target=pair)]
     w_rot = (1e-3 / np.radians(0.5)) ** 2
-    return SysIdProblem(scene, obs, params, weights=Weights((1.0, 1.0, 1.0), w_rot, 1.0))
+    return SysIdProblem(scene, obs, params, weights=Weights((1.0, 1.0, 1.0), w_rot, 1.0),
+                        base_params=scene.default_params())  # the data's world: the paper's drag
 
 
 #: the dynamics-refinement variant: the bunny's centre of mass off by 5 % of its size and its
@@ -224,7 +240,7 @@ def push_dynamics_problem(position_noise: float = 0.0, rotation_noise_deg: float
     # the start of each push is averaged over its noisy rest frames: its position and heading
     # are nuisance parameters (with them left out, the start's error biases the moments)
     problem = SysIdProblem(scene, obs, params, weights=Weights((1.0, 1.0, 1.0), w_rot, 1.0),
-                           fit_position="xy" if position_noise else "", fit_rotation="z" if rotation_noise_deg else "")
+                           base_params=scene.default_params(), fit_position="xy" if position_noise else "", fit_rotation="z" if rotation_noise_deg else "")
     body = scene.body_names.index("bunny")
     moments = np.asarray(model_with_params(scene, truth).body_inertia)[body] / PUSH_TRUTH["alpha"]
     return problem, {**PUSH_TRUTH, "com_offset": offset.tolist(), "second_moment_scale": scale.tolist(),

@@ -11,6 +11,8 @@ same rotation, so sign flips between frames do not matter).
 from __future__ import annotations
 
 import dataclasses
+import functools
+import time
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -99,10 +101,13 @@ class FitParameter:
 
 @dataclass(frozen=True)
 class Weights:
-    """Residual weights: position (3,) per axis [1/m²], rotation [1/rad²], joints [1/unit²]."""
+    """Residual weights: position (3,) per axis [1/m²]; rotation [1/rad²], or None (the
+    default): each DANO's rotation vector [rad] is weighed by its size, times
+    :func:`rotation_length` [m/rad], so that a rotation weighs like the displacement of the
+    object's mass points it causes, whatever the object's size; joints [1/unit²]."""
 
     position: Sequence[float] = (1.0, 1.0, 1.0)
-    rotation: float = 1.0
+    rotation: float | None = None
     joints: float = 1.0
 
 
@@ -341,9 +346,169 @@ def _check_ground_only(scene, observations) -> None:
                         f"(this one has {len(world)} collidable world geoms)")
 
 
-class SysIdProblem:
-    """Identification of ``parameters`` from ``observations`` of ``scene``.
+def rotation_length(asset) -> float:
+    """Characteristic length L [m/rad] of a DANO for rotation residuals: the rms distance a
+    mass point moves per radian of rotation, averaged over rotation axes,
+    L = √(tr J / (3 m)) (J: inertia about the centre of mass [kg m²], m: mass [kg]; α
+    cancels). A rotation error of θ rad then weighs like a position error of L·θ m (a solid
+    sphere of radius R: L = √(4/15)·R ≈ 0.52 R)."""
+    J = np.asarray(asset.inertia, dtype=np.float64)
+    return float(np.sqrt(max(np.trace(J), 0.0) / (3.0 * float(asset.mass))))
 
+
+@dataclass(frozen=True)
+class BatchLayout:
+    """Static structure of one batch of segments that share a layout (vmapped together):
+    segment indices, the tracked DANOs' qpos/qvel addresses, observed joints' qpos
+    addresses, simulated steps (settling included) and settling steps."""
+
+    segments: tuple[int, ...]
+    qadr: tuple[int, ...]
+    dadr: tuple[int, ...]
+    jadr: tuple[int, ...]
+    steps: int
+    settle: int
+
+
+@dataclass(frozen=True)
+class ResidualLayout:
+    """The static (hashable) structure of a problem's residual: what its compiled functions
+    are keyed on. Problems of the same layout and scene, whatever their observed values,
+    weights and parameter values, share one compilation (e.g. a bootstrap's resamples,
+    continuation stages, data sets of the same lengths)."""
+
+    batches: tuple[BatchLayout, ...]
+    parameters: tuple[tuple[str, str | None], ...]
+    nuisance: tuple[int, ...]
+    fit_axes: tuple[int, ...]
+    pos_axes: tuple[int, ...]
+    rotation: bool
+    joints: bool
+    substeps: int
+    fit_ground: bool
+    fit_tilt: bool
+
+
+def _table(theta, fit_tilt: bool):
+    """(height, rotation world ← table (jaxlie SO3)) of the ground from θ's last entries."""
+    import jaxlie
+
+    if fit_tilt:
+        return theta[-3], jaxlie.SO3.exp(jnp.stack([theta[-2], theta[-1], jnp.zeros_like(theta[-1])]))
+    return theta[-1], jaxlie.SO3(jnp.asarray([1.0, 0.0, 0.0, 0.0], dtype=theta.dtype))
+
+
+def _tilted_scene(scene: Scene, R) -> Scene:
+    """The scene with gravity seen from the table's frame: R⁻¹·g."""
+    m = scene.model
+    return scene.replace(model=m.replace(opt=m.opt.replace(gravity=R.inverse() @ m.opt.gravity)))
+
+
+def _with_parameters(scene: Scene, base_params: SimParams, parameters, theta) -> SimParams:
+    for i, (name, target) in enumerate(parameters):
+        base_params = scene.set_param(base_params, name, theta[i], target)
+    return base_params
+
+
+def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParams, data: dict, theta):
+    """The identification residual at θ (n,), a pure JAX function of its arguments: every
+    batch's segments rolled out (vmapped) for the batch's longest segment, each segment's
+    residuals frame by frame, padded frames included (their entries are meaningless:
+    :attr:`SysIdProblem.keep` selects the real ones). ``data``: :attr:`SysIdProblem.data`."""
+    params = _with_parameters(scene, base_params, layout.parameters, theta)
+    sim_scene = scene
+    if layout.fit_ground:
+        height, R = _table(theta, layout.fit_tilt)
+        if layout.fit_tilt:
+            sim_scene = _tilted_scene(scene, R)
+    pos_axes = jnp.asarray(layout.pos_axes, dtype=jnp.int32)
+    wpos, wjoint, axes, substeps = data["wpos"], data["wjoint"], layout.fit_axes, layout.substeps
+    out = []
+    for b, batch in enumerate(layout.batches):
+        qadr, dadr, jadr, settle = batch.qadr, batch.dadr, batch.jadr, batch.settle
+        wrot = data["wrot"][b]
+        # nuisance offsets of the initial states of this batch's segments
+        blocks = jnp.stack([theta[layout.nuisance[s] : layout.nuisance[s + 1]].reshape(len(qadr), len(axes))
+                            for s in batch.segments])
+
+        def one(qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, block):
+            if layout.fit_ground:  # observations in the frame of the table (at z = height, tilted by R)
+                qpos0, qvel0 = _to_table(qpos0, qvel0, qadr, dadr, height, R)
+                obs_pose = jax.vmap(lambda p: _poses_to_table(p, height, R))(obs_pose)
+            qpos0, qvel0 = _with_offsets(qpos0, qvel0, block, qadr, dadr, axes)
+            qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, batch.steps, qfrc)
+            frames = qpos[settle + substeps :: substeps]  # states at frames 1..F-1
+            res = []  # components with zero weight are left out (they would dilute σ²)
+            for k, a in enumerate(qadr):
+                if len(layout.pos_axes):
+                    err = frames[:, a : a + 3] - obs_pose[k, 1:, :3]
+                    res.append((err[:, pos_axes] * wpos).ravel())
+                if layout.rotation:
+                    res.append((wrot[k] * quat_log_error(obs_pose[k, 1:, 3:], frames[:, a + 3 : a + 7])).ravel())
+            if layout.joints:
+                for k, a in enumerate(jadr):
+                    res.append(wjoint * (frames[:, a] - obs_joint[k, 1:]))
+            return jnp.concatenate(res)
+
+        d = data["batches"][b]
+        r = jax.vmap(one)(d["qpos0"], d["qvel0"], d["ctrl"], d["qfrc"], d["obs_pose"], d["obs_joint"], blocks)
+        out.append(r.ravel())
+    return jnp.concatenate(out)
+
+
+def _run(fn, *args) -> np.ndarray:
+    """``fn(*args)`` as a NumPy array; the time of a call that compiled (JAX's cache grew) is
+    added to :data:`COMPILE_SECONDS`."""
+    before = fn._cache_size()
+    t0 = time.perf_counter()
+    out = jax.tree_util.tree_map(np.asarray, fn(*args))
+    if fn._cache_size() > before:
+        COMPILE_SECONDS[0] += time.perf_counter() - t0
+    return out
+
+
+#: seconds spent in calls that compiled a residual, Jacobian or batch of this module (one
+#: process-wide counter: :func:`~dano.sysid.identify` reports its own share as compile time)
+COMPILE_SECONDS = [0.0]
+
+# compiled once per layout, scene structure and shapes (JAX's cache, keyed on the static layout)
+def _residuals_and_jacobian(layout, scene, base_params, data, theta):
+    """(forward-mode Jacobian, residual) of :func:`padded_residuals`: one trace, the primal
+    computed once with the tangents (tracing the rollout is most of a compilation's time)."""
+    r = lambda th: (padded_residuals(layout, scene, base_params, data, th),) * 2  # noqa: E731
+    return jax.jacfwd(r, has_aux=True)(theta)
+
+
+_residuals_and_jacobian_jit = jax.jit(_residuals_and_jacobian, static_argnums=0)
+
+
+#: parameter vectors per vmapped batch (:meth:`SysIdProblem.batch_residuals`): one compiled shape
+BATCH = 16
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _batch_residuals_jit(layout, scene, base_params, data, thetas):
+    return jax.vmap(lambda th: padded_residuals(layout, scene, base_params, data, th))(thetas)
+
+
+#: contact parameters held at a neutral value when ``sliding_friction`` is identified and they
+#: are neither identified nor given (``base_params``): the data cannot separate them from it
+NEUTRAL_WITH_FRICTION = {"sliding_drag": 0.0}
+
+
+@dataclass(frozen=True, eq=False)
+class SysIdProblem:
+    """Identification of ``parameters`` from ``observations`` of ``scene``: a frozen
+    specification. Its residual is a pure function of (layout, scene, base params, data, θ)
+    (:func:`padded_residuals`); the compiled residual and Jacobian are cached by JAX on the
+    static :class:`ResidualLayout` (and the scene's structure and the arrays' shapes), never
+    stored on the problem, so problems of the same structure share them.
+
+    weights: residual weights (:class:`Weights`); by default rotations are weighed by each
+    DANO's size (:func:`rotation_length`), positions by 1/m². base_params: the values of the
+    parameters not identified; by default the paper's, except that when ``sliding_friction``
+    is identified the sliding drag (which the data cannot separate from it) is held at 0, a
+    Coulomb world (:data:`NEUTRAL_WITH_FRICTION`; said in :attr:`notes`).
     substeps: simulation steps per frame interval (scene.dt must equal frame_dt/substeps);
     fit_velocity: axes ("x", "y", "z" letters) of each tracked DANO's initial linear
     velocity to fit as nuisance parameters, per segment (e.g. "xy"); window: split
@@ -370,28 +535,41 @@ class SysIdProblem:
     parameters, bounds that exclude the initial guess, or fewer residuals than parameters.
     """
 
-    def __init__(self, scene: Scene, observations: Sequence[Observation], parameters: Sequence[FitParameter],
-                 weights: Weights = Weights(), base_params: SimParams | None = None, substeps: int = 1,
-                 fit_velocity: str = "", window: int | None = None, fit_ground: bool = False,
-                 fit_angular_velocity: str = "", fit_tilt: bool = False, fit_position: str = "",
-                 fit_rotation: str = ""):
-        self._cache: dict = {}  # compiled functions (dano.sysid.solve), shared by with_initial
-        self._args = dict(weights=weights, base_params=base_params, substeps=substeps, fit_velocity=fit_velocity,
-                          window=window, fit_ground=fit_ground, fit_angular_velocity=fit_angular_velocity,
-                          fit_tilt=fit_tilt, fit_position=fit_position, fit_rotation=fit_rotation)
-        if fit_tilt and not fit_ground:
+    scene: Scene
+    observations: Sequence[Observation]
+    parameters: Sequence[FitParameter]
+    weights: Weights = Weights()
+    base_params: SimParams | None = None
+    substeps: int = 1
+    fit_velocity: str = ""
+    window: int | str | None = None
+    fit_ground: bool = False
+    fit_angular_velocity: str = ""
+    fit_tilt: bool = False
+    fit_position: str = ""
+    fit_rotation: str = ""
+    notes: tuple[str, ...] = ()
+
+    def __post_init__(self):
+        def put(name, value):  # normalised fields of the frozen specification
+            object.__setattr__(self, name, value)
+
+        scene = self.scene
+        put("observations", tuple(self.observations))
+        put("parameters", tuple(self.parameters))
+        put("fit_ground", bool(self.fit_ground))
+        put("fit_tilt", bool(self.fit_tilt))
+        put("substeps", int(self.substeps))
+        if self.fit_tilt and not self.fit_ground:
             raise DanoError("fit_tilt needs fit_ground: the tilt is the ground plane's, fitted with its height")
-        self.fit_ground, self.fit_tilt = bool(fit_ground), bool(fit_tilt)
-        if self.fit_ground:
-            _check_ground_only(scene, observations)
-        if not observations:
+        if not self.observations:
             raise DanoError("no observed trajectories given")
-        if not parameters and not (fit_velocity or fit_angular_velocity or fit_position or fit_rotation):
+        if self.fit_ground:
+            _check_ground_only(scene, self.observations)
+        kinds = (("fit_velocity", self.fit_velocity), ("fit_angular_velocity", self.fit_angular_velocity),
+                 ("fit_position", self.fit_position), ("fit_rotation", self.fit_rotation))
+        if not self.parameters and not any(axes for _, axes in kinds):
             raise DanoError("no parameters to identify")
-        self.scene, self.observations = scene, list(observations)
-        self.parameters, self.weights = list(parameters), weights
-        self.base_params = base_params or scene.default_params()
-        self.substeps = int(substeps)
         for k, obs in enumerate(self.observations):
             _check_observation(obs, scene, k)
             expected = obs.frame_dt / self.substeps
@@ -400,21 +578,17 @@ class SysIdProblem:
                     f"{obs.name or f'trajectory {k}'}: frame interval {obs.frame_dt:.6g} s "
                     f"({1 / obs.frame_dt:.4g} frames/s) does not match the scene's time step {scene.dt:.6g} s x "
                     f"{self.substeps} substeps")
-        wp = np.asarray(weights.position, dtype=np.float64)
+        w = self.weights
+        wp = np.asarray(w.position, dtype=np.float64)
         if wp.shape != (3,) or not np.all(np.isfinite(wp)) or np.any(wp < 0) or not all(
-                np.isfinite(w) and w >= 0 for w in (weights.rotation, weights.joints)):
-            raise DanoError(f"weights must be finite and non-negative with 3 position weights, got {weights}")
+                v is None or (np.isfinite(v) and v >= 0) for v in (w.rotation, w.joints)) or w.joints is None:
+            raise DanoError(f"weights must be finite and non-negative with 3 position weights, got {w}")
         labels = [p.label for p in self.parameters]
         if len(set(labels)) != len(labels):
             raise DanoError(f"parameters are listed twice: {sorted({x for x in labels if labels.count(x) > 1})}")
-        kinds = (("fit_velocity", fit_velocity), ("fit_angular_velocity", fit_angular_velocity),
-                 ("fit_position", fit_position), ("fit_rotation", fit_rotation))
         for name, axes in kinds:
             if not isinstance(axes, str) or set(axes) - set("xyz") or len(set(axes)) != len(axes):
                 raise DanoError(f"{name} must be made of the letters x, y, z, each at most once, got {axes!r}")
-        # nuisance offsets of the initial state: linear velocity x y z (world), angular velocity
-        # x y z (body), position x y z (world), rotation vector x y z (world) (_with_offsets)
-        self.fit_axes = tuple(3 * k + "xyz".index(c) for k, (_, axes) in enumerate(kinds) for c in axes)
         for p in self.parameters:
             if p.name not in ("alpha",) + INERTIAL_PARAMETERS + ContactParams.names():
                 raise DanoError(f"unknown parameter {p.name!r}; known: alpha, {', '.join(INERTIAL_PARAMETERS)}, "
@@ -427,9 +601,17 @@ class SysIdProblem:
                 raise DanoError(f"bounds [{p.lower}, {p.upper}] of {p.label} are empty: lower must be below upper")
             if not (p.lower <= p.initial <= p.upper) or not np.isfinite(p.initial):
                 raise DanoError(f"bounds [{p.lower}, {p.upper}] of {p.label} exclude the initial guess {p.initial}")
-        self.segments = self._segments(window)
-        self._tracked = [sorted(o.poses) for o in self.observations]
-        n_res = self.num_residuals
+        if self.base_params is None:
+            fitted = {p.name for p in self.parameters}
+            neutral = {k: v for k, v in NEUTRAL_WITH_FRICTION.items() if "sliding_friction" in fitted
+                       and k not in fitted}
+            put("base_params", scene.default_params(**neutral))
+            if neutral:
+                put("notes", self.notes + (
+                    "sliding_drag is held at 0 (a Coulomb world) while sliding_friction is identified: the data "
+                    "cannot separate the two; identify it too, or give base_params (TOML: [contact]), to change "
+                    "that",))
+        n_res = self.num_residuals  # also checks the window
         if n_res < self.num_parameters:
             raise DanoError(f"{n_res} residuals for {self.num_parameters} parameters: observe more frames "
                             "or fit fewer parameters")
@@ -445,19 +627,28 @@ class SysIdProblem:
                 velocities={k: cut(v) for k, v in o.velocities.items()},
                 joints={k: cut(v) for k, v in o.joints.items()}, controls=cut(o.controls, n - 1),
                 qfrc=cut(o.qfrc, n - 1)))
-        return SysIdProblem(self.scene, obs, self.parameters, **self._args)
+        return dataclasses.replace(self, observations=tuple(obs))
 
     def with_initial(self, theta) -> "SysIdProblem":
-        """The same problem with the global parameters' initial guesses set from θ."""
+        """The same problem with the global parameters' initial guesses set from θ (its
+        compiled residual is the same: the layout does not change)."""
         params = [dataclasses.replace(p, initial=float(np.clip(v, p.lower, p.upper)))
                   for p, v in zip(self.parameters, theta)]
-        out = SysIdProblem(self.scene, self.observations, params, **self._args)
-        out._cache = self._cache  # the same residual function: its compilation is shared
-        return out
+        return dataclasses.replace(self, parameters=tuple(params))
 
     # -- layout
-    def _segments(self, window):
-        segs = []
+    @functools.cached_property
+    def fit_axes(self) -> tuple[int, ...]:
+        """Nuisance offsets of each segment's initial state, per tracked DANO: 0–2 linear
+        velocity x y z (world), 3–5 angular velocity (body), 6–8 position (world), 9–11
+        rotation vector (world) (:func:`_with_offsets`)."""
+        kinds = (self.fit_velocity, self.fit_angular_velocity, self.fit_position, self.fit_rotation)
+        return tuple(3 * k + "xyz".index(c) for k, axes in enumerate(kinds) for c in axes)
+
+    @functools.cached_property
+    def segments(self) -> tuple[Segment, ...]:
+        """The rollout segments: whole trajectories, or their windows."""
+        segs, window = [], self.window
         for k, o in enumerate(self.observations):
             T = o.num_frames
             if window is None:
@@ -475,7 +666,11 @@ class SysIdProblem:
                 for i, s in enumerate(starts):
                     end = starts[i + 1] if i + 1 < len(starts) else T - 1
                     segs.append(Segment(k, s, end - s + 1))
-        return segs
+        return tuple(segs)
+
+    @functools.cached_property
+    def _tracked(self) -> list[list[str]]:
+        return [sorted(o.poses) for o in self.observations]
 
     @property
     def labels(self) -> list[str]:
@@ -501,17 +696,10 @@ class SysIdProblem:
             ["ground_tilt_x", "ground_tilt_y"] if self.fit_tilt else [])
 
     def _table(self, theta):
-        """(height, rotation world ← table (jaxlie SO3)) of the ground from θ's last entries."""
-        import jaxlie
-
-        if self.fit_tilt:
-            return theta[-3], jaxlie.SO3.exp(jnp.stack([theta[-2], theta[-1], jnp.zeros_like(theta[-1])]))
-        return theta[-1], jaxlie.SO3(jnp.asarray([1.0, 0.0, 0.0, 0.0], dtype=theta.dtype))
+        return _table(theta, self.fit_tilt)
 
     def _tilted_scene(self, R):
-        """The scene with gravity seen from the table's frame: R⁻¹·g."""
-        m = self.scene.model
-        return self.scene.replace(model=m.replace(opt=m.opt.replace(gravity=R.inverse() @ m.opt.gravity)))
+        return _tilted_scene(self.scene, R)
 
     @property
     def num_parameters(self) -> int:
@@ -520,7 +708,7 @@ class SysIdProblem:
     @property
     def num_residuals(self) -> int:
         """Residual count m; components with zero weight are left out."""
-        per_pose = len(self._pos_axes()) + (3 if self.weights.rotation > 0 else 0)
+        per_pose = len(self._pos_axes()) + (3 if self._rotation_weighted() else 0)
         n = 0
         for seg in self.segments:
             o = self.observations[seg.obs]
@@ -529,6 +717,17 @@ class SysIdProblem:
 
     def _pos_axes(self) -> tuple[int, ...]:
         return tuple(k for k in range(3) if self.weights.position[k] > 0)
+
+    def _rotation_weighted(self) -> bool:
+        return self.weights.rotation is None or self.weights.rotation > 0
+
+    def rotation_weights(self) -> np.ndarray:
+        """(D,) the square root of each DANO's rotation weight [m/rad with the default, by
+        size: :func:`rotation_length`; else √weights.rotation]: its rotation residuals are
+        rotation vectors [rad] times this."""
+        if self.weights.rotation is None:
+            return np.array([rotation_length(a) for a in self.scene.assets])
+        return np.full(len(self.scene.dano_names), np.sqrt(float(self.weights.rotation)))
 
     def _nuisance_offsets(self) -> np.ndarray:
         """Start of each segment's block of nuisance offsets (velocities, pose) in θ (after the global ones)."""
@@ -546,10 +745,7 @@ class SysIdProblem:
 
     def sim_params(self, theta) -> SimParams:
         """SimParams with the identified parameters from θ (the rest from base_params)."""
-        params = self.base_params
-        for i, p in enumerate(self.parameters):
-            params = self.scene.set_param(params, p.name, theta[i], p.target)
-        return params
+        return _with_parameters(self.scene, self.base_params, [(p.name, p.target) for p in self.parameters], theta)
 
     # -- data per segment
     def _segment_data(self, seg: Segment):
@@ -617,119 +813,155 @@ class SysIdProblem:
             groups.setdefault((qadr, dadr, jadr, settle), []).append((i, data, steps))
         return groups
 
-    def _column_kinds(self, qadr, jadr) -> list[tuple[str, int]]:
-        """Residual blocks of a segment as (kind, columns per frame): per tracked DANO the
-        weighted position axes ("position") and the rotation vector ("rotation"), then one
-        per joint ("joint"); zero weights left out."""
-        npos, wrot, wjoint = len(self._pos_axes()), self.weights.rotation > 0, self.weights.joints > 0
-        return [k for _ in qadr for k in ((("position", npos),) if npos else ()) + (
-            (("rotation", 3),) if wrot else ())] + ([("joint", 1)] * len(jadr) if wjoint else [])
+    @functools.cached_property
+    def _structure(self):
+        """(layout, data, keep): the residual's static structure, its arrays and the indices of
+        the real (not padded) entries of :func:`padded_residuals`' output. Segments of the same
+        layout are batched whatever their lengths: shorter ones are padded to the longest (extra
+        steps simulated, their frames dropped by ``keep``)."""
+        batches, arrays, wrot, keep, offset = [], [], [], [], 0
+        rot_w = self.rotation_weights()
+        for (qadr, dadr, jadr, settle), items in self._groups().items():
+            steps = max(st for _, _, st in items)
+            frames = steps // self.substeps + 1
+            arrays.append({k: jnp.asarray(np.stack([_pad(d[k], k, frames, settle + steps) for _, d, _ in items]))
+                           for k in items[0][1]})
+            cols = self._columns(qadr, jadr)
+            keep.append(offset + _valid_residuals([st // self.substeps for _, _, st in items], frames - 1, cols))
+            offset += len(items) * (frames - 1) * sum(cols)
+            batches.append(BatchLayout(tuple(i for i, _, _ in items), qadr, dadr, jadr, settle + steps, settle))
+            wrot.append(jnp.asarray([rot_w[self.scene.qpos_adr.index(a)] for a in qadr], dtype=jnp.float64))
+        layout = ResidualLayout(
+            batches=tuple(batches), parameters=tuple((p.name, p.target) for p in self.parameters),
+            nuisance=tuple(int(x) for x in self._nuisance_offsets()), fit_axes=self.fit_axes,
+            pos_axes=self._pos_axes(), rotation=self._rotation_weighted(), joints=self.weights.joints > 0,
+            substeps=self.substeps, fit_ground=self.fit_ground, fit_tilt=self.fit_tilt)
+        data = {"batches": tuple(arrays), "wrot": tuple(wrot),
+                "wpos": jnp.sqrt(jnp.asarray(self.weights.position, dtype=jnp.float64))[np.asarray(layout.pos_axes,
+                                                                                                   dtype=int)],
+                "wjoint": jnp.asarray(np.sqrt(self.weights.joints), dtype=jnp.float64)}
+        return layout, data, np.concatenate(keep) if keep else np.zeros(0, dtype=np.int64)
+
+    @property
+    def layout(self) -> ResidualLayout:
+        """The residual's static structure (what its compilation is keyed on)."""
+        return self._structure[0]
+
+    @property
+    def data(self) -> dict:
+        """The residual's arrays (a pytree): per batch the stacked initial states (qpos0,
+        qvel0), controls, forces and observed poses/joints, and the weights' square roots."""
+        return self._structure[1]
+
+    @property
+    def keep(self) -> np.ndarray:
+        """(m,) int: the entries of :func:`padded_residuals`' output that are residuals."""
+        return self._structure[2]
+
+    def residuals_and_jacobian(self, theta) -> tuple[np.ndarray, np.ndarray]:
+        """(m,) residual vector and (m, n) its forward-mode Jacobian at θ (n,), compiled once
+        per structure (:class:`ResidualLayout`, scene, shapes)."""
+        J, r = _run(_residuals_and_jacobian_jit, self.layout, self.scene, self.base_params, self.data,
+                    jnp.asarray(theta, dtype=jnp.float64))
+        return r[self.keep], J[self.keep]
+
+    def residuals(self, theta) -> np.ndarray:
+        """(m,) residual vector at θ (n,) (see :meth:`residuals_and_jacobian`)."""
+        return self.residuals_and_jacobian(theta)[0]
+
+    def jacobian(self, theta) -> np.ndarray:
+        """(m, n) forward-mode Jacobian of the residual at θ (see :meth:`residuals_and_jacobian`)."""
+        return self.residuals_and_jacobian(theta)[1]
+
+    def batch_residuals(self, thetas) -> np.ndarray:
+        """(K, m) residual vectors at K parameter vectors (K, n), vmapped in batches of
+        :data:`BATCH` (the last one padded: compiled once per structure)."""
+        thetas = np.asarray(thetas, dtype=np.float64)
+        out = []
+        for start in range(0, len(thetas), BATCH):
+            chunk = thetas[start : start + BATCH]
+            padded = np.concatenate([chunk, np.repeat(chunk[-1:], BATCH - len(chunk), axis=0)])
+            r = _run(_batch_residuals_jit, self.layout, self.scene, self.base_params, self.data, jnp.asarray(padded))
+            out.append(r[: len(chunk)][:, self.keep])
+        return np.concatenate(out) if out else np.zeros((0, self.num_residuals))
+
+    def _column_kinds(self, qadr, jadr) -> list[tuple[str, int, int]]:
+        """Residual blocks of a segment as (kind, columns per frame, DANO index in the scene
+        or joint slot): per tracked DANO the weighted position axes ("position") and the
+        rotation vector ("rotation"), then one per joint ("joint"); zero weights left out."""
+        npos, wrot, wjoint = len(self._pos_axes()), self._rotation_weighted(), self.weights.joints > 0
+        out = []
+        for a in qadr:
+            d = self.scene.qpos_adr.index(a)
+            out += ([("position", npos, d)] if npos else []) + ([("rotation", 3, d)] if wrot else [])
+        return out + ([("joint", 1, j) for j in range(len(jadr))] if wjoint else [])
 
     def _columns(self, qadr, jadr) -> list[int]:
         """Residual columns per frame of each block of a segment (:meth:`_column_kinds`)."""
-        return [c for _, c in self._column_kinds(qadr, jadr)]
+        return [c for _, c, _ in self._column_kinds(qadr, jadr)]
 
     def _residual_blocks(self):
-        """(observation index, kind, columns, frames) of each block of the residual vector, in
-        the order of :meth:`residual_function`'s output; kind: "position", "rotation", "joint"."""
+        """(observation index, kind, columns, frames, DANO index) of each block of the residual
+        vector, in the order of :meth:`residual_function`'s output; kind: "position",
+        "rotation", "joint"."""
         for (qadr, _, jadr, _), items in self._groups().items():
             for i, _, steps in items:
-                for kind, cols in self._column_kinds(qadr, jadr):
-                    yield self.segments[i].obs, kind, cols, steps // self.substeps
+                for kind, cols, d in self._column_kinds(qadr, jadr):
+                    yield self.segments[i].obs, kind, cols, steps // self.substeps, d
 
     def residual_observations(self) -> np.ndarray:
         """(m,) int: the observation (trajectory index) each residual belongs to, in the order
         of :meth:`residual_function`'s output (used to resample whole trajectories)."""
-        return np.concatenate([np.full(cols * frames, obs) for obs, _, cols, frames in self._residual_blocks()]
+        return np.concatenate([np.full(cols * frames, obs) for obs, _, cols, frames, _ in self._residual_blocks()]
                               ).astype(np.int64)
 
-    def residual_noise(self, position: float, rotation_deg: float, joints: float = 0.0) -> np.ndarray:
+    def residual_series(self) -> list[np.ndarray]:
+        """Index arrays into the residual vector, one per residual column of each block: the
+        time series (frame by frame) of one component, for autocorrelation estimates."""
+        out, start = [], 0
+        for _, _, cols, frames, _ in self._residual_blocks():
+            block = start + np.arange(cols * frames).reshape(frames, cols)
+            out += [block[:, c] for c in range(cols)]
+            start += cols * frames
+        return out
+
+    def residual_noise(self, position, rotation_deg, joints: float = 0.0) -> np.ndarray:
         """(m,) standard deviation of each residual [residual units] when the observed poses
-        carry independent Gaussian noise: ``position`` [m] per axis, ``rotation_deg`` [deg] the
-        rms rotation angle (a rotation vector with ``rotation_deg``/√3 per axis, as
-        :func:`~dano.sysid.examples.push_observations` draws it) and ``joints`` [joint units];
-        scaled by the weights' square roots like the residuals. Raises DanoError if a level
-        is negative or not finite, or if a weighted component would have no noise."""
-        levels = {"position": position, "rotation": np.radians(rotation_deg) / np.sqrt(3), "joint": joints}
-        for name, v in (("position", position), ("rotation_deg", rotation_deg), ("joints", joints)):
-            if not (np.isfinite(v) and v >= 0):
+        carry independent Gaussian noise: ``position`` [m] per axis (a number, or (3,) per
+        axis x y z), ``rotation_deg`` [deg] the rms rotation angle (a rotation vector with
+        ``rotation_deg``/√3 per axis, as :func:`~dano.sysid.examples.push_observations` draws
+        it) and ``joints`` [joint units]; scaled by the weights' square roots like the
+        residuals. Raises DanoError if a level is negative or not finite, or if a weighted
+        component would have no noise."""
+        pos = np.broadcast_to(np.asarray(position, dtype=np.float64), (3,))
+        for name, v in (("position", pos), ("rotation_deg", rotation_deg), ("joints", joints)):
+            if not np.all(np.isfinite(v) & (np.asarray(v) >= 0)):
                 raise DanoError(f"noise level {name} must be a finite number >= 0, got {v}")
-        wpos = np.sqrt(np.asarray(self.weights.position, dtype=np.float64))[list(self._pos_axes())]
-        scale = {"position": wpos, "rotation": np.full(3, np.sqrt(self.weights.rotation)),
-                 "joint": np.full(1, np.sqrt(self.weights.joints))}
+        axes = list(self._pos_axes())
+        wpos = np.sqrt(np.asarray(self.weights.position, dtype=np.float64))[axes]
+        rot_w = self.rotation_weights()
         out = []
-        for _, kind, cols, frames in self._residual_blocks():
-            if levels[kind] <= 0:
+        for _, kind, cols, frames, d in self._residual_blocks():
+            if kind == "position":
+                sd = pos[axes] * wpos
+            elif kind == "rotation":
+                sd = np.full(3, np.radians(rotation_deg) / np.sqrt(3) * rot_w[d])
+            else:
+                sd = np.full(1, joints * np.sqrt(self.weights.joints))
+            if np.any(sd[:cols] <= 0):
                 raise DanoError(f"the residuals include {kind} observations but their noise level is zero")
-            out.append(np.tile(levels[kind] * scale[kind][:cols], frames))  # frame by frame, columns inside
+            out.append(np.tile(sd[:cols], frames))  # frame by frame, columns inside
         return np.concatenate(out)
 
     def residual_function(self):
-        """(θ) -> residual vector (m,), a pure JAX function (jit/jacfwd it). Segments of the
-        same layout (tracked bodies, joints, settling) are batched with ``vmap`` whatever their
-        lengths: shorter ones are padded to the longest (extra steps simulated, their frames
-        dropped by a fixed gather), so one trace and one compilation serve them all. Residuals
-        are ordered by batch, then segment, then block (per tracked DANO its position axes
-        with non-zero weight [m·√w] and its rotation vector [rad·√w], then each joint), each
-        block frame by frame (:meth:`_column_kinds`)."""
-        groups = self._groups()
-        pos_axes = jnp.asarray(self._pos_axes(), dtype=jnp.int32)
-        wpos = jnp.sqrt(jnp.asarray(self.weights.position, dtype=jnp.float64))[pos_axes]
-        wrot, wjoint = float(np.sqrt(self.weights.rotation)), float(np.sqrt(self.weights.joints))
-        axes = self.fit_axes
-        scene, substeps = self.scene, self.substeps
-        offsets = self._nuisance_offsets()
-        batches = []
-        for (qadr, dadr, jadr, settle), items in groups.items():
-            steps = max(st for _, _, st in items)
-            frames = steps // substeps + 1
-            stacked = {k: jnp.asarray(np.stack([_pad(d[k], k, frames, settle + steps) for _, d, _ in items]))
-                       for k in items[0][1]}
-            cols = self._columns(qadr, jadr)
-            keep = _valid_residuals([st // substeps for _, _, st in items], frames - 1, cols)
-            batches.append(((qadr, dadr, jadr, settle + steps, settle), [i for i, _, _ in items], stacked,
-                            jnp.asarray(keep)))
-
-        fit_ground = self.fit_ground
-
-        def residuals(theta):
-            params = self.sim_params(theta)
-            sim_scene = scene
-            if fit_ground:
-                height, R = self._table(theta)
-                if self.fit_tilt:
-                    sim_scene = self._tilted_scene(R)
-            out = []
-            for (qadr, dadr, jadr, n_steps, settle), seg_ids, data, keep in batches:
-                # nuisance offsets of the initial states of this batch's segments
-                blocks = jnp.stack([theta[offsets[sid] : offsets[sid + 1]].reshape(len(qadr), len(axes))
-                                    for sid in seg_ids])
-
-                def one(qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, block):
-                    if fit_ground:  # observations in the frame of the table (at z = height, tilted by R)
-                        qpos0, qvel0 = _to_table(qpos0, qvel0, qadr, dadr, height, R)
-                        obs_pose = jax.vmap(lambda p: _poses_to_table(p, height, R))(obs_pose)
-                    qpos0, qvel0 = _with_offsets(qpos0, qvel0, block, qadr, dadr, axes)
-                    qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, n_steps, qfrc)
-                    frames = qpos[settle + substeps :: substeps]  # states at frames 1..F-1
-                    res = []  # components with zero weight are left out (they would dilute σ²)
-                    for b, a in enumerate(qadr):
-                        if len(pos_axes):
-                            err = frames[:, a : a + 3] - obs_pose[b, 1:, :3]
-                            res.append((err[:, pos_axes] * wpos).ravel())
-                        if wrot > 0:
-                            res.append((wrot * quat_log_error(obs_pose[b, 1:, 3:], frames[:, a + 3 : a + 7])).ravel())
-                    if wjoint > 0:
-                        for b, a in enumerate(jadr):
-                            res.append(wjoint * (frames[:, a] - obs_joint[b, 1:]))
-                    return jnp.concatenate(res)
-
-                r = jax.vmap(one)(data["qpos0"], data["qvel0"], data["ctrl"], data["qfrc"], data["obs_pose"],
-                                  data["obs_joint"], blocks)
-                out.append(r.ravel()[keep])  # padded frames dropped
-            return jnp.concatenate(out)
-
-        return residuals
+        """(θ) -> residual vector (m,), a pure JAX function (jit/jacfwd it): :func:`padded_residuals`
+        on this problem's layout and data, padded entries dropped. Residuals are ordered by
+        batch, then segment, then block (per tracked DANO its position axes with non-zero weight
+        [m·√w] and its rotation vector [rad·√w], then each joint), each block frame by frame
+        (:meth:`_column_kinds`)."""
+        layout, data, keep = self._structure
+        scene, base, keep = self.scene, self.base_params, jnp.asarray(self.keep)
+        return lambda theta: padded_residuals(layout, scene, base, data, theta)[keep]
 
     def simulate(self, theta) -> list[np.ndarray]:
         """Fitted qpos (frames, nq) of every segment at θ (for plots and reports)."""

@@ -1,10 +1,20 @@
-"""Solving the identification problem: bounded Gauss–Newton / Levenberg–Marquardt.
+"""Solving the identification problem: a global scan, bounded Gauss–Newton / Levenberg–Marquardt
+from its best points, and a verification of the answer by profiles through it.
 
 We use :func:`scipy.optimize.least_squares` (trust-region reflective, the bounded
 Gauss–Newton-type method of SciPy) with the Jacobian from forward-mode AD through
 the simulator (``jax.jacfwd``: θ has few entries, residuals many). It is a well-kept
 solver that handles bounds, scaling and convergence tests; ``mujoco.minimize`` has no
 bounds-aware TRF and optimistix would add a dependency for the same algorithm.
+
+By default (:func:`identify`): (1) the cost is evaluated on a scan of the global parameters'
+bounds (a grid for one or two, Sobol points beyond); (2) the local solver starts from the best
+scan points (moved off the bounds) and the given guess; (3) the best answer is verified by a
+profile through it along each global parameter (:mod:`dano.sysid.uncertainty`), finer than
+its interval: if any point the tool evaluated has a lower cost, the local solver continues
+from it, so the reported estimate never costs more than a point the tool saw; (4) the
+interval, the measurement noise estimated from the observations, the misfit and the
+identifiability of each parameter are reported, with warnings.
 """
 
 from __future__ import annotations
@@ -12,29 +22,37 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import least_squares
 
 from ..errors import DanoError
-from .problem import SysIdProblem
+from . import uncertainty as unc
+from .problem import COMPILE_SECONDS, SysIdProblem
 
 
 @dataclass
 class SysIdResult:
-    """Estimates with standard errors, the cost per iteration, wall time (compilation
-    reported separately), the fit and what makes the uncertainty doubtful.
+    """Estimates with their interval and standard errors, the cost per iteration, wall time
+    (compilation reported separately), the fit and what makes the uncertainty doubtful.
 
     labels (n,); estimates, standard_errors, initial (n,); standard errors come from
     σ²(JᵀJ)⁻¹, σ² = 2·cost/(m − n), and only where that formula holds: NaN for every
-    parameter when the solver stopped before a convergence test was met, and for a
-    parameter that sits at a bound (the others then from the Jacobian's remaining columns);
-    cost_history: cost ½‖r‖² after each iteration (first: at the initial guess);
-    rms_residual: √(2·cost/m); num_residuals m; nfev/njev: residual/Jacobian evaluations;
-    jacobian: "ad" or "fd"; warnings: sentences saying why an error bar is missing or
-    doubtful (not converged, at a bound, local minima that disagree, a fit poor for the
-    stated noise); bootstrap: see :func:`bootstrap` (None unless asked for).
+    parameter when the solver stopped before a convergence test was met, for a parameter
+    that sits at a bound (the others then from the Jacobian's remaining columns), and for a
+    parameter whose cost is rough (the profile's curvature at the scale of the interval is
+    not the local one); cost_history: cost ½‖r‖² after each iteration (first: at the initial
+    guess); rms_residual: √(2·cost/m); num_residuals m; nfev/njev: residual/Jacobian
+    evaluations; jacobian: "ad" or "fd"; warnings: sentences saying why an error bar is
+    missing or doubtful (not converged, at a bound, local minima that disagree, a fit poor
+    for the noise, a parameter the data do not determine); notes: choices made for the user
+    (e.g. a contact term held neutral); bootstrap: the refit bootstrap when asked
+    (:func:`~dano.sysid.uncertainty.bootstrap`); interval: the default interval per global
+    parameter with its method (:func:`identify`); noise: the measurement noise estimated
+    from the observations and the rms residual it alone would leave; identifiability: per
+    global parameter "identified", "at bound", "flat" or "rough"; profiles: the cost profile
+    through the estimate along each global parameter; verification: restarts from lower
+    points the checks found.
     """
 
     labels: list
@@ -57,6 +75,13 @@ class SysIdResult:
     scan: dict | None = None
     warnings: list = field(default_factory=list)
     bootstrap: dict | None = None
+    interval: dict | None = None
+    noise: dict | None = None
+    identifiability: dict = field(default_factory=dict)
+    profiles: dict | None = None
+    verification: dict | None = None
+    notes: list = field(default_factory=list)
+    jacobian_matrix: np.ndarray | None = field(default=None, repr=False)
 
     def as_dict(self) -> dict:
         return {
@@ -78,7 +103,43 @@ class SysIdResult:
             "scan": self.scan,
             "warnings": list(self.warnings),
             "bootstrap": self.bootstrap,
+            "interval": self.interval,
+            "noise_estimate": self.noise,
+            "identifiability": self.identifiability,
+            "profiles": self.profiles,
+            "verification": self.verification,
+            "notes": list(self.notes),
         }
+
+
+#: points of the default global scan per number of global parameters: a grid of 16 values for
+#: one, 8 × 8 for two, 64 Sobol points beyond (the budget is reported in ``scan["points"]``)
+DEFAULT_SCAN = {1: 16, 2: 8}
+DEFAULT_SCAN_MORE = 8
+
+
+def default_scan(n_global: int) -> int:
+    """Points per axis of the default scan (:func:`scan_points`) for ``n_global`` parameters."""
+    return DEFAULT_SCAN.get(n_global, DEFAULT_SCAN_MORE)
+
+
+def scan_box(problem: SysIdProblem) -> tuple[np.ndarray, np.ndarray]:
+    """The box the global scan covers: each global parameter's bounds; where a bound is
+    infinite, [lower, lower + 4·(initial − lower)] (or a width of 1 when the guess is on the
+    bound), and symmetric about the guess when both are infinite."""
+    lo, hi = [], []
+    for p in problem.parameters:
+        a, b = p.lower, p.upper
+        width = 4 * (p.initial - a) if np.isfinite(a) and p.initial > a else 1.0
+        if not np.isfinite(a) and not np.isfinite(b):
+            a, b = p.initial - max(abs(p.initial), 1.0), p.initial + max(abs(p.initial), 1.0)
+        elif not np.isfinite(b):
+            b = a + width
+        elif not np.isfinite(a):
+            a = b - (4 * (b - p.initial) if p.initial < b else 1.0)
+        lo.append(a)
+        hi.append(b)
+    return np.array(lo, dtype=np.float64), np.array(hi, dtype=np.float64)
 
 
 def scan_points(lower: np.ndarray, upper: np.ndarray, scan: int, seed: int = 0) -> np.ndarray:
@@ -96,23 +157,15 @@ def scan_points(lower: np.ndarray, upper: np.ndarray, scan: int, seed: int = 0) 
     return lower + unit * (upper - lower)
 
 
-def scan_costs(problem: SysIdProblem, points: np.ndarray, batch: int = 16, residual_function=None) -> np.ndarray:
+def scan_costs(problem: SysIdProblem, points: np.ndarray) -> np.ndarray:
     """Cost ½‖r‖² at each row of ``points`` (K, n_global) (nuisance parameters at their
-    initial values), evaluated ``batch`` points at a time through one vmapped, compiled
-    residual (``residual_function``: the problem's, built once by the caller, or built
-    here); non-finite costs (diverging rollouts) are returned as inf. Returns (K,)."""
-    fun = residual_function or problem.residual_function()
+    initial values), through the problem's vmapped, compiled residual
+    (:meth:`SysIdProblem.batch_residuals`); non-finite costs (diverging rollouts) are returned
+    as inf. Returns (K,)."""
     x0 = problem.initial()
-    n = points.shape[1]
-    cost = jax.jit(jax.vmap(lambda th: 0.5 * jnp.sum(fun(th) ** 2)))
-    out = []
-    for start in range(0, len(points), batch):
-        chunk = points[start : start + batch]
-        thetas = np.repeat(x0[None], batch, axis=0)
-        thetas[: len(chunk), :n] = chunk
-        thetas[len(chunk) :, :n] = chunk[-1]  # pad the last chunk: one compiled shape
-        out.append(np.asarray(cost(jnp.asarray(thetas)))[: len(chunk)])
-    c = np.concatenate(out)
+    thetas = np.repeat(x0[None], len(points), axis=0)
+    thetas[:, : points.shape[1]] = points
+    c = 0.5 * np.sum(problem.batch_residuals(thetas) ** 2, axis=1)
     return np.where(np.isfinite(c), c, np.inf)
 
 
@@ -136,50 +189,83 @@ def _profiles(labels, points: np.ndarray, costs: np.ndarray, bins: int) -> dict:
 
 def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int = 50,
              xtol: float = 1e-8, ftol: float = 1e-8, gtol: float = 1e-8,
-             horizons: tuple[float, ...] = (), scan: int = 0, starts: int = 3,
-             noise_rms: float | None = None, bootstrap_samples: int = 0, seed: int = 0) -> SysIdResult:
+             horizons: tuple[float, ...] = (), scan: int | None = None, starts: int = 2,
+             noise_rms: float | None = None, bootstrap_samples: int = 0, seed: int = 0,
+             level: float = 0.95, profile_points: int | None = None) -> SysIdResult:
     """Identify the problem's parameters; returns a :class:`SysIdResult`.
 
-    noise_rms: the rms residual that measurement noise alone would leave (residual units:
-    m·√w for positions, rad·√w for rotations); when the fit's rms residual exceeds twice it,
-    the result warns that the model does not explain the data to the noise level (its
-    standard errors assume it does). bootstrap_samples: if > 0, also resample whole
-    trajectories with replacement this many times (seeded by ``seed``) and refit each from
-    the estimate (:func:`bootstrap`; needs at least two trajectories).
+    scan: global start: points per axis of a scan of the global parameters' bounds
+    (:func:`scan_points`: a grid for one or two parameters, Sobol points beyond: the next
+    power of two ≥ ``scan``²; a parameter without a finite bound is scanned over
+    :func:`scan_box`), evaluated in vmapped batches; None (default): :func:`default_scan`
+    (16 points for one parameter, 8 × 8 for two, 64 beyond); 0: off (local solve from the
+    initial guess only). The local solver then starts from the ``starts`` best of the scan's
+    points and the given guess (scan points moved off the bounds by 2 % of the box), and the
+    lowest final cost wins.
+    The result's ``scan`` holds the points, their costs, the starts and the cost profile along
+    each parameter.
 
-    scan: global start (0: off). Before the local solver, the cost is evaluated on a coarse
-    scan of the global parameters' bounds (:func:`scan_points`: ``scan`` values per axis for
-    one or two parameters, Sobol points beyond: the next power of two ≥ ``scan``²), in vmapped batches; the local
-    solver then starts from the ``starts`` best points (and the given initial guess) and the
-    lowest final cost wins. Without ``horizons`` the scan and every start share one traced
-    residual and Jacobian (compiled once each). The result's ``scan`` holds the points, their costs, the starts
-    and the cost profile along each parameter. Needs finite bounds on the global parameters.
+    profile_points: the verification and interval (:mod:`dano.sysid.uncertainty`): a profile
+    through the estimate along each global parameter of this many points (default 32 for one
+    or two global parameters, 16 beyond; 0: off, and no interval), refined until finer than
+    the interval and widened until the interval lies inside it; whenever a point the tool
+    evaluated (scan or profile) costs less than the estimate, the local solver continues from
+    it. The interval at ``level`` is the hull of the profile-likelihood interval (noise from
+    the residuals, inflated for residuals correlated in time) and, from 4 trajectories up, a
+    bootstrap over trajectories on the profiles (seeded by ``seed``); the measurement noise is
+    estimated from the observations themselves (third differences) and a fit well above it is
+    warned about, as is a parameter whose profile is flat (not identifiable) or rough.
+
+    noise_rms: the rms residual that measurement noise alone would leave (residual units:
+    m·√w for positions, rad·√w for rotations), if known; when the fit's rms residual exceeds
+    twice it, the result warns that the model does not explain the data to the noise level.
+    bootstrap_samples: if > 0, also resample whole trajectories with replacement this many
+    times and refit each from the estimate (:func:`~dano.sysid.uncertainty.bootstrap`; needs
+    at least two trajectories).
 
     jacobian: "ad" (forward-mode AD, default) or "fd" (SciPy's 2-point finite
     differences, for comparison). max_iterations: the most residual evaluations per
-    stage (SciPy's ``max_nfev``; the trust-region method makes about one per iteration).
-    horizons: continuation over the trajectory length,
-    e.g. (0.4,): first fit on the first 40 % of every trajectory, then on all of it from
-    that estimate (contact-rich cost landscapes are much smoother over short horizons,
-    so a distant initial guess still reaches the right basin). Raises DanoError if the
-    scene is not float64 (identification compares in float64: call
-    :func:`dano.enable_float64` before composing it) or the rollout produces non-finite
-    residuals at the initial guess.
+    local solve (SciPy's ``max_nfev``; the trust-region method makes about one per iteration).
+    horizons: continuation over the trajectory length, e.g. (0.4,): first fit on the first
+    40 % of every trajectory, then on all of it from that estimate (contact-rich cost
+    landscapes are much smoother over short horizons). Raises DanoError if the scene is not
+    float64 (identification compares in float64: call :func:`dano.enable_float64` before
+    composing it), the rollout produces non-finite residuals at every start, or an option is
+    out of range.
     """
     if noise_rms is not None and not (np.isfinite(noise_rms) and noise_rms > 0):
         raise DanoError(f"noise_rms must be a positive number, got {noise_rms}")
     if bootstrap_samples < 0:
         raise DanoError(f"bootstrap_samples must be >= 0, got {bootstrap_samples}")
+    if not 0 < level < 1:
+        raise DanoError(f"level must lie in (0, 1), got {level}")
+    n_global = len(problem.parameters)
+    if profile_points is None:
+        profile_points = 32 if n_global <= 2 else 16
+    if profile_points and not 8 <= profile_points <= 256:
+        raise DanoError(f"profile_points must be 0 (off) or 8 to 256, got {profile_points}")
+    if scan is None:
+        scan = default_scan(n_global) if n_global else 0
+    compiled_before = COMPILE_SECONDS[0]
     result = _identify(problem, jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol,
                        horizons=horizons, scan=scan, starts=starts)
+    local = dict(jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
+    if profile_points and n_global:
+        result = _verify_and_assess(problem, result, profile_points, level, seed, local)
+    else:
+        result.noise = _noise_and_misfit(problem, result)
+    result.notes = list(problem.notes) + result.notes
     if noise_rms is not None and result.rms_residual > 2 * noise_rms:
         result.warnings.append(
             f"rms residual {result.rms_residual:.3g} is {result.rms_residual / noise_rms:.1f}x the stated noise "
             f"{noise_rms:.3g}: the model does not explain the data to the noise level, and the standard errors "
             "(which assume it does) understate the uncertainty")
     if bootstrap_samples:
-        result.bootstrap = bootstrap(problem, result.estimates, samples=bootstrap_samples, seed=seed,
-                                     max_iterations=max_iterations)
+        result.bootstrap = unc.bootstrap(problem, result.estimates, samples=bootstrap_samples, seed=seed,
+                                         max_iterations=max_iterations)
+    if not result.fitted:
+        result.fitted = problem.simulate(result.estimates)
+    result.compile_time_s = COMPILE_SECONDS[0] - compiled_before  # every call that compiled, scan included
     return result
 
 
@@ -213,48 +299,24 @@ def _identify(problem: SysIdProblem, *, jacobian: str, max_iterations: int, xtol
         final.stages = [{"horizon": h, "estimates": r.estimates.tolist(), "cost_history": r.cost_history}
                         for h, r in zip(horizons, stages)]
         return final
-    return _local_solve(problem, _compile(problem), problem.initial(), jacobian=jacobian,
-                        max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
+    return _local_solve(problem, problem.initial(), jacobian=jacobian, max_iterations=max_iterations, xtol=xtol,
+                        ftol=ftol, gtol=gtol)
 
 
-def _compile(problem: SysIdProblem):
-    """(residual function, its jit, the jit of its forward-mode Jacobian): one trace of the
-    problem, kept on it (freed with it) and shared by every local solve from another
-    starting point, by the problems :meth:`~SysIdProblem.with_initial` derives from it
-    (continuation stages, :func:`cramer_rao` after a fit) and by the bootstrap's refits."""
-    if "residual" not in problem._cache:
-        r_fn = problem.residual_function()
-        problem._cache["residual"] = (r_fn, jax.jit(r_fn), jax.jit(jax.jacfwd(r_fn)))  # Jacobian: compiled when used
-    return problem._cache["residual"]
-
-
-def _finite(a, fill: float) -> np.ndarray:
-    """``a`` as a NumPy array with non-finite entries replaced by ``fill``."""
-    a = np.asarray(a)
-    return np.where(np.isfinite(a), a, fill)
-
-
-def _local_solve(problem: SysIdProblem, compiled, x0: np.ndarray, *, jacobian: str, max_iterations: int,
-                 xtol: float, ftol: float, gtol: float, fitted: bool = True) -> SysIdResult:
-    """Bounded least squares from ``x0`` (n,) with the compiled residual and Jacobian."""
-    _, fun, jac_fn = compiled
+def _local_solve(problem: SysIdProblem, x0: np.ndarray, *, jacobian: str, max_iterations: int,
+                 xtol: float, ftol: float, gtol: float) -> SysIdResult:
+    """Bounded least squares from ``x0`` (n,) with the problem's compiled residual and Jacobian
+    (compiled on first use; that time is reported as compile_time_s)."""
     lo, hi = problem.bounds()
 
     t0 = time.perf_counter()
-    r0 = np.asarray(fun(jnp.asarray(x0)))
-    if jacobian == "ad":
-        np.asarray(jac_fn(jnp.asarray(x0)))
+    r0 = problem.residuals(x0)
     compile_time = time.perf_counter() - t0
     if not np.all(np.isfinite(r0)):
         raise DanoError("the simulation gives non-finite residuals at the initial guess; check the scene and data")
 
     history = [0.5 * float(r0 @ r0)]
-
-    def f(x):
-        return _finite(fun(jnp.asarray(x)), 1e6)  # keep the solver away from diverging rollouts
-
-    def jac(x):
-        return _finite(jac_fn(jnp.asarray(x)), 0.0)  # rows of diverging rollouts carry no slope
+    f, jac = unc.least_squares_functions(problem)
 
     def callback(intermediate_result):
         history.append(float(intermediate_result.cost))
@@ -271,7 +333,7 @@ def _local_solve(problem: SysIdProblem, compiled, x0: np.ndarray, *, jacobian: s
         cost_history=history, final_cost=float(sol.cost), rms_residual=float(np.sqrt(2 * sol.cost / m)),
         num_residuals=m, nfev=int(sol.nfev), njev=int(sol.njev or 0), wall_time_s=wall,
         compile_time_s=compile_time, success=bool(sol.success), message=str(sol.message), jacobian=jacobian,
-        fitted=problem.simulate(sol.x) if fitted else [], warnings=notes,
+        warnings=notes, jacobian_matrix=np.asarray(sol.jac),
     )
 
 
@@ -312,76 +374,33 @@ def _standard_errors(problem: SysIdProblem, sol, max_iterations: int) -> tuple[n
     return se, notes
 
 
-def cramer_rao(problem: SysIdProblem, theta, noise) -> np.ndarray:
-    """The Cramér–Rao bound at θ: the smallest covariance (n, n) of θ that any unbiased
-    estimator reaches from data like the problem's when its residuals carry independent
-    Gaussian noise of standard deviation ``noise`` ((m,) or a scalar, residual units: e.g.
-    :meth:`SysIdProblem.residual_noise`), (Jᵀ diag(noise⁻²) J)⁻¹ with the forward-mode
-    Jacobian J at θ (the inverse Fisher information). Unlike a fit's standard errors it needs
-    no fit, so it says in advance what data can determine (at the truth, for synthetic data).
-    It assumes the residuals' noise independent; where an observed start is averaged from
-    frames that are also residuals, or a start's error is not among the fitted nuisance
-    parameters, it is an approximation.
-    Raises DanoError if the scene is not float64, θ or the noise has the wrong size or is not
-    finite and positive, the Jacobian is not finite at θ, or the information matrix is
-    singular (a parameter the data cannot determine)."""
-    if problem.scene.dtype != jnp.float64:
-        raise DanoError(f"the Cramér–Rao bound needs a float64 scene, got {problem.scene.dtype}: call "
-                        "dano.enable_float64() before composing the scene")
-    theta = np.asarray(theta, dtype=np.float64)
-    if theta.shape != (problem.num_parameters,):
-        raise DanoError(f"theta must hold {problem.num_parameters} values ({', '.join(problem.labels)}), "
-                        f"got shape {theta.shape}")
-    if not np.all(np.isfinite(theta)):
-        bad = [lab for lab, v in zip(problem.labels, theta) if not np.isfinite(v)]
-        raise DanoError(f"theta must be finite; not finite: {', '.join(bad)}")
-    noise = np.broadcast_to(np.asarray(noise, dtype=np.float64), (problem.num_residuals,)) \
-        if np.ndim(noise) == 0 else np.asarray(noise, dtype=np.float64)
-    if noise.shape != (problem.num_residuals,) or not np.all(np.isfinite(noise) & (noise > 0)):
-        raise DanoError(f"noise must be {problem.num_residuals} positive standard deviations (or one), got shape "
-                        f"{noise.shape}")
-    _, _, jac_fn = _compile(problem)
-    J = np.asarray(jac_fn(jnp.asarray(theta)))
-    if not np.all(np.isfinite(J)):
-        raise DanoError("the simulation's Jacobian is not finite at theta: no bound")
-    Jw = J / noise[:, None]
-    info = Jw.T @ Jw
-    d = np.sqrt(np.diag(info))  # scaled to unit diagonal, so that the parameters' units do not matter
-    if np.any(d == 0) or np.linalg.cond(info / np.outer(d, d)) > 1e12:
-        unseen = [lab for lab, v in zip(problem.labels, d) if v == 0]
-        raise DanoError("the Fisher information is singular: the data cannot determine every parameter"
-                        + (f" (no effect at all: {', '.join(unseen)})" if unseen else ""))
-    return np.linalg.inv(info / np.outer(d, d)) / np.outer(d, d)
-
-
 def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) -> SysIdResult:
     n = len(problem.parameters)
     if n == 0:
         raise DanoError("a global scan needs global parameters (only per-segment nuisance offsets are fitted)")
     if not 2 <= scan <= 64 or not 1 <= starts <= 16:
         raise DanoError(f"scan must be 2 to 64 points per axis and starts 1 to 16, got {scan} and {starts}")
-    lo = np.array([p.lower for p in problem.parameters])
-    hi = np.array([p.upper for p in problem.parameters])
-    if not np.all(np.isfinite(hi)):
-        raise DanoError("a global scan needs finite upper bounds on every parameter (set 'upper')")
-    compiled = _compile(problem)
+    lo, hi = scan_box(problem)
     t0 = time.perf_counter()
     points = scan_points(lo, hi, scan)
-    costs = scan_costs(problem, points, residual_function=compiled[0])
+    guess = problem.initial()[:n]
+    costs_all = scan_costs(problem, np.vstack([points, guess[None]]))  # the given guess is a candidate too
+    costs = costs_all[:-1]
     scan_time = time.perf_counter() - t0
-    order = [int(i) for i in np.argsort(costs) if np.isfinite(costs[i])][:starts]
+    order = [int(i) for i in np.argsort(costs_all) if np.isfinite(costs_all[i])][:starts]
     if not order:
         raise DanoError("every point of the global scan gives a diverging simulation; check the bounds")
-    candidates = [problem.initial()[:n]] + [points[i] for i in order]
+    inset = 0.02 * (hi - lo)  # a start on a bound may never leave it: moved inside
+    candidates = [guess if i == len(points) else np.clip(points[i], lo + inset, hi - inset) for i in order]
     opts = {k: v for k, v in local.items() if k != "horizons"}
     results, kept = [], []
     for x in candidates:
         try:
-            if local["horizons"]:  # continuation: truncated problems, compiled per start
+            if local["horizons"]:  # continuation: truncated problems (compiled once per structure)
                 results.append(_identify(problem.with_initial(x), scan=0, starts=starts, **local))
             else:  # one compiled residual and Jacobian for every start
-                x0 = np.concatenate([np.clip(x, lo, hi), problem.initial()[n:]])
-                results.append(_local_solve(problem, compiled, x0, fitted=False, **opts))
+                x0 = np.concatenate([x, problem.initial()[n:]])
+                results.append(_local_solve(problem, x0, **opts))
             kept.append(x)
         except DanoError:  # a start whose rollout is non-finite (e.g. the given guess): skipped
             continue
@@ -389,8 +408,6 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
         raise DanoError("no start of the global scan gives finite residuals")
     candidates = kept
     best = min(results, key=lambda r: r.final_cost)
-    if not best.fitted:
-        best.fitted = problem.simulate(best.estimates)
     best.initial = problem.initial()
     best.wall_time_s = sum(r.wall_time_s for r in results) + scan_time
     best.nfev = sum(r.nfev for r in results) + len(points)
@@ -398,6 +415,10 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
     best.scan = {
         "points": points.tolist(),
         "cost": [None if not np.isfinite(c) else float(c) for c in costs],
+        "guess_cost": None if not np.isfinite(costs_all[-1]) else float(costs_all[-1]),
+        "budget": f"{len(points)} points ({'grid' if n <= 2 else 'scrambled Sobol'} over " + ", ".join(
+            f"{p.label} [{a:.4g}, {b:.4g}]" for p, a, b in zip(problem.parameters, lo, hi)) + f"), {len(candidates)}"
+            " local starts",
         "starts": [np.asarray(x).tolist() for x in candidates],
         "start_results": [{"estimates": r.estimates[:n].tolist(), "final_cost": r.final_cost} for r in results],
         "profile": _profiles([p.label for p in problem.parameters], points, costs, bins=max(scan, 8)),
@@ -405,6 +426,207 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
     }
     best.warnings = best.warnings + _disagreement(problem, best, results, float(np.min(costs)))
     return best
+
+
+def _noise_and_misfit(problem: SysIdProblem, result: SysIdResult) -> dict:
+    """The measurement noise estimated from the observations (:func:`~dano.sysid.uncertainty.
+    observation_noise`), the rms residual it alone would leave, and a warning on the result
+    when the fit's rms residual is well above it (a model that misfits the data)."""
+    noise = unc.observation_noise(problem)
+    expected = unc.expected_rms(problem, noise)
+    noise["expected_rms_residual"] = expected
+    noise["misfit_ratio"] = None if not expected else result.rms_residual / expected
+    if expected is not None and result.rms_residual > MISFIT_RATIO * expected and result.rms_residual > 1e-7:
+        result.warnings.append(
+            f"the model misfits the data: rms residual {result.rms_residual:.3g} is "
+            + (f"{result.rms_residual / expected:.1f}x" if expected > 0 else "far above")
+            + f" what the measurement noise estimated from the observations would leave ({expected:.3g}); "
+            "the interval allows for the residuals' correlation, but the estimate is the best fit of a model "
+            "that does not reproduce the motion (check the scene, the object's size and mass, fixed contact "
+            "parameters, and windows for long or chaotic motions)")
+    return noise
+
+
+#: a fit whose rms residual exceeds this multiple of what the estimated noise leaves misfits
+MISFIT_RATIO = 2.0
+BOOTSTRAP_RESAMPLES = 200
+
+
+def _verify_and_assess(problem: SysIdProblem, best: SysIdResult, points: int, level: float, seed: int,
+                       local: dict) -> SysIdResult:
+    """Profiles through the estimate (verification: continue from any lower point the tool
+    evaluated), then the interval, the standard errors' check, identifiability and misfit."""
+    n = len(problem.parameters)
+    labels = [p.label for p in problem.parameters]
+    lo, hi = problem.bounds()
+    box_lo, box_hi = scan_box(problem)
+    box = box_hi - box_lo
+    spacing = box / (default_scan(n) - 1) if best.scan is None else box / (max(len(best.scan["points"]) ** (1 / n),
+                                                                                 2) - 1)
+    scan_pts = None
+    if best.scan is not None:
+        c = np.array([np.inf if v is None else v for v in best.scan["cost"]])
+        scan_pts = (np.asarray(best.scan["points"]), c)
+    t0 = time.perf_counter()
+    restarts, widths, refined, profiles, evaluated = 0, {}, set(), {}, 0
+    scan_info, stages = best.scan, best.stages
+    level_q = unc.chi2_threshold(level)
+    rng_seed = seed
+    attempts = 8
+    for attempt in range(attempts):  # profiles, restarts from lower points, widening and refining
+        theta = best.estimates
+        J = best.jacobian_matrix if best.jacobian_matrix is not None else problem.jacobian(theta)
+        for i in range(n):
+            if i not in widths:
+                se = best.standard_errors[i]
+                widths[i] = min(max(5 * se if np.isfinite(se) else 0.0, spacing[i], 1e-3 * box[i]), box[i])
+            if i not in profiles:
+                a, b = max(lo[i], theta[i] - widths[i]), min(hi[i], theta[i] + widths[i])
+                profiles[i] = unc.profile(problem, theta, J, i, a, b, points)
+                evaluated += points
+        # verification: the lowest cost the tool evaluated
+        cand = [(float(np.min(pr.costs)), pr.thetas[int(np.argmin(pr.costs))]) for pr in profiles.values()]
+        if scan_pts is not None and np.isfinite(np.min(scan_pts[1])):
+            k = int(np.argmin(scan_pts[1]))
+            cand.append((float(scan_pts[1][k]), np.concatenate([scan_pts[0][k], problem.initial()[n:]])))
+        low_cost, low_theta = min(cand, key=lambda x: x[0])
+        if low_cost < best.final_cost - 1e-9 * max(best.final_cost, 1e-300) and restarts < 4:
+            restarts += 1
+            new = _local_solve(problem, np.clip(low_theta, lo, hi), **local)
+            if new.final_cost >= low_cost:  # the solver did not improve on the point: it is the answer
+                new = _at_point(problem, new, low_theta, low_cost)
+            new.scan, new.stages = scan_info, stages
+            new.wall_time_s += best.wall_time_s
+            new.compile_time_s += best.compile_time_s
+            new.nfev += best.nfev
+            new.njev += best.njev
+            new.warnings = [w for w in best.warnings if "scan saw a lower cost" not in w] + new.warnings
+            best, profiles = new, {}
+            continue
+        # intervals; widen where they reach the profile's end (not a bound), refine where coarse
+        r = problem.residuals(best.estimates)
+        m = len(r)
+        sigma2 = 2 * best.final_cost / max(m - problem.num_parameters, 1)
+        rho = unc.residual_autocorrelation(problem, r)
+        kappa = (1 + rho) / (1 - rho)
+        threshold = level_q * sigma2 * kappa
+        redo = {}
+        rng = np.random.default_rng(rng_seed)
+        use_boot = len(problem.observations) >= unc.BOOTSTRAP_MIN_TRAJECTORIES
+        out = {}
+        for i, pr in profiles.items():
+            lower, upper, at_a, at_b = unc.profile_interval(pr.values, pr.costs, threshold)
+            step = pr.values[1] - pr.values[0]
+            boot = unc.profile_bootstrap(pr, BOOTSTRAP_RESAMPLES, rng) if use_boot else None
+            open_a, open_b = pr.values[0] > lo[i] + 1e-12, pr.values[-1] < hi[i] - 1e-12
+            boot_end = boot is not None and boot[1] > 0.025 * BOOTSTRAP_RESAMPLES
+            if ((at_a and open_a) or (at_b and open_b) or (boot_end and (open_a or open_b))) \
+                    and widths[i] < box[i] * 4:
+                redo[i] = widths[i] * 4
+            elif (upper - lower) < 6 * step and i not in refined and upper > lower:
+                redo[i] = max(1.5 * (upper - lower), 1e-9 * max(box[i], 1.0))
+                refined.add(i)
+            out[i] = (lower, upper, boot)
+        if not redo or attempt == attempts - 1:
+            break
+        for i, w in redo.items():
+            widths[i] = w
+            profiles.pop(i)
+    lowest = min(cand, key=lambda x: x[0])
+    if lowest[0] < best.final_cost - 1e-9 * max(best.final_cost, 1e-300):  # restarts exhausted: the point itself
+        best = _at_point(problem, best, lowest[1], lowest[0])
+    best.verification = {"restarts": restarts, "profile_points_evaluated": evaluated,
+                         "lowest_evaluated_cost": float(min(min(float(np.min(pr.costs)) for pr in profiles.values()),
+                                                            np.inf if scan_pts is None else np.min(scan_pts[1]))),
+                         "wall_time_s": time.perf_counter() - t0}
+    best.wall_time_s += best.verification["wall_time_s"]
+    _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, level_q)
+    best.noise = _noise_and_misfit(problem, best)
+    return best
+
+
+def _at_point(problem: SysIdProblem, result: SysIdResult, theta: np.ndarray, cost: float) -> SysIdResult:
+    """The result moved to an evaluated point whose cost is lower than the solver's answer."""
+    r = problem.residuals(theta)
+    result.estimates = np.asarray(theta, dtype=np.float64)
+    result.final_cost = float(0.5 * r @ r)
+    result.rms_residual = float(np.sqrt(2 * result.final_cost / len(r)))
+    result.jacobian_matrix = problem.jacobian(theta)
+    result.warnings.append("the local solver did not improve on the lowest point the checks evaluated; that point "
+                           "is reported")
+    return result
+
+
+def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, level_q) -> None:
+    """Interval, standard errors' check and identifiability of each global parameter, in place."""
+    n = len(problem.parameters)
+    lo, hi = problem.bounds()
+    box_lo, box_hi = scan_box(problem)
+    z = np.sqrt(2 * level_q)
+    n_obs = len(problem.observations)
+    interval = {"level": level, "lower": {}, "upper": {}, "profile_likelihood": {}, "bootstrap": None,
+                "noise_variance": sigma2, "autocorrelation": rho, "inflation": kappa,
+                "method": "profile likelihood (noise variance from the residuals, x (1+rho)/(1-rho) for residuals "
+                          "correlated in time; other parameters re-optimised by chord Gauss-Newton)"
+                          + (f" and bootstrap over the {n_obs} trajectories ({BOOTSTRAP_RESAMPLES} resamples of the "
+                             "per-trajectory profile costs); the hull of both" if n_obs >= unc.BOOTSTRAP_MIN_TRAJECTORIES
+                             else "; no bootstrap (fewer than "
+                                  f"{unc.BOOTSTRAP_MIN_TRAJECTORIES} trajectories)")}
+    bounds_hit = {i for i, _ in at_bound(problem, best.estimates)}
+    for i in range(n):
+        label = problem.parameters[i].label
+        pr = profiles[i]
+        lower, upper, boot = out[i]
+        theta_i = best.estimates[i]
+        interval["profile_likelihood"][label] = [lower, upper]
+        if boot is not None:
+            est = boot[0]
+            std = float(np.std(est, ddof=1) * np.sqrt(n_obs / (n_obs - 1)))
+            half = unc.t_quantile(level, n_obs - 1) * std
+            b_lo, b_hi = max(theta_i - half, lo[i]), min(theta_i + half, hi[i])
+            interval["bootstrap"] = interval["bootstrap"] or {}
+            interval["bootstrap"][label] = {"lower": b_lo, "upper": b_hi, "std": std,
+                                            "resamples_at_profile_end": int(boot[1])}
+            lower, upper = min(lower, b_lo), max(upper, b_hi)
+        interval["lower"][label], interval["upper"][label] = float(lower), float(upper)
+        # the local curvature's standard error, where the profile at the interval's scale agrees
+        lo0, hi0, _, _ = unc.profile_interval(pr.values, pr.costs, level_q * sigma2)
+        step = pr.values[1] - pr.values[0]
+        se = best.standard_errors[i]
+        ratio = (hi0 - lo0) / (2 * z * se) if np.isfinite(se) and se > 0 else None
+        minima = unc.count_local_minima(pr.costs, 1e-3 * threshold)
+        rough = (ratio is not None and (hi0 - lo0) >= 4 * step and not 0.5 <= ratio <= 2.0) or minima >= 2
+        span_frac = (upper - lower) / max(box_hi[i] - box_lo[i], 1e-300)
+        if i in bounds_hit:
+            status = "at bound"
+        elif span_frac >= 0.9 or (upper - lower) >= 0.9 * (pr.values[-1] - pr.values[0]) and \
+                pr.values[0] <= lo[i] + 1e-12 and pr.values[-1] >= hi[i] - 1e-12:
+            status = "flat"
+        elif rough:
+            status = "rough"
+        else:
+            status = "identified"
+        best.identifiability[label] = {"status": status, "local_minima_in_profile": minima,
+                                       "curvature_ratio": ratio}
+        if status == "flat":
+            best.warnings.append(
+                f"{label} is not identifiable from these data: its cost stays within the noise over "
+                f"[{lower:.4g}, {upper:.4g}]; more trajectories, or motions that depend on it more, would help")
+        elif status == "rough":
+            if np.isfinite(se):
+                best.standard_errors[i] = np.nan
+            best.warnings.append(
+                f"{label}: the cost is rough at the scale of its interval ({minima} local minima in the profile "
+                f"over [{pr.values[0]:.4g}, {pr.values[-1]:.4g}]"
+                + (f"; the local curvature's standard error {se:.3g} would give an interval {ratio:.3g}x the "
+                   "profile's" if ratio is not None else "")
+                + "): no standard error is reported, the interval comes from the profile"
+                + (" and the bootstrap" if boot is not None else "")
+                + "; windows ([options] window or auto_windows) or more trajectories smooth the cost")
+    best.interval = interval
+    best.profiles = {problem.parameters[i].label: {"values": pr.values.tolist(),
+                                                   "cost": [float(c) if np.isfinite(c) else None for c in pr.costs]}
+                     for i, pr in sorted(profiles.items())}
 
 
 def _disagreement(problem: SysIdProblem, best: SysIdResult, results: list, scan_best: float) -> list[str]:
@@ -431,59 +653,3 @@ def _disagreement(problem: SysIdProblem, best: SysIdResult, results: list, scan_
     return notes
 
 
-def bootstrap(problem: SysIdProblem, estimates: np.ndarray, *, samples: int = 100, seed: int = 0,
-              level: float = 0.95, max_iterations: int = 50) -> dict:
-    """Bootstrap over trajectories: ``samples`` times, draw as many trajectories as observed,
-    with replacement (seeded), and refit from ``estimates`` (n,) by the bounded least-squares
-    solver; a trajectory drawn k times weighs k (its residuals scaled by √k), so one compiled
-    residual and Jacobian serve every draw. Trajectories are the independent units: noise
-    that is shared within a trajectory (its initial pose, its tracking bias) makes σ²(JᵀJ)⁻¹
-    too small, the spread over resampled trajectories does not.
-
-    Returns {"samples", "seed", "level", "trajectories" (n), "labels" (the global parameters,
-    and the ground's when fitted), "std" (the refits' standard deviation × √(n/(n−1)), the
-    usual small-sample correction), "lower"/"upper" (estimate ∓ t_{n−1}·std at ``level``,
-    clipped to the bounds: percentile intervals of a bootstrap over few trajectories are too
-    narrow),
-    "percentile_lower"/"percentile_upper", "estimates" (refits, k), "failed" (draws whose refit
-    gave a non-finite result, left out)}. Raises DanoError for fewer than two trajectories,
-    fewer than two samples, a level outside (0, 1), or fewer than two finite refits."""
-    n_obs = len(problem.observations)
-    if n_obs < 2:
-        raise DanoError("the bootstrap resamples whole trajectories: it needs at least two")
-    if not 0 < level < 1 or samples < 2:
-        raise DanoError(f"bootstrap needs samples >= 2 and a level in (0, 1), got {samples} and {level}")
-    _, fun, jac_fn = _compile(problem)
-    owner = problem.residual_observations()
-    lo, hi = problem.bounds()
-    n_ground = len(problem.ground_labels)
-    keep = list(range(len(problem.parameters))) + list(range(problem.num_parameters - n_ground,
-                                                               problem.num_parameters))
-    x0 = np.clip(np.asarray(estimates, dtype=np.float64), lo, hi)
-    rng = np.random.default_rng(seed)
-    out, failed = [], 0
-    for _ in range(samples):
-        scale = np.sqrt(np.bincount(rng.integers(0, n_obs, n_obs), minlength=n_obs).astype(np.float64))[owner]
-        sol = least_squares(lambda x: _finite(fun(jnp.asarray(x)), 1e6) * scale, x0,
-                            jac=lambda x: _finite(jac_fn(jnp.asarray(x)), 0.0) * scale[:, None], bounds=(lo, hi),
-                            method="trf", x_scale="jac", max_nfev=max_iterations)
-        if np.all(np.isfinite(sol.x)) and np.isfinite(sol.cost):
-            out.append(sol.x[keep])
-        else:
-            failed += 1
-    est = np.array(out).reshape(len(out), len(keep))
-    if len(out) < 2:
-        raise DanoError(f"the bootstrap's refits failed ({failed} of {samples} non-finite)")
-    from scipy.stats import t as student_t
-
-    q = 100 * (1 - level) / 2
-    std = est.std(axis=0, ddof=1) * np.sqrt(n_obs / (n_obs - 1))  # small-sample correction of a cluster bootstrap
-    half = student_t.ppf(0.5 + level / 2, n_obs - 1) * std
-    centre = np.asarray(estimates, dtype=np.float64)[keep]
-    lo_k, hi_k = lo[keep], hi[keep]  # an interval beyond a bound says nothing more than the bound
-    return {"samples": samples, "seed": seed, "level": level, "trajectories": n_obs,
-            "labels": [problem.labels[i] for i in keep], "std": std.tolist(),
-            "lower": np.maximum(centre - half, lo_k).tolist(), "upper": np.minimum(centre + half, hi_k).tolist(),
-            "percentile_lower": np.percentile(est, q, axis=0).tolist(),
-            "percentile_upper": np.percentile(est, 100 - q, axis=0).tolist(),
-            "estimates": est.tolist(), "failed": failed}

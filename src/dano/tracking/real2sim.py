@@ -61,7 +61,8 @@ def two_stage(scene, tracked_time, tracked_poses, substeps: int, scan: int = 16,
     obs = Observation(time=tracked_time, poses={name: tracked_poses}, qvel0=qvel0, name="tracked poses")
     problem = SysIdProblem(scene, [obs], [FitParameter("sliding_friction", 0.3, *FRICTION_BOUNDS)],
                            weights=Weights(position=(1.0, 1.0, 1.0), rotation=1.0), substeps=substeps,
-                           fit_velocity="xyz", fit_angular_velocity="xyz", fit_ground=True, window=window)
+                           fit_velocity="xyz", fit_angular_velocity="xyz", fit_ground=True, window=window,
+                           base_params=scene.default_params())  # the synthetic slide's world: the paper's drag
     return identify(problem, scan=scan)
 
 
