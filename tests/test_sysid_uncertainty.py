@@ -39,7 +39,7 @@ def test_no_standard_error_at_a_bound_or_before_convergence(box):
     assert abs(res.estimates[0] - 0.3) < 1e-6 and np.isnan(res.standard_errors[0])
     assert any("sits at its upper bound" in w for w in res.warnings)
     assert any("stated noise" in w for w in res.warnings)  # the bound keeps it from the data
-    res = identify(problem, max_iterations=1)  # the same compiled residual
+    res = identify(problem, max_iterations=1, scan=0, profile_points=0)  # one local solve, stopped early
     assert not res.success and np.all(np.isnan(res.standard_errors))
     assert any("evaluation limit" in w for w in res.warnings)
     inside = identify(slide_problem(box), noise_rms=2e-3)

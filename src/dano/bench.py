@@ -206,7 +206,7 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
     out["soap_ratio_fd_over_ad"] = out["soap_fd"]["median_s"] / out["soap_ad"]["median_s"]
     problem = push_problem(1e-3, 0.5)
     for jac in ("ad", "fd"):
-        r = identify(problem, jacobian=jac, horizons=(0.4,))
+        r = identify(problem, jacobian=jac, horizons=(0.4,), scan=0)  # the example's configuration
         est = dict(zip(r.labels, r.estimates))
         out[f"bunny_pushes_{jac}"] = {
             "wall_s": r.wall_time_s, "compile_s": r.compile_time_s, "nfev": r.nfev, "njev": r.njev,
@@ -214,6 +214,7 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
             "friction_rel_error": est["bunny/ground:sliding_friction"] / PUSH_TRUTH["sliding_friction"] - 1}
     out["bunny_pushes_ratio_fd_over_ad"] = out["bunny_pushes_fd"]["wall_s"] / out["bunny_pushes_ad"]["wall_s"]
     out["compile_by_lengths"] = _compile_by_lengths()
+    out["soap_command"] = command_times(["sysid", "soap", "--json"], repeats=max(repeats - 1, 1))
     if cube_data:
         from .sysid.examples import contactnets_identify, contactnets_problem
 
@@ -231,6 +232,27 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
     else:
         out["contactnets_cube"] = "skipped: give --cube-data (the ContactNets tosses .npz)"
     return out
+
+
+def command_times(args: list[str], repeats: int = 2) -> dict:
+    """Wall time of ``dano ARGS`` as a user runs it (a fresh process, start-up and writing
+    included): once with an empty compilation cache (cold), then ``repeats`` times with the cache
+    that run filled (warm; median). Returns {"command", "cold_s", "warm_s", "warm_runs"}."""
+    import subprocess
+    import sys
+    import tempfile
+
+    def once(cache: str, out: str) -> float:
+        env = {**os.environ, "DANO_CACHE_DIR": cache}
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "dano.cli", *args, "--out-dir", out], env=env, check=True,
+                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        return time.perf_counter() - t0
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cold = once(os.path.join(tmp, "cache"), os.path.join(tmp, "out0"))
+        warm = [once(os.path.join(tmp, "cache"), os.path.join(tmp, f"out{k + 1}")) for k in range(repeats)]
+    return {"command": "dano " + " ".join(args), "cold_s": cold, "warm_s": statistics.median(warm), "warm_runs": warm}
 
 
 def _compile_by_lengths(count: int = 20) -> dict:

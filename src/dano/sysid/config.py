@@ -40,8 +40,8 @@ interactive-perception experiment). A TOML file describes a user problem::
     window = 0                    # >0: multiple shooting windows of this many frames
     auto_windows = false          # true: a window from just before each observed impact instead
     horizons = []                 # continuation, e.g. [0.4]
-    scan = 16                     # global start: points per parameter of a scan of the bounds; left out:
-                                  # 16 for one parameter, 8 x 8 for two, 64 Sobol points beyond; 0: off
+    scan = 15                     # global start: points per parameter of a scan of the bounds; left out:
+                                  # 15 for one parameter, 8 x 8 for two, 64 Sobol points beyond; 0: off
     starts = 2                    # local solves from the best scan points (the initial guess among them)
     profile_points = 32           # verification and interval: a profile through the estimate along each
                                   # parameter (left out: 32 for one or two parameters, 16 beyond; 0: off)
@@ -72,7 +72,7 @@ import numpy as np
 
 from .._config import read_table, typed_table
 from ..errors import DanoError, FileFormatError
-from .problem import SEGMENT_NUISANCE_PREFIXES, FitParameter, Observation, SysIdProblem, Weights
+from .problem import NEUTRAL_WITH_FRICTION, SEGMENT_NUISANCE_PREFIXES, FitParameter, Observation, SysIdProblem, Weights
 from .solve import identify
 from .uncertainty import cramer_rao
 
@@ -327,7 +327,13 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
         mjcf = base / sc.mjcf if sc.mjcf is not None else None
         scene = compose(objects, mjcf, dt=sc.dt, ground=None if mjcf else True, name=path.stem,
                         contact_model=sc.contact_model)
-        base_params = scene.default_params(**cfg.contact)
+        fitted = {p.name for p in cfg.parameter}
+        neutral = {k: v for k, v in NEUTRAL_WITH_FRICTION.items()
+                   if "sliding_friction" in fitted and k not in fitted and k not in cfg.contact}
+        base_params = scene.default_params(**{**neutral, **cfg.contact})
+        notes = tuple(f"{k} is held at {v} (a Coulomb world) while sliding_friction is identified: the data cannot "
+                      f"separate the two; identify it too, or set it in [contact], to change that"
+                      for k, v in neutral.items())
         obs = [_read_trajectory(base / t.file, t.object, scene, t.velocities) for t in cfg.trajectory]
         params = [FitParameter(p.name, p.initial, p.lower, np.inf if p.upper is None else p.upper, p.target)
                   for p in cfg.parameter]
@@ -336,7 +342,7 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
                                fit_velocity=opt.fit_velocity, fit_angular_velocity=opt.fit_angular_velocity,
                                fit_position=opt.fit_position, fit_rotation=opt.fit_rotation,
                                window="auto" if opt.auto_windows else (opt.window or None),
-                               fit_ground=opt.fit_ground, fit_tilt=opt.fit_tilt)
+                               fit_ground=opt.fit_ground, fit_tilt=opt.fit_tilt, notes=notes)
     except TypeError as exc:  # e.g. an unknown [contact] parameter name
         raise DanoError(f"{path}: {exc}") from exc
     except DanoError as exc:

@@ -606,11 +606,9 @@ class SysIdProblem:
             neutral = {k: v for k, v in NEUTRAL_WITH_FRICTION.items() if "sliding_friction" in fitted
                        and k not in fitted}
             put("base_params", scene.default_params(**neutral))
-            if neutral:
-                put("notes", self.notes + (
-                    "sliding_drag is held at 0 (a Coulomb world) while sliding_friction is identified: the data "
-                    "cannot separate the two; identify it too, or give base_params (TOML: [contact]), to change "
-                    "that",))
+            put("notes", self.notes + tuple(
+                f"{k} is held at {v} (a Coulomb world) while sliding_friction is identified: the data cannot "
+                "separate the two; identify it too, or give base_params, to change that" for k, v in neutral.items()))
         n_res = self.num_residuals  # also checks the window
         if n_res < self.num_parameters:
             raise DanoError(f"{n_res} residuals for {self.num_parameters} parameters: observe more frames "

@@ -112,9 +112,10 @@ class SysIdResult:
         }
 
 
-#: points of the default global scan per number of global parameters: a grid of 16 values for
-#: one, 8 × 8 for two, 64 Sobol points beyond (the budget is reported in ``scan["points"]``)
-DEFAULT_SCAN = {1: 16, 2: 8}
+#: points of the default global scan per number of global parameters: a grid of 15 values for
+#: one (with the initial guess, one vmapped batch of 16), 8 × 8 for two, 64 Sobol points beyond
+#: (the budget is reported in ``scan["budget"]``)
+DEFAULT_SCAN = {1: 15, 2: 8}
 DEFAULT_SCAN_MORE = 8
 
 
@@ -198,7 +199,7 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     (:func:`scan_points`: a grid for one or two parameters, Sobol points beyond: the next
     power of two ≥ ``scan``²; a parameter without a finite bound is scanned over
     :func:`scan_box`), evaluated in vmapped batches; None (default): :func:`default_scan`
-    (16 points for one parameter, 8 × 8 for two, 64 beyond); 0: off (local solve from the
+    (15 points for one parameter, 8 × 8 for two, 64 beyond); 0: off (local solve from the
     initial guess only). The local solver then starts from the ``starts`` best of the scan's
     points and the given guess (scan points moved off the bounds by 2 % of the box), and the
     lowest final cost wins.
@@ -441,7 +442,8 @@ def _noise_and_misfit(problem: SysIdProblem, result: SysIdResult) -> dict:
             f"the model misfits the data: rms residual {result.rms_residual:.3g} is "
             + (f"{result.rms_residual / expected:.1f}x" if expected > 0 else "far above")
             + f" what the measurement noise estimated from the observations would leave ({expected:.3g}); "
-            "the interval allows for the residuals' correlation, but the estimate is the best fit of a model "
+            "the standard errors assume independent residuals and understate the uncertainty (the interval "
+            "allows for the residuals' correlation); the estimate is the best fit of a model "
             "that does not reproduce the motion (check the scene, the object's size and mass, fixed contact "
             "parameters, and windows for long or chaotic motions)")
     return noise

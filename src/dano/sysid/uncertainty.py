@@ -4,7 +4,8 @@ the bootstrap over trajectories and the Cramér–Rao bound.
 
 Profile (1-D, per global parameter i): on a grid of values v_k around the estimate θ̂, the
 other parameters (global and nuisance) are re-optimised by chord Gauss–Newton steps with the
-Jacobian J at θ̂ (θ_o ← θ_o − J_o⁺ r(θ)), three steps by default, every step's residual
+Jacobian J at θ̂ (θ_o ← θ_o − J_o⁺ r(θ)), at most three by default (fewer once a step gains
+nothing), every step's residual
 evaluated exactly and vmapped over the grid; each grid value keeps the lowest cost it reached.
 So a profile point's cost is the cost at a real parameter vector (an upper bound of the true
 profile), which the identification uses to verify its estimate.
@@ -170,12 +171,13 @@ def profile(problem: SysIdProblem, theta: np.ndarray, jac: np.ndarray, index: in
     for step in range(steps + 1):
         R = finite(problem.batch_residuals(thetas), 1e6)
         cost = 0.5 * np.sum(R**2, axis=1)
+        gain = np.max(np.where(np.isfinite(best_cost), best_cost - cost, np.inf))
         better = cost < best_cost
         if best_res is None:
             best_res = np.zeros_like(R)
         best_cost[better], best_theta[better], best_res[better] = cost[better], thetas[better], R[better]
-        if step == steps or not len(others):
-            break
+        if step == steps or not len(others) or gain <= 1e-9 * np.min(best_cost):
+            break  # converged (nuisances nearly linear: one step is often enough)
         thetas[:, others] = np.clip(thetas[:, others] - R @ pinv.T, lo[others], hi[others])
     per_traj = np.stack([0.5 * np.bincount(owner, weights=row**2, minlength=len(problem.observations))
                          for row in best_res])
