@@ -19,3 +19,15 @@ def test_sets_the_flag_when_imported_first():
     assert res.returncode == 0, res.stderr
     assert "--xla_cpu_use_fusion_emitters=false" in res.stdout
     assert "RuntimeWarning" not in res.stderr
+
+
+def test_fusion_flag_only_for_a_jaxlib_that_knows_it(monkeypatch):
+    """jaxlib 0.11 removed --xla_cpu_use_fusion_emitters and aborts on it: dano sets it only
+    for older jaxlib (read from the package metadata)."""
+    import importlib.metadata
+
+    from dano._jax_setup import jaxlib_has_fusion_flag
+
+    for installed, expected in (("0.10.2", True), ("0.8.0", True), ("0.11.2", False), ("0.12.0rc1", False)):
+        monkeypatch.setattr(importlib.metadata, "version", lambda name, v=installed: v)
+        assert jaxlib_has_fusion_flag() is expected

@@ -4,7 +4,7 @@ Importing dano changes no JAX configuration. It sets two environment variables, 
 only when the user has not set it and only when it can still take effect:
 
 * ``XLA_FLAGS=--xla_cpu_use_fusion_emitters=false``, appended when JAX's backend has not
-  started yet: with jaxlib >= 0.8 the CPU fusion emitters make MJX steps of deep
+  started yet and the installed jaxlib knows the flag (before 0.11, which removed it): with jaxlib >= 0.8 the CPU fusion emitters make MJX steps of deep
   kinematic chains exponentially slow (one Franka Panda step: 0.45 s with them, 1.0 ms
   without; ``../shared/GUIDE.md``). If JAX started earlier without it,
   :func:`check_xla_flags` warns once (when :mod:`dano.sim` is imported).
@@ -42,9 +42,23 @@ def _backend_started() -> bool:
         return True
 
 
+def jaxlib_has_fusion_flag() -> bool:
+    """Whether the installed jaxlib knows ``--xla_cpu_use_fusion_emitters`` (before 0.11; jaxlib
+    0.11 removed it and aborts at start-up on an unknown XLA flag). Read from the package's
+    metadata, without importing it."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        parts = version("jaxlib").split(".")[:2]
+        return tuple(int("".join(c for c in p if c.isdigit()) or 0) for p in parts) < (0, 11)
+    except (PackageNotFoundError, ValueError):  # pragma: no cover - no jaxlib: nothing to configure
+        return False
+
+
 _STARTED_BEFORE_US = _backend_started()
 _FLAG_BEFORE_US = FUSION_FLAG in os.environ.get("XLA_FLAGS", "")
-if not _STARTED_BEFORE_US and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
+if not _STARTED_BEFORE_US and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", "") \
+        and jaxlib_has_fusion_flag():
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + FUSION_FLAG).strip()
 if not os.environ.get("DISPLAY") and "mujoco" not in sys.modules:
     os.environ.setdefault("MUJOCO_GL", "egl")
@@ -56,7 +70,7 @@ def check_xla_flags() -> bool:
     Warns (once) when JAX was initialised before :mod:`dano` was imported, in which
     case MJX steps of robots can be ~400x slower on CPU.
     """
-    if _STARTED_BEFORE_US and not _FLAG_BEFORE_US:
+    if _STARTED_BEFORE_US and not _FLAG_BEFORE_US and jaxlib_has_fusion_flag():
         warnings.warn(
             "JAX was started before dano was imported, without "
             f"XLA_FLAGS={FUSION_FLAG}; MJX steps of articulated robots may be "
