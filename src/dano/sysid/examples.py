@@ -421,7 +421,13 @@ def contactnets_identify(path, tosses: int = 10, start: float = 0.3, scan: int =
     names = ("sliding_friction", "impact_spring", "impact_damper", "ground_height")
     report = {name: float(v) for name, v in zip(names, theta)}
     report.update({f"{name}_std": float(s) for name, s in zip(names, result.standard_errors)})
+    if result.interval is not None:
+        for name in names:
+            if name in result.interval["lower"]:
+                report[f"{name}_lower"], report[f"{name}_upper"] = (result.interval["lower"][name],
+                                                                    result.interval["upper"][name])
     report.update({
+        "interval": result.interval, "noise_estimate": result.noise, "identifiability": result.identifiability,
         "heldout_position_rms_mm": held_err["position_rms_mm"],
         "heldout_rotation_rms_deg": held_err["rotation_rms_deg"],
         "fit_position_rms_mm": fit_err["position_rms_mm"], "fit_rotation_rms_deg": fit_err["rotation_rms_deg"],

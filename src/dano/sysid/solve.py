@@ -459,7 +459,6 @@ def _verify_and_assess(problem: SysIdProblem, best: SysIdResult, points: int, le
     """Profiles through the estimate (verification: continue from any lower point the tool
     evaluated), then the interval, the standard errors' check, identifiability and misfit."""
     n = len(problem.parameters)
-    labels = [p.label for p in problem.parameters]
     lo, hi = problem.bounds()
     box_lo, box_hi = scan_box(problem)
     box = box_hi - box_lo
@@ -473,9 +472,12 @@ def _verify_and_assess(problem: SysIdProblem, best: SysIdResult, points: int, le
     restarts, widths, refined, profiles, evaluated = 0, {}, set(), {}, 0
     scan_info, stages = best.scan, best.stages
     level_q = unc.chi2_threshold(level)
-    rng_seed = seed
-    attempts = 8
-    for attempt in range(attempts):  # profiles, restarts from lower points, widening and refining
+    use_boot = len(problem.observations) >= unc.BOOTSTRAP_MIN_TRAJECTORIES
+    record = (np.inf, None)  # the lowest cost the tool evaluated, and where
+    if scan_pts is not None and np.isfinite(np.min(scan_pts[1])):
+        k = int(np.argmin(scan_pts[1]))
+        record = (float(scan_pts[1][k]), np.concatenate([scan_pts[0][k], problem.initial()[n:]]))
+    for attempt in range(12):  # profiles, restarts from lower points, widening and refining
         theta = best.estimates
         J = best.jacobian_matrix if best.jacobian_matrix is not None else problem.jacobian(theta)
         for i in range(n):
@@ -484,38 +486,37 @@ def _verify_and_assess(problem: SysIdProblem, best: SysIdResult, points: int, le
                 widths[i] = min(max(5 * se if np.isfinite(se) else 0.0, spacing[i], 1e-3 * box[i]), box[i])
             if i not in profiles:
                 a, b = max(lo[i], theta[i] - widths[i]), min(hi[i], theta[i] + widths[i])
-                profiles[i] = unc.profile(problem, theta, J, i, a, b, points)
+                profiles[i] = pr = unc.profile(problem, theta, J, i, a, b, points)
                 evaluated += points
-        # verification: the lowest cost the tool evaluated
-        cand = [(float(np.min(pr.costs)), pr.thetas[int(np.argmin(pr.costs))]) for pr in profiles.values()]
-        if scan_pts is not None and np.isfinite(np.min(scan_pts[1])):
-            k = int(np.argmin(scan_pts[1]))
-            cand.append((float(scan_pts[1][k]), np.concatenate([scan_pts[0][k], problem.initial()[n:]])))
-        low_cost, low_theta = min(cand, key=lambda x: x[0])
-        if low_cost < best.final_cost - 1e-9 * max(best.final_cost, 1e-300) and restarts < 4:
-            restarts += 1
-            new = _local_solve(problem, np.clip(low_theta, lo, hi), **local)
-            if new.final_cost >= low_cost:  # the solver did not improve on the point: it is the answer
-                new = _at_point(problem, new, low_theta, low_cost)
-            new.scan, new.stages = scan_info, stages
-            new.wall_time_s += best.wall_time_s
-            new.compile_time_s += best.compile_time_s
-            new.nfev += best.nfev
-            new.njev += best.njev
-            new.warnings = [w for w in best.warnings if "scan saw a lower cost" not in w] + new.warnings
+                k = int(np.argmin(pr.costs))
+                if pr.costs[k] < record[0]:
+                    record = (float(pr.costs[k]), pr.thetas[k])
+        # verification: continue from the lowest point evaluated when it costs less than the estimate
+        if record[0] < best.final_cost - 1e-9 * max(best.final_cost, 1e-300) and attempt < 10:
+            if restarts < 4:
+                restarts += 1
+                new = _local_solve(problem, np.clip(record[1], lo, hi), **local)
+            else:
+                new = best
+            if new.final_cost >= record[0]:  # the solver did not improve on the point: it is the answer
+                new = _at_point(problem, new, record[1])
+            if new is not best:
+                new.scan, new.stages = scan_info, stages
+                new.wall_time_s += best.wall_time_s
+                new.compile_time_s += best.compile_time_s
+                new.nfev += best.nfev
+                new.njev += best.njev
+                new.warnings = [w for w in best.warnings if "scan saw a lower cost" not in w] + new.warnings
             best, profiles = new, {}
             continue
         # intervals; widen where they reach the profile's end (not a bound), refine where coarse
         r = problem.residuals(best.estimates)
-        m = len(r)
-        sigma2 = 2 * best.final_cost / max(m - problem.num_parameters, 1)
+        sigma2 = 2 * best.final_cost / max(len(r) - problem.num_parameters, 1)
         rho = unc.residual_autocorrelation(problem, r)
         kappa = (1 + rho) / (1 - rho)
         threshold = level_q * sigma2 * kappa
-        redo = {}
-        rng = np.random.default_rng(rng_seed)
-        use_boot = len(problem.observations) >= unc.BOOTSTRAP_MIN_TRAJECTORIES
-        out = {}
+        redo, out = {}, {}
+        rng = np.random.default_rng(seed)
         for i, pr in profiles.items():
             lower, upper, at_a, at_b = unc.profile_interval(pr.values, pr.costs, threshold)
             step = pr.values[1] - pr.values[0]
@@ -529,17 +530,15 @@ def _verify_and_assess(problem: SysIdProblem, best: SysIdResult, points: int, le
                 redo[i] = max(1.5 * (upper - lower), 1e-9 * max(box[i], 1.0))
                 refined.add(i)
             out[i] = (lower, upper, boot)
-        if not redo or attempt == attempts - 1:
+        if not redo or attempt >= 10:
             break
         for i, w in redo.items():
             widths[i] = w
             profiles.pop(i)
-    lowest = min(cand, key=lambda x: x[0])
-    if lowest[0] < best.final_cost - 1e-9 * max(best.final_cost, 1e-300):  # restarts exhausted: the point itself
-        best = _at_point(problem, best, lowest[1], lowest[0])
+    if record[0] < best.final_cost - 1e-9 * max(best.final_cost, 1e-300):  # checks exhausted: the point itself
+        best = _at_point(problem, best, record[1])
     best.verification = {"restarts": restarts, "profile_points_evaluated": evaluated,
-                         "lowest_evaluated_cost": float(min(min(float(np.min(pr.costs)) for pr in profiles.values()),
-                                                            np.inf if scan_pts is None else np.min(scan_pts[1]))),
+                         "lowest_evaluated_cost": record[0],
                          "wall_time_s": time.perf_counter() - t0}
     best.wall_time_s += best.verification["wall_time_s"]
     _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, level_q)
@@ -547,7 +546,7 @@ def _verify_and_assess(problem: SysIdProblem, best: SysIdResult, points: int, le
     return best
 
 
-def _at_point(problem: SysIdProblem, result: SysIdResult, theta: np.ndarray, cost: float) -> SysIdResult:
+def _at_point(problem: SysIdProblem, result: SysIdResult, theta: np.ndarray) -> SysIdResult:
     """The result moved to an evaluated point whose cost is lower than the solver's answer."""
     r = problem.residuals(theta)
     result.estimates = np.asarray(theta, dtype=np.float64)
@@ -555,7 +554,7 @@ def _at_point(problem: SysIdProblem, result: SysIdResult, theta: np.ndarray, cos
     result.rms_residual = float(np.sqrt(2 * result.final_cost / len(r)))
     result.jacobian_matrix = problem.jacobian(theta)
     result.warnings.append("the local solver did not improve on the lowest point the checks evaluated; that point "
-                           "is reported")
+                           "is reported (its standard errors are the local solve's)")
     return result
 
 
