@@ -1,7 +1,8 @@
-"""A rough cost from data dano did not make (issue 28): twenty boxes tossed with spin onto a
-plane in plain MuJoCo C, identified with a box DANO. dano's own cost over the friction ripples
-(which face lands how changes with it); the default identification must end at the lowest cost
-of the tool's own dense profile, not on a ripple near the guess."""
+"""A rough cost from data dano did not make (issue 28): ten cubes tossed with spin onto a plane
+in plain MuJoCo C (bouncy contact), identified with a box DANO. dano's cost over the friction
+ripples at the 1e-3 scale (which face lands how changes with it): a local solver from the guess
+stops on a ripple; the default identification must end at the lowest cost of the tool's own
+profile and of a dense grid."""
 
 import numpy as np
 import pytest
@@ -14,15 +15,21 @@ from .rough_cost_data import mujoco_c_tosses
 
 @pytest.mark.slow
 def test_default_identification_ends_at_the_global_minimum_of_a_rough_cost():
-    scene, obs = mujoco_c_tosses(n=20, friction=0.3, seed=0)
+    scene, obs = mujoco_c_tosses()
     problem = SysIdProblem(scene, obs, [FitParameter("sliding_friction", 0.2, 0.0, 1.0)], substeps=4)
-    grid = np.linspace(0.0, 1.0, 201)
+    grid = np.linspace(0.15, 0.23, 81)
     cost = scan_costs(problem, grid[:, None])
     interior_minima = np.flatnonzero((cost[1:-1] < cost[:-2]) & (cost[1:-1] < cost[2:])) + 1
-    assert len(interior_minima) >= 3, grid[interior_minima]  # rough: a local solver can stop in any of them
+    assert len(interior_minima) >= 3, grid[interior_minima]  # ripples a local solver can stop in
+    local = identify(problem, scan=0, profile_points=0)
+    assert local.final_cost > cost.min() + 0.01  # stuck on a ripple near the guess, "success" all the same
+
     res = identify(problem)
-    assert res.final_cost <= cost.min() * (1 + 1e-9), (res.estimates[0], res.final_cost, grid[np.argmin(cost)],
-                                                        cost.min())
-    best = grid[np.argmin(cost)]
-    assert abs(res.estimates[0] - best) <= 0.01, (res.estimates[0], best)
+    profile = res.profiles["sliding_friction"]
+    own = min(c for c in profile["cost"] if c is not None)
+    assert res.final_cost <= own * (1 + 1e-9)  # never above a point the tool evaluated
+    assert res.final_cost <= cost.min() * (1 + 1e-6), (res.estimates[0], grid[np.argmin(cost)])
+    assert abs(res.estimates[0] - grid[np.argmin(cost)]) <= 0.002
     assert res.interval["lower"]["sliding_friction"] <= res.estimates[0] <= res.interval["upper"]["sliding_friction"]
+    assert res.identifiability["sliding_friction"]["status"] == "rough"
+    assert np.isnan(res.standard_errors[0])  # the ripple's curvature is not reported as the uncertainty

@@ -492,6 +492,13 @@ def _verify_and_assess(problem: SysIdProblem, best: SysIdResult, points: int, le
                 if pr.costs[k] < record[0]:
                     record = (float(pr.costs[k]), pr.thetas[k])
         # verification: continue from the lowest point evaluated when it costs less than the estimate
+        if record[0] < best.final_cost - 1e-9 * max(best.final_cost, 1e-300):
+            r = problem.residuals(record[1])  # the batched evaluation's cost, confirmed unbatched
+            confirmed = 0.5 * float(r @ r)
+            if not confirmed < best.final_cost:  # a rounding difference on a chaotic cost, not a lower point
+                record = (best.final_cost, best.estimates)
+            else:
+                record = (confirmed, record[1])
         if record[0] < best.final_cost - 1e-9 * max(best.final_cost, 1e-300) and attempt < 10:
             if restarts < 4:
                 restarts += 1
