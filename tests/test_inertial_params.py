@@ -126,7 +126,8 @@ def test_centre_of_mass_is_identified_from_spinning_slides(box):
     """Two slides with spin of a box whose centre of mass is 1.5 cm and −1 cm off the field's
     estimate (truth simulated); from zero offset the fit recovers it within 0.5 % of the box's
     size (20 cm), with the friction."""
-    truth = with_offset(box, box.default_params(sliding_friction=0.4), (0.015, -0.01, 0.0))
+    truth = with_offset(box, box.default_params(sliding_friction=0.4, sliding_drag=0.0),  # a Coulomb world
+                        (0.015, -0.01, 0.0))
     rest = np.asarray(rollout(box, State(jnp.asarray([0, 0, HALF[2], 1, 0, 0, 0.0]), jnp.zeros(6)), None, truth,
                               100).qpos[-1])
     obs = []
