@@ -4,7 +4,8 @@ Importing dano changes no JAX configuration. It sets two environment variables, 
 only when the user has not set it and only when it can still take effect:
 
 * ``XLA_FLAGS=--xla_cpu_use_fusion_emitters=false``, appended when JAX's backend has not
-  started yet and the installed jaxlib knows the flag (before 0.11, which removed it): with jaxlib >= 0.8 the CPU fusion emitters make MJX steps of deep
+  started yet and the installed jaxlib knows the flag (before 0.11, which removed it): with
+  jaxlib >= 0.8 the CPU fusion emitters make MJX steps of deep
   kinematic chains exponentially slow (one Franka Panda step: 0.45 s with them, 1.0 ms
   without; ``../shared/GUIDE.md``). If JAX started earlier without it,
   :func:`check_xla_flags` warns once (when :mod:`dano.sim` is imported).

@@ -72,7 +72,8 @@ import numpy as np
 
 from .._config import read_table, typed_table
 from ..errors import DanoError, FileFormatError
-from .problem import NEUTRAL_WITH_FRICTION, SEGMENT_NUISANCE_PREFIXES, FitParameter, Observation, SysIdProblem, Weights
+from .problem import (NEUTRAL_WITH_FRICTION, SEGMENT_NUISANCE_PREFIXES, FitParameter, Observation, SysIdProblem,
+                      Weights)
 from .solve import identify
 from .uncertainty import cramer_rao
 

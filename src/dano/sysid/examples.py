@@ -240,7 +240,8 @@ def push_dynamics_problem(position_noise: float = 0.0, rotation_noise_deg: float
     # the start of each push is averaged over its noisy rest frames: its position and heading
     # are nuisance parameters (with them left out, the start's error biases the moments)
     problem = SysIdProblem(scene, obs, params, weights=Weights((1.0, 1.0, 1.0), w_rot, 1.0),
-                           base_params=scene.default_params(), fit_position="xy" if position_noise else "", fit_rotation="z" if rotation_noise_deg else "")
+                           base_params=scene.default_params(), fit_position="xy" if position_noise else "",
+                           fit_rotation="z" if rotation_noise_deg else "")
     body = scene.body_names.index("bunny")
     moments = np.asarray(model_with_params(scene, truth).body_inertia)[body] / PUSH_TRUTH["alpha"]
     return problem, {**PUSH_TRUTH, "com_offset": offset.tolist(), "second_moment_scale": scale.tolist(),

@@ -577,7 +577,8 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
                 "method": "profile likelihood (noise variance from the residuals, x (1+rho)/(1-rho) for residuals "
                           "correlated in time; other parameters re-optimised by chord Gauss-Newton)"
                           + (f" and bootstrap over the {n_obs} trajectories ({BOOTSTRAP_RESAMPLES} resamples of the "
-                             "per-trajectory profile costs); the hull of both" if n_obs >= unc.BOOTSTRAP_MIN_TRAJECTORIES
+                             "per-trajectory profile costs); the hull of both"
+                             if n_obs >= unc.BOOTSTRAP_MIN_TRAJECTORIES
                              else "; no bootstrap (fewer than "
                                   f"{unc.BOOTSTRAP_MIN_TRAJECTORIES} trajectories)")}
     bounds_hit = {i for i, _ in at_bound(problem, best.estimates)}
