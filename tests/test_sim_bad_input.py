@@ -207,3 +207,24 @@ def test_debug_shows_the_traceback(tmp_path, capsys):
     assert code == 1 and err == f"error: {tmp_path / 'missing.dano'}: no such file"  # one line, names the file
     with pytest.raises(FileFormatError):
         main(["inspect", str(tmp_path / "missing.dano"), "--debug"])
+
+
+def test_mjcf_timestep_is_honoured_unless_dt_is_given(tmp_path, capsys):
+    """An MJCF with <option timestep="0.005"/> simulates at 0.005 s (saved so in the npz and its
+    config), --dt overrides it; an MJCF that states none runs at 0.01 s; a bad --dt is refused
+    with nothing written."""
+    xml = tmp_path / "own.xml"
+    xml.write_text("<mujoco><option timestep='0.005'/><worldbody><geom name='floor' type='plane' size='0 0 1'/>"
+                   "</worldbody></mujoco>")
+    for extra, dt in (((), 0.005), (("--dt", 0.01), 0.01)):
+        out = tmp_path / f"t{dt}.npz"
+        code, _, err = run(capsys, "simulate", xml, "--object", "builtin:bunny@0,0,0.8", "--duration", 0.1,
+                           "--out", out, "--quiet", *extra)
+        assert code == 0, err
+        z = np.load(out)
+        assert np.allclose(np.diff(z["time"]), dt) and len(z["time"]) == round(0.1 / dt) + 1
+        saved = json.loads((tmp_path / f"t{dt}.config.json").read_text())
+        assert saved["dt"] == pytest.approx(dt)
+    code, _, err = run(capsys, "simulate", xml, "--object", "builtin:bunny@0,0,0.8", "--dt", -1,
+                       "--out", tmp_path / "bad.npz")
+    assert code in (1, 2) and "dt" in err and not (tmp_path / "bad.npz").exists()

@@ -359,7 +359,7 @@ def simulate(
         config: a configuration (TOML or JSON, e.g. the <out>.config.json a run saved) whose values are used
             for every option not given on the command line; the run then repeats that one.
         duration: simulated time [s] (default: the scene's).
-        dt: time step [s] (default: the scene's).
+        dt: time step [s] (default: the scene's; for an MJCF, its <option timestep>, else 0.01).
         param: contact parameters name=value for all pairs, or PAIR:name=value for one pair
             (e.g. sliding_friction=0.3, bunny/ground:impact_spring=5e4, alpha=0.2).
         object: MJCF scenes: DANOs to add, FILE.dano or builtin:NAME, optionally @x,y,z
@@ -417,7 +417,7 @@ def simulate(
         if path.suffix.lower() != ".xml" and not path.exists():
             raise ValueError(f"unknown scene {scene!r}; built-in scenes: {', '.join(BUILTIN_SCENES)} (or an MJCF path)")
         objs = [_parse_object(o) for o in (object or ("builtin:bunny@0,0,1",))]
-        setup = mjcf_setup(path, objs, dt=dt or 0.01, contact_model=contact_model)
+        setup = mjcf_setup(path, objs, dt=dt, contact_model=contact_model)  # dt None: the MJCF's
     params = _apply_params(setup.scene, setup.params, param)
     T = int(round((duration if duration is not None else setup.duration) / setup.scene.dt))
     if T < 1:

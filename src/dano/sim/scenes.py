@@ -214,12 +214,32 @@ def panda_push_bunny(dt: float | None = None, contact_model: str = "centroid") -
     return Setup(scene, state, scene.default_params(sliding_friction=0.3), 3.2, controls, panda_push_bunny.__doc__)
 
 
-def mjcf_setup(path: str | Path, objects: list[DanoObject], dt: float = 0.01, duration: float = 2.0,
+def stated_timestep(path: str | Path) -> float | None:
+    """The time step [s] an MJCF file states in its ``<option timestep="..."/>`` (the last one
+    in the file itself; included files are not read), or None (none stated, a URDF, or a file
+    that does not parse: :func:`compose` reports that)."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        options = [o for o in ET.parse(path).getroot().iter("option") if "timestep" in o.attrib]
+        return float(options[-1].attrib["timestep"]) if options else None
+    except (ET.ParseError, OSError, ValueError):
+        return None
+
+
+#: time step [s] of a user's MJCF that states none (dano's stiff contact is designed for it)
+DEFAULT_DT = 0.01
+
+
+def mjcf_setup(path: str | Path, objects: list[DanoObject], dt: float | None = None, duration: float = 2.0,
                contact_model: str = "centroid") -> Setup:
     """A runnable :class:`Setup` from a user's MJCF/URDF file and DANOs placed at their
-    ``pos``/``quat`` at rest (paper default contact parameters, zero controls).
-    Raises DanoError if the file is missing or does not compile."""
+    ``pos``/``quat`` at rest (paper default contact parameters, zero controls). dt: the time
+    step [s]; default: the one the MJCF states (:func:`stated_timestep`), else
+    :data:`DEFAULT_DT`. Raises DanoError if the file is missing or does not compile."""
     path = Path(path)
+    if dt is None:
+        dt = stated_timestep(path) or DEFAULT_DT
     scene = compose(objects, path, dt=dt, name=path.stem, contact_model=contact_model)
     state = initial_state(scene, {o.name: (o.pos, o.quat) for o in objects})
     return Setup(scene, state, scene.default_params(), duration, None, f"MJCF {path}")
