@@ -228,3 +228,23 @@ def test_mjcf_timestep_is_honoured_unless_dt_is_given(tmp_path, capsys):
     code, _, err = run(capsys, "simulate", xml, "--object", "builtin:bunny@0,0,0.8", "--dt", -1,
                        "--out", tmp_path / "bad.npz")
     assert code in (1, 2) and "dt" in err and not (tmp_path / "bad.npz").exists()
+
+
+def test_object_orientation_from_the_cli(tmp_path, capsys):
+    """--object FILE@x,y,z,qw,qx,qy,qz places the DANO with that orientation (normalised); a zero
+    quaternion or a wrong count is refused with nothing written."""
+    xml = tmp_path / "floor.xml"
+    xml.write_text("<mujoco><worldbody><geom name='floor' type='plane' size='0 0 1'/></worldbody></mujoco>")
+    out = tmp_path / "t.npz"
+    code, _, err = run(capsys, "simulate", xml, "--object", "builtin:bunny@0,0,0.8,1,1,0,0", "--duration", 0.02,
+                       "--out", out, "--quiet")
+    assert code == 0, err
+    q0 = np.load(out)["qpos"][0]
+    np.testing.assert_allclose(q0[:3], [0, 0, 0.8], atol=1e-12)
+    np.testing.assert_allclose(q0[3:7], np.array([1, 1, 0, 0]) / np.sqrt(2), atol=1e-12)
+    for pose, message in (("0,0,1,0,0,0,0", "must not be zero"), ("0,0", "x,y,z or x,y,z,qw,qx,qy,qz"),
+                          ("0,0,1,1,nan,0,0", "finite")):
+        bad = tmp_path / "bad.npz"
+        code, _, err = run(capsys, "simulate", xml, "--object", f"builtin:bunny@{pose}", "--out", bad)
+        assert code in (1, 2) and message in err, err
+        assert not bad.exists()

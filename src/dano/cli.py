@@ -262,20 +262,30 @@ def _load_asset(src: str):
 
 
 def _parse_object(text: str):
-    """'FILE.dano[@x,y,z]' or 'builtin:NAME[@x,y,z]' -> DanoObject."""
+    """'FILE.dano[@x,y,z[,qw,qx,qy,qz]]' or 'builtin:NAME[@...]' -> DanoObject: position [m,
+    world] and optionally the orientation (a quaternion w x y z, normalised here)."""
+    import numpy as np
+
     from .sim import DanoObject
 
     src, _, at = text.partition("@")
-    asset = _load_asset(src)
-    pos = (0.0, 0.0, 1.0)
+    pos, quat = (0.0, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0)
     if at:
         try:
-            pos = tuple(float(v) for v in at.split(","))
-            assert len(pos) == 3
+            values = np.array([float(v) for v in at.split(",")])
+            assert len(values) in (3, 7) and np.all(np.isfinite(values))
         except (ValueError, AssertionError):
-            raise ValueError(f"--object {text!r}: position must be x,y,z") from None
+            raise ValueError(f"--object {text!r}: the pose must be x,y,z or x,y,z,qw,qx,qy,qz (finite numbers)") \
+                from None
+        pos = tuple(values[:3])
+        if len(values) == 7:
+            norm = float(np.linalg.norm(values[3:]))
+            if norm < 1e-9:
+                raise ValueError(f"--object {text!r}: the quaternion qw,qx,qy,qz must not be zero")
+            quat = tuple(values[3:] / norm)
+    asset = _load_asset(src)
     name = asset.name or Path(src).stem
-    return DanoObject(name, asset, pos)
+    return DanoObject(name, asset, pos, quat)
 
 
 def _apply_params(scene, params, assignments):
@@ -362,7 +372,8 @@ def simulate(
         dt: time step [s] (default: the scene's; for an MJCF, its <option timestep>, else 0.01).
         param: contact parameters name=value for all pairs, or PAIR:name=value for one pair
             (e.g. sliding_friction=0.3, bunny/ground:impact_spring=5e4, alpha=0.2).
-        object: MJCF scenes: DANOs to add, FILE.dano or builtin:NAME, optionally @x,y,z
+        object: MJCF scenes: DANOs to add, FILE.dano or builtin:NAME, optionally @x,y,z or
+            @x,y,z,qw,qx,qy,qz (position [m] and orientation, world frame)
             (default: builtin:bunny@0,0,1).
         out: trajectory .npz (time, qpos, qvel, psi, names).
         video: .mp4 (or .gif) video, rendered headless with MuJoCo.
