@@ -86,8 +86,14 @@ def plot_sysid(problem, result, path, max_trajectories: int = 4) -> Path:
             axes[3].axvline(result.estimates[result.labels.index(label)], color=c, ls=":")
         axes[3].set(xlabel="parameter value", ylabel="lowest cost on the scan", title="global scan (dotted: estimate)")
         axes[3].legend(fontsize=7)
-    est = ", ".join(f"{k} = {v:.4g} ± {s:.2g}" for k, v, s in
-                    zip(result.labels, result.estimates, result.standard_errors)
+    interval = result.interval or {"lower": {}, "upper": {}, "level": 0.95}
+
+    def shown(k, v, s):  # the interval where there is one (it is the uncertainty), else the standard error
+        if k in interval["lower"]:
+            return f"{k} = {v:.4g} [{interval['lower'][k]:.4g}, {interval['upper'][k]:.4g}] ({interval['level']:.0%})"
+        return f"{k} = {v:.4g} ± {s:.2g}"
+
+    est = ", ".join(shown(k, v, s) for k, v, s in zip(result.labels, result.estimates, result.standard_errors)
                     if not k.startswith(SEGMENT_NUISANCE_PREFIXES))
     fig.suptitle(est, fontsize=10)
     fig.tight_layout()
