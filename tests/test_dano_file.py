@@ -160,3 +160,25 @@ def test_physically_invalid_files_are_refused(case, tmp_path, sphere_asset):
     assert main(["inspect", str(bad)]) == 1
     assert main(["export", str(bad), "-o", str(tmp_path / "out.xml")]) == 1
     assert not (tmp_path / "out.xml").exists()
+
+
+def test_inspect_shows_size_volume_and_warns_on_implausible_density(tmp_path, sphere_asset, capsys):
+    """inspect reports the extents [m], the volume and the mean density; a density outside
+    10-25,000 kg/m³ (e.g. an object in the wrong units) gets a one-line warning on stderr and
+    the JSON on stdout stays one object."""
+    from dano.cli import main
+
+    size = sphere_asset.size()
+    r = float(np.max(size["extents"])) / 2
+    assert size["volume"] == pytest.approx(4 / 3 * np.pi * r**3, rel=0.1)
+    assert size["mean_density"] == pytest.approx(sphere_asset.mass / size["volume"])
+    light, heavy = tmp_path / "light.dano", tmp_path / "heavy.dano"
+    save(sphere_asset.with_mass(1e-6 * size["volume"] * 1000), light)  # 1e-3 kg/m³: wrong units
+    save(sphere_asset.with_mass(1000 * size["volume"]), heavy)  # water
+    assert main(["inspect", str(heavy), "--json"]) == 0
+    cap = capsys.readouterr()
+    assert json.loads(cap.out)["mean_density"] == pytest.approx(1000, rel=1e-6) and "warning" not in cap.err
+    assert main(["inspect", str(light), "--json"]) == 0
+    cap = capsys.readouterr()
+    assert json.loads(cap.out)["extents"] == pytest.approx(size["extents"])
+    assert "mean density 0.001 kg/m³" in cap.err and "metres" in cap.err and len(cap.err.strip().splitlines()) == 1

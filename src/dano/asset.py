@@ -481,9 +481,35 @@ class DanoAsset(_PrincipalInertia):
             field=fld, metadata={**self.metadata, "scaled_by": s * self.metadata.get("scaled_by", 1.0)},
         )
 
+    def size(self) -> dict:
+        """The object's size: ``bounding_box`` {"min", "max"} (3,) body frame [m] and
+        ``extents`` (3,) [m] of the visual mesh (of the boundary samples without one);
+        ``volume`` [m³] of the visual mesh when it is closed (trimesh), else of the samples'
+        convex hull (``volume_source`` says which); ``mean_density`` = mass / volume [kg/m³]."""
+        import trimesh
+
+        has_mesh = len(self.mesh_faces) > 0
+        pts = np.asarray(self.mesh_vertices if has_mesh else self.points, dtype=np.float64)
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        volume, source = None, None
+        if has_mesh:
+            mesh = trimesh.Trimesh(self.mesh_vertices, self.mesh_faces, process=True)
+            if mesh.is_watertight:
+                volume, source = abs(float(mesh.volume)), "visual mesh"
+        if volume is None:
+            try:
+                volume, source = float(trimesh.convex.convex_hull(np.asarray(self.points)).volume), \
+                    "convex hull of the boundary samples"
+            except Exception:  # degenerate samples (flat, too few): no volume
+                volume, source = None, None
+        return {"bounding_box": {"min": lo.tolist(), "max": hi.tolist()}, "extents": (hi - lo).tolist(),
+                "volume": volume, "volume_source": source,
+                "mean_density": self.mass / volume if volume else None}
+
     def summary(self) -> dict:
-        """JSON-able summary (what ``dano inspect --json`` prints)."""
+        """JSON-able summary (what ``dano inspect --json`` prints), with :meth:`size`."""
         return {
+            **self.size(),
             "name": self.name,
             "mass": self.mass,
             "alpha": self.alpha,

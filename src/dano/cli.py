@@ -224,7 +224,24 @@ def _summary_table(asset) -> Table:
     t.add_row("valid normals", f"{100 * s['normals_valid_fraction']:.1f} %")
     t.add_row("queryable field", "yes" if s["has_field"] else "no")
     t.add_row("visual mesh faces", str(s["mesh_faces"]))
+    t.add_row("extents (bounding box)", fmt(s["extents"]) + " m")
+    if s["volume"] is not None:
+        t.add_row("volume", f"{s['volume']:.4g} m³ ({s['volume_source']})")
+        t.add_row("mean density", f"{s['mean_density']:.4g} kg/m³")
     return t
+
+
+#: mean densities [kg/m³] outside this range are not plausible for a solid object in metres and kilograms
+PLAUSIBLE_DENSITY = (10.0, 25_000.0)
+
+
+def _density_warning(s: dict) -> str | None:
+    rho = s["mean_density"]
+    if rho is None or PLAUSIBLE_DENSITY[0] <= rho <= PLAUSIBLE_DENSITY[1]:
+        return None
+    return (f"mean density {rho:.3g} kg/m³ (mass {s['mass']:.3g} kg, extents "
+            + " x ".join(f"{e:.3g}" for e in s["extents"]) + " m) is outside "
+            f"{PLAUSIBLE_DENSITY[0]:g}-{PLAUSIBLE_DENSITY[1]:g} kg/m³: is the object in metres and its mass in kg?")
 
 
 @_names("file")
@@ -233,19 +250,24 @@ def inspect(
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False,
     plot: Path | None = None,
 ) -> None:
-    """Show a .dano asset: mass, centre of mass, inertia, principal moments, N, band, valid normals.
+    """Show a .dano asset: mass, centre of mass, inertia, principal moments, N, band, valid normals,
+    extents, volume and mean density (a warning when the density is implausible, 10-25,000 kg/m³).
 
     Args:
         file: the .dano file (or builtin:NAME).
         json_: print one JSON object (keys include mass, center_of_mass, inertia, num_samples, band,
-            normals_valid_fraction) instead of a table.
+            normals_valid_fraction, extents, bounding_box, volume, mean_density) instead of a table.
         plot: also draw the samples, normals and centre of mass to this image (e.g. samples.png).
     """
     asset = _load_asset(file)
+    summary = asset.summary()
     if json_:
-        print(json.dumps(asset.summary()))
+        print(json.dumps(summary))
     else:
         out.print(_summary_table(asset))
+    warning = _density_warning(summary)
+    if warning:
+        err.print(f"[yellow]warning:[/] {file}: {warning}", highlight=False, soft_wrap=True, markup=True)
     if plot is not None:
         from .viz import plot_samples
 
