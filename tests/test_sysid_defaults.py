@@ -11,7 +11,7 @@ from dano.asset import build
 from dano.cli import main
 from dano.fields import BoxField
 from dano.sim import DanoObject, compose
-from dano.sysid import FitParameter, Observation, SysIdProblem, Weights, identify, observation_noise
+from dano.sysid import FitParameter, SysIdProblem, Weights, identify, observation_noise
 from dano.sysid.examples import analytic_slides, interval_coverage
 from dano.sysid.problem import _residuals_and_jacobian_jit, rotation_length
 

@@ -68,16 +68,6 @@ def least_squares_functions(problem: SysIdProblem, scale: np.ndarray | None = No
 
 
 # ------------------------------------------------------------------ noise from the observations
-def _difference_noise(x: np.ndarray) -> np.ndarray:
-    """Per-column noise standard deviation of series x (T, k) from third differences: for a
-    signal smooth at the frame rate, Δ³x is noise with variance 20σ²; the median absolute
-    value (÷ 0.6745) ignores the few frames of impacts and stops."""
-    if len(x) < 8:
-        return np.full(x.shape[1], np.nan)
-    d = np.diff(x, n=3, axis=0)
-    return np.median(np.abs(d), axis=0) / 0.6745 / np.sqrt(20.0)
-
-
 def observation_noise(problem: SysIdProblem) -> dict:
     """The measurement noise of the observations, estimated from the observations alone (no
     model): third differences of positions (per axis x y z, world frame [m]), of the body-frame
