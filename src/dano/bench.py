@@ -214,7 +214,8 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
             "friction_rel_error": est["bunny/ground:sliding_friction"] / PUSH_TRUTH["sliding_friction"] - 1}
     out["bunny_pushes_ratio_fd_over_ad"] = out["bunny_pushes_fd"]["wall_s"] / out["bunny_pushes_ad"]["wall_s"]
     out["compile_by_lengths"] = _compile_by_lengths()
-    out["soap_command"] = command_times(["sysid", "soap", "--json"], repeats=max(repeats - 1, 1))
+    out["soap_command"] = command_times(["sysid", "soap", "--json", "--out-dir", "{out}"],
+                                        repeats=max(repeats - 1, 1))
     if cube_data:
         from .sysid.examples import contactnets_identify, contactnets_problem
 
@@ -237,7 +238,8 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
 def command_times(args: list[str], repeats: int = 2) -> dict:
     """Wall time of ``dano ARGS`` as a user runs it (a fresh process, start-up and writing
     included): once with an empty compilation cache (cold), then ``repeats`` times with the cache
-    that run filled (warm; median). Returns {"command", "cold_s", "warm_s", "warm_runs"}."""
+    that run filled (warm; median). ``{out}`` in an argument becomes a fresh folder in a
+    temporary directory for each run. Returns {"command", "cold_s", "warm_s", "warm_runs"}."""
     import subprocess
     import sys
     import tempfile
@@ -245,7 +247,7 @@ def command_times(args: list[str], repeats: int = 2) -> dict:
     def once(cache: str, out: str) -> float:
         env = {**os.environ, "DANO_CACHE_DIR": cache}
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "dano.cli", *args, "--out-dir", out], env=env, check=True,
+        subprocess.run([sys.executable, "-m", "dano.cli", *(a.replace("{out}", out) for a in args)], env=env, check=True,
                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         return time.perf_counter() - t0
 

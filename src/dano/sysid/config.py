@@ -72,8 +72,8 @@ import numpy as np
 
 from .._config import read_table, typed_table
 from ..errors import DanoError, FileFormatError
-from .problem import (NEUTRAL_WITH_FRICTION, SEGMENT_NUISANCE_PREFIXES, FitParameter, Observation, SysIdProblem,
-                      Weights)
+from .problem import (SEGMENT_NUISANCE_PREFIXES, FitParameter, Observation, SysIdProblem, Weights,
+                      identification_params)
 from .solve import identify
 from .uncertainty import cramer_rao
 
@@ -328,16 +328,10 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
         mjcf = base / sc.mjcf if sc.mjcf is not None else None
         scene = compose(objects, mjcf, dt=sc.dt, ground=None if mjcf else True, name=path.stem,
                         contact_model=sc.contact_model)
-        fitted = {p.name for p in cfg.parameter}
-        neutral = {k: v for k, v in NEUTRAL_WITH_FRICTION.items()
-                   if "sliding_friction" in fitted and k not in fitted and k not in cfg.contact}
-        base_params = scene.default_params(**{**neutral, **cfg.contact})
-        notes = tuple(f"{k} is held at {v} (a Coulomb world) while sliding_friction is identified: the data cannot "
-                      f"separate the two; identify it too, or set it in [contact], to change that"
-                      for k, v in neutral.items())
         obs = [_read_trajectory(base / t.file, t.object, scene, t.velocities) for t in cfg.trajectory]
         params = [FitParameter(p.name, p.initial, p.lower, np.inf if p.upper is None else p.upper, p.target)
                   for p in cfg.parameter]
+        base_params, notes = identification_params(scene, params, cfg.contact)
         weights = Weights(opt.position_weights, opt.rotation_weight)
         problem = SysIdProblem(scene, obs, params, weights, base_params=base_params, substeps=opt.substeps,
                                fit_velocity=opt.fit_velocity, fit_angular_velocity=opt.fit_angular_velocity,

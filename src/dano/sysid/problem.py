@@ -480,6 +480,7 @@ def _residuals_and_jacobian(layout, scene, base_params, data, theta):
 
 
 _residuals_and_jacobian_jit = jax.jit(_residuals_and_jacobian, static_argnums=0)
+_residuals_only_jit = jax.jit(padded_residuals, static_argnums=0)  # finite-difference solves only
 
 
 #: parameter vectors per vmapped batch (:meth:`SysIdProblem.batch_residuals`): one compiled shape
@@ -494,6 +495,23 @@ def _batch_residuals_jit(layout, scene, base_params, data, thetas):
 #: contact parameters held at a neutral value when ``sliding_friction`` is identified and they
 #: are neither identified nor given (``base_params``): the data cannot separate them from it
 NEUTRAL_WITH_FRICTION = {"sliding_drag": 0.0}
+
+
+def identification_params(scene: Scene, parameters: Sequence[FitParameter], given: dict | None = None
+                          ) -> tuple[SimParams, tuple[str, ...]]:
+    """The values of the parameters not identified: the paper's defaults with ``given``
+    ({contact parameter: value}, e.g. a TOML's ``[contact]``) on top, except that the terms of
+    :data:`NEUTRAL_WITH_FRICTION` are held neutral when ``sliding_friction`` is identified and
+    they are neither identified nor given. Returns (SimParams, notes saying what was held).
+    Raises TypeError for an unknown contact parameter (as ``scene.default_params``)."""
+    given = dict(given or {})
+    fitted = {p.name for p in parameters}
+    neutral = {k: v for k, v in NEUTRAL_WITH_FRICTION.items()
+               if "sliding_friction" in fitted and k not in fitted and k not in given}
+    notes = tuple(f"{k} is held at {v} (a Coulomb world) while sliding_friction is identified: the data cannot "
+                  "separate the two; identify it too, or give it (base_params, TOML [contact]), to change that"
+                  for k, v in neutral.items())
+    return scene.default_params(**{**neutral, **given}), notes
 
 
 @dataclass(frozen=True, eq=False)
@@ -602,13 +620,9 @@ class SysIdProblem:
             if not (p.lower <= p.initial <= p.upper) or not np.isfinite(p.initial):
                 raise DanoError(f"bounds [{p.lower}, {p.upper}] of {p.label} exclude the initial guess {p.initial}")
         if self.base_params is None:
-            fitted = {p.name for p in self.parameters}
-            neutral = {k: v for k, v in NEUTRAL_WITH_FRICTION.items() if "sliding_friction" in fitted
-                       and k not in fitted}
-            put("base_params", scene.default_params(**neutral))
-            put("notes", self.notes + tuple(
-                f"{k} is held at {v} (a Coulomb world) while sliding_friction is identified: the data cannot "
-                "separate the two; identify it too, or give base_params, to change that" for k, v in neutral.items()))
+            params, notes = identification_params(scene, self.parameters)
+            put("base_params", params)
+            put("notes", self.notes + notes)
         n_res = self.num_residuals  # also checks the window
         if n_res < self.num_parameters:
             raise DanoError(f"{n_res} residuals for {self.num_parameters} parameters: observe more frames "
@@ -864,8 +878,16 @@ class SysIdProblem:
         return r[self.keep], J[self.keep]
 
     def residuals(self, theta) -> np.ndarray:
-        """(m,) residual vector at θ (n,) (see :meth:`residuals_and_jacobian`)."""
+        """(m,) residual vector at θ (n,) (see :meth:`residuals_and_jacobian`: the same compiled
+        function, so no second compilation in an AD solve)."""
         return self.residuals_and_jacobian(theta)[0]
+
+    def residuals_only(self, theta) -> np.ndarray:
+        """(m,) residual vector at θ (n,) without the Jacobian's tangents: a compilation of its
+        own, worth it where residuals are evaluated many times without Jacobians
+        (finite-difference solves)."""
+        return _run(_residuals_only_jit, self.layout, self.scene, self.base_params, self.data,
+                    jnp.asarray(theta, dtype=jnp.float64))[self.keep]
 
     def jacobian(self, theta) -> np.ndarray:
         """(m, n) forward-mode Jacobian of the residual at θ (see :meth:`residuals_and_jacobian`)."""

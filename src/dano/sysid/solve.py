@@ -310,20 +310,20 @@ def _local_solve(problem: SysIdProblem, x0: np.ndarray, *, jacobian: str, max_it
     (compiled on first use; that time is reported as compile_time_s)."""
     lo, hi = problem.bounds()
 
+    f, jac, raw = unc.least_squares_functions(problem, jacobian=jacobian == "ad")
     t0 = time.perf_counter()
-    r0 = problem.residuals(x0)
+    r0 = raw(x0)  # remembered: the solver's first evaluation reuses it
     compile_time = time.perf_counter() - t0
     if not np.all(np.isfinite(r0)):
         raise DanoError("the simulation gives non-finite residuals at the initial guess; check the scene and data")
 
     history = [0.5 * float(r0 @ r0)]
-    f, jac = unc.least_squares_functions(problem)
 
     def callback(intermediate_result):
         history.append(float(intermediate_result.cost))
 
     t0 = time.perf_counter()
-    sol = least_squares(f, x0, jac=jac if jacobian == "ad" else "2-point", bounds=(lo, hi), method="trf",
+    sol = least_squares(f, x0, jac=jac or "2-point", bounds=(lo, hi), method="trf",
                         x_scale="jac", max_nfev=max_iterations, xtol=xtol,
                         ftol=ftol, gtol=gtol, callback=callback)
     wall = time.perf_counter() - t0

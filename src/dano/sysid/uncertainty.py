@@ -47,24 +47,29 @@ def finite(a, fill: float) -> np.ndarray:
     return np.where(np.isfinite(a), a, fill)
 
 
-def least_squares_functions(problem: SysIdProblem, scale: np.ndarray | None = None):
-    """(fun, jac) for :func:`scipy.optimize.least_squares`: the residual (non-finite entries
-    replaced by 1e6, which keeps the solver away from diverging rollouts) and its Jacobian
-    (non-finite entries 0), optionally scaled per residual; both from one compiled evaluation,
-    the last one remembered (the solver asks for the Jacobian where it just evaluated)."""
+def least_squares_functions(problem: SysIdProblem, scale: np.ndarray | None = None, jacobian: bool = True):
+    """(fun, jac, raw) for :func:`scipy.optimize.least_squares`: the residual (non-finite
+    entries replaced by 1e6, which keeps the solver away from diverging rollouts), its Jacobian
+    (non-finite entries 0), optionally scaled per residual, and the unscaled residual as
+    computed (non-finite entries kept, to check a start); residual and Jacobian come from one
+    compiled evaluation, the last one remembered (the solver asks for the Jacobian where it just
+    evaluated). ``jacobian=False``: residuals only (for SciPy's finite differences; ``jac`` is
+    then None)."""
     last: dict = {}
 
     def both(x):
         x = np.asarray(x, dtype=np.float64)
         if "x" not in last or not np.array_equal(last["x"], x):
-            r, J = problem.residuals_and_jacobian(x)
-            r, J = finite(r, 1e6), finite(J, 0.0)
-            if scale is not None:
-                r, J = r * scale, J * scale[:, None]
-            last.update(x=x.copy(), r=r, J=J)
-        return last["r"], last["J"]
+            if jacobian:
+                raw, J = problem.residuals_and_jacobian(x)
+                J = finite(J, 0.0) * (1.0 if scale is None else scale[:, None])
+            else:
+                raw, J = problem.residuals_only(x), None
+            r = finite(raw, 1e6) * (1.0 if scale is None else scale)
+            last.update(x=x.copy(), r=r, J=J, raw=raw)
+        return last
 
-    return (lambda x: both(x)[0]), (lambda x: both(x)[1])
+    return (lambda x: both(x)["r"]), ((lambda x: both(x)["J"]) if jacobian else None), (lambda x: both(x)["raw"])
 
 
 # ------------------------------------------------------------------ noise from the observations
@@ -272,7 +277,7 @@ def bootstrap(problem: SysIdProblem, estimates: np.ndarray, *, samples: int = 10
     out, failed = [], 0
     for _ in range(samples):
         scale = np.sqrt(np.bincount(rng.integers(0, n_obs, n_obs), minlength=n_obs).astype(np.float64))[owner]
-        fun, jac = least_squares_functions(problem, scale)
+        fun, jac, _ = least_squares_functions(problem, scale)
         sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_iterations)
         if np.all(np.isfinite(sol.x)) and np.isfinite(sol.cost):
             out.append(sol.x[keep])
