@@ -63,6 +63,9 @@ def test_noise_is_estimated_from_the_observations(box):
     assert noise["position_m"][0] == pytest.approx(1e-3, rel=0.15)
     assert noise["position_m"][1] == pytest.approx(1e-3, rel=0.15)
     assert noise["position_m"][2] == 0.0 and noise["rotation_deg"] == 0.0
+    short = SysIdProblem(box, analytic_slides(0, 0.05, 1, frames=5, noise=0.001),
+                         [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], substeps=4)
+    assert observation_noise(short)["position_m"] is None  # too short to tell: None, never NaN
 
 
 def test_rotations_are_weighed_by_size_and_drag_is_neutral(box):

@@ -80,7 +80,8 @@ def observation_noise(problem: SysIdProblem) -> dict:
     of the angle [deg], reported as the rms rotation angle: √3 × the per-axis value, as
     :meth:`SysIdProblem.residual_noise` takes it) and of joint positions; the median over
     frames of all trajectories (robust to impacts and stops). Returns {"position_m" (3,),
-    "rotation_deg", "joints", "method"}."""
+    "rotation_deg", "joints", "method"}; a level the observations are too short for (fewer
+    than 5 third differences) or that they do not observe is None."""
     pos, rot, joints = [], [], []
     for o in problem.observations:
         for p in o.poses.values():
@@ -101,7 +102,7 @@ def observation_noise(problem: SysIdProblem) -> dict:
     position = level(pos, 3)
     rot_axis = level(rot, 3)
     joint = level(joints, 1)
-    return {"position_m": [float(v) for v in position],
+    return {"position_m": [float(v) for v in position] if np.all(np.isfinite(position)) else None,
             "rotation_deg": float(np.degrees(np.sqrt(np.sum(rot_axis**2)))) if np.all(np.isfinite(rot_axis)) else None,
             "joints": float(joint[0]) if np.isfinite(joint[0]) else None,
             "method": "third differences of the observed poses (positions, rotation increments, joints), median "
