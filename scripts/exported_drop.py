@@ -14,7 +14,7 @@ import numpy as np
 
 import dano
 from dano.io import export
-from dano.meshroute import Scenario, _advance, _DanoRuns, _quat_angle_deg, _tilt_deg
+from dano.experiments.meshroute import Scenario, _advance, _DanoRuns, _quat_angle_deg, _tilt_deg
 from dano.sim import rollout
 from dano.sim.scenes import PAPER_DROP_QUAT, initial_state
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from dano.errors import DanoError
-from dano.trajopt.grasp import GraspPandaConfig, antipodal_grasp, build, simulate
-from dano.trajopt.run import load_config
+from dano.experiments.grasp import GraspPandaConfig, antipodal_grasp, build, simulate
+from dano.experiments.trajopt_run import load_config
 
 
 def box_surface(half, center, spacing=0.004):

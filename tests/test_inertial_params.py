@@ -14,7 +14,7 @@ from dano.sim import DanoObject, State, compose, make_data, rollout, rollout_arr
 from dano.sim.dynamics import model_with_params
 from dano.sim.scene import INERTIAL_PARAMETERS
 from dano.sysid import FitParameter, Observation, SysIdProblem, Weights, identify
-from dano.sysid.examples import second_moment_scale_for
+from dano.experiments.sysid_examples import second_moment_scale_for
 
 HALF = (0.1, 0.1, 0.05)  # a 20 x 20 x 10 cm box
 

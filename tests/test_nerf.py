@@ -355,7 +355,7 @@ def test_ground_truth_loop_runs_slide_where_they_are_thrown():
     """The loop's level slides go along their direction at the paper's default friction and
     a DANO compared with itself differs by nothing; an unknown run is refused."""
     from dano.asset import build
-    from dano.nerf.validate import LEVEL_SLIDE_FRICTION, _final_pose, simulation_difference
+    from dano.experiments.nerf_loop import LEVEL_SLIDE_FRICTION, _final_pose, simulation_difference
 
     box = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=0)
     p, q = _final_pose(box, "slide_90deg", 1.0)

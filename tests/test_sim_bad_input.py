@@ -100,7 +100,7 @@ def test_initial_state_refuses_unknown_or_jointed_bodies():
     s = load("sphere-hits-bunny")
     with pytest.raises(DanoError, match="no body named 'bunyy'"):
         initial_state(s.scene, {"bunyy": ((1, 2, 3), (1, 0, 0, 0))})
-    from dano.sysid.examples import pusher_scene
+    from dano.experiments.sysid_examples import pusher_scene
 
     scene, _ = pusher_scene()
     with pytest.raises(DanoError, match="body 'pusher' has no free joint"):

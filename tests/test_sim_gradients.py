@@ -80,7 +80,7 @@ def test_no_nan_at_rest_at_onset_and_without_contact(sliding_box):
 
 def test_gradient_with_respect_to_controls_matches_finite_differences():
     """d(pusher position)/d(PD target) through the actuators of the sphere-pusher scene."""
-    from dano.sysid.examples import pusher_scene
+    from dano.experiments.sysid_examples import pusher_scene
 
     scene, z = pusher_scene()
     q0 = np.array(scene.qpos0)

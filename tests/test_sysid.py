@@ -189,7 +189,7 @@ def test_real_soap_video():
 
 @pytest.mark.parametrize("noise, tolerance", [(False, 0.005), (True, 0.015)])
 def test_bunny_pushes_recover_mass_scale_and_friction(noise, tolerance):
-    from dano.sysid.examples import PUSH_TRUTH, push_problem
+    from dano.experiments.sysid_examples import PUSH_TRUTH, push_problem
 
     problem = push_problem(*((1e-3, 0.5) if noise else (0.0, 0.0)))
     res = identify(problem, horizons=(0.4,), scan=0, profile_points=0)  # the example's own configuration
@@ -479,7 +479,7 @@ def test_ground_height_is_identified_with_friction(box_setup):
     boxed = compose([DanoObject("box", box_setup[0], (0, 0, z))], spec, dt=0.0025)
     with pytest.raises(DanoError, match="only world geometry"):
         SysIdProblem(boxed, [obs], [FitParameter("sliding_friction", 0.2, 0.0, 2.0)], substeps=4, fit_ground=True)
-    from dano.sysid.examples import pusher_scene
+    from dano.experiments.sysid_examples import pusher_scene
 
     pushed, _ = pusher_scene()  # a pusher on slide joints: a shifted ground would move relative to it
     with pytest.raises(DanoError, match="DANOs on the ground only"):

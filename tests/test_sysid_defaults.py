@@ -12,7 +12,7 @@ from dano.cli import main
 from dano.fields import BoxField
 from dano.sim import DanoObject, compose
 from dano.sysid import FitParameter, SysIdProblem, Weights, identify, observation_noise
-from dano.sysid.examples import analytic_slides, interval_coverage
+from dano.experiments.sysid_examples import analytic_slides, interval_coverage
 from dano.sysid.problem import _residuals_and_jacobian_jit, rotation_length
 
 
@@ -29,7 +29,7 @@ def test_own_object_from_plain_mujoco_with_the_first_toml(shared, tmp_path, caps
     0.5 (elliptic cone) recorded at 100 Hz as CSV; the TOML a new user writes first (no
     [contact], no [options]). The default answer lies within 5 % of 0.5, or its interval covers
     0.5 and a warning says the model misfits; the sliding drag is held neutral and said so."""
-    from dano.sysid.mujoco_c import mujoco_c_slides
+    from dano.experiments.mujoco_c import mujoco_c_slides
 
     made = mujoco_c_slides(tmp_path / "toy", mesh=shared / "meshes" / "bunny_lowpoly.obj")
     assert "[contact]" not in made["toml"].read_text() and "[options]" not in made["toml"].read_text()

@@ -12,7 +12,7 @@ from dano.fields import BoxField
 from dano.sim import DanoObject, compose
 from dano.sysid import (FitParameter, Observation, SysIdProblem, SysIdResult, Weights, bootstrap, cramer_rao,
                         identify)
-from dano.sysid.examples import analytic_slides, bootstrap_coverage
+from dano.experiments.sysid_examples import analytic_slides, bootstrap_coverage
 from dano.sysid.solve import _disagreement
 
 
@@ -166,7 +166,7 @@ def test_dynamics_recovery_propagates_a_covariance_to_the_principal_moments():
     """The moments are linear in the second-moment scales (I_x = Σ_y + Σ_z, ...): their
     standard deviations follow from the scales' by the delta method, exactly."""
     from dano.sim.dynamics import second_moments
-    from dano.sysid.examples import dynamics_recovery
+    from dano.experiments.sysid_examples import dynamics_recovery
 
     base = np.array([3.0, 2.6, 1.5])
     truth = {"alpha": 0.1, "sliding_friction": 0.3, "com_offset": [0.0, 0.0, 0.0], "size": 2.0,

@@ -20,7 +20,7 @@ from dano.fields import SphereField
 from dano.render import Cameras, image_rays, pixel_rays
 from dano.render.silhouette import silhouette_rays
 from dano.tracking import TrackConfig, TrackedObject, load_video, pose_errors, track, tracked_trajectory
-from dano.tracking.synthetic import VideoCamera, render_video, surface_mesh, write_video_folder
+from dano.experiments.slide import VideoCamera, render_video, surface_mesh, write_video_folder
 from dano.trajectory import load_trajectory, save_trajectory
 
 # a camera on the +y side looking at the origin from 3 m (Blender convention: looks along -z)

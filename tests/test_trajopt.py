@@ -111,7 +111,7 @@ def test_bad_inputs_are_refused():
 
 @pytest.fixture(scope="module")
 def push_task():
-    from dano.trajopt.tasks import PushSphereConfig, push_sphere_task
+    from dano.experiments.push import PushSphereConfig, push_sphere_task
 
     return push_sphere_task(PushSphereConfig())
 

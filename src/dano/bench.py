@@ -193,7 +193,7 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
       and compile time on ``cube_tosses`` tosses, and its local solve with AD vs FD Jacobians.
     """
     from .sysid import identify
-    from .sysid.examples import PUSH_TRUTH, push_problem, soap_problem
+    from .experiments.sysid_examples import PUSH_TRUTH, push_problem, soap_problem
 
     out: dict = {}
     problem = soap_problem(substeps=4)
@@ -217,7 +217,7 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
     out["soap_command"] = command_times(["sysid", "soap", "--json", "--out-dir", "{out}"],
                                         repeats=max(repeats - 1, 1))
     if cube_data:
-        from .sysid.examples import contactnets_identify, contactnets_problem
+        from .experiments.sysid_examples import contactnets_identify, contactnets_problem
 
         report = contactnets_identify(cube_data, cube_tosses)[2]
         out["contactnets_cube"] = {k: report[k] for k in (
@@ -266,7 +266,7 @@ def _compile_by_lengths(count: int = 20) -> dict:
     from .fields import BoxField
     from .sim import DanoObject, compose
     from .sysid import FitParameter, SysIdProblem, Weights
-    from .sysid.examples import analytic_slides
+    from .experiments.sysid_examples import analytic_slides
 
     enable_float64()
     asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
@@ -316,129 +316,14 @@ def bench_batched(repeats: int = 3, steps: int = 200, batches: tuple[int, ...] |
 #: Ranges of the random drops of :func:`bench_energy`: the paper's Table I ranges for the
 #: impact spring and damper (log-uniform), sliding friction up to 1; the other parameters
 #: up to a few times the paper's defaults (uniform).
-ENERGY_RANGES = {
-    "impact_spring": (1e4, 1e5), "impact_damper": (1e5, 1e6), "sliding_friction": (0.0, 1.0),
-    "sliding_drag": (0.0, 0.2), "torsional_friction": (0.0, 0.05), "torsional_drag": (0.0, 0.05),
-    "rolling_friction": (0.0, 0.05), "rolling_drag": (0.0, 0.05),
-}
-
-
-def random_drops(scene, drops: int, seed: int = 0, height=(0.3, 1.5), max_speed: float = 5.0,
-                 max_spin: float = 10.0):
-    """Random drops of the scene's single DANO: (qpos0 (B, 7), qvel0 (B, 6), ContactParams
-    with (B, 1) fields). Orientation uniform; the lowest sample starts ``height`` [m] above
-    the ground; velocity and spin uniform in direction, magnitude uniform up to
-    ``max_speed`` [m/s] and ``max_spin`` [rad/s]; parameters from :data:`ENERGY_RANGES`."""
-    import jax.numpy as jnp
-    from scipy.spatial.transform import Rotation
-
-    from .contact import ContactParams
-
-    rng = np.random.default_rng(seed)
-    rot = Rotation.random(drops, random_state=rng)
-    pts = np.array(scene.assets[0].points)
-    lowest = np.array([-np.min(r.apply(pts)[:, 2]) for r in rot])
-    z = lowest + rng.uniform(*height, drops)
-    unit = lambda n: (lambda v: v / np.linalg.norm(v, axis=1, keepdims=True))(rng.normal(size=(n, 3)))  # noqa: E731
-    v = unit(drops) * rng.uniform(0, max_speed, (drops, 1))
-    w = unit(drops) * rng.uniform(0, max_spin, (drops, 1))
-    qpos = np.concatenate([np.zeros((drops, 2)), z[:, None], rot.as_quat(scalar_first=True)], axis=1)
-    params = {}
-    for name, (lo, hi) in ENERGY_RANGES.items():
-        if name in ("impact_spring", "impact_damper"):
-            val = np.exp(rng.uniform(np.log(lo), np.log(hi), drops))
-        else:
-            val = rng.uniform(lo, hi, drops)
-        params[name] = jnp.asarray(val[:, None], dtype=scene.dtype)
-    return (jnp.asarray(qpos, dtype=scene.dtype), jnp.asarray(np.concatenate([v, w], axis=1), dtype=scene.dtype),
-            ContactParams(**params))
-
-
-def mechanical_energy(scene, qpos: np.ndarray, qvel: np.ndarray, alpha: float | None = None,
-                      gravity: float = 9.81) -> np.ndarray:
-    """Kinetic + gravitational potential energy [J] of the scene's single free DANO,
-    (..., T) from qpos (..., T, 7) and qvel (..., T, 6) (angular velocity in the body frame);
-    potential m·g·z with z the centre-of-mass height above z = 0."""
-    from scipy.spatial.transform import Rotation
-
-    m = scene.mj_model
-    body = scene.body_names.index(scene.dano_names[0])
-    scale = 1.0 if alpha is None else alpha / scene.assets[0].alpha
-    mass, I = m.body_mass[body] * scale, m.body_inertia[body] * scale
-    Ri = Rotation.from_quat(m.body_iquat[body], scalar_first=True).as_matrix()
-    w = qvel[..., 3:6] @ Ri  # body-frame angular velocity in principal axes
-    return (0.5 * mass * np.sum(qvel[..., :3] ** 2, -1) + 0.5 * np.sum(I * w**2, -1)
-            + mass * gravity * qpos[..., 2])
-
-
 def bench_energy(repeats: int = 1, drops: int = 1000, seed: int = 0, duration: float = 3.0,
                  batch: int | None = None, contact_model: str = "centroid") -> dict:
-    """Energy check of the contact solve: ``drops`` random paper-bunny drops (see
-    :func:`random_drops`, h = 0.01 s, ``duration`` s, unactuated, vmapped in batches),
-    counting runs that become non-finite, diverge (speed > 1000 or an overlap above half
-    the mass) or whose kinetic + potential energy ever exceeds its initial value by more
-    than 1 % (``energy_rises``); ``max_energy_ratio`` is the largest max_t E(t)/E(0);
-    ``unconverged_steps``: steps whose Newton solve used all its iterations.
-    contact_model: of the bunny/ground pair. batch: drops per vmapped call (default 50 for
-    the centroid model; 1, unbatched, for per_sample, whose gathering of the samples in
-    reach only pays off outside ``jax.vmap``)."""
-    import jax.numpy as jnp
-
-
-    from .sim import NewtonOptions, make_data, scan_steps
-    from .sim.rollout import first_divergence
-    from .sim.scenes import load_scene
+    """Energy check of the contact solve (:func:`dano.experiments.energy.energy_check`):
+    ``drops`` random paper-bunny drops; counts of non-finite, diverged and energy-gaining runs."""
+    from .experiments.energy import energy_check
 
     del repeats
-    setup = load_scene("bunny-drop", contact_model=contact_model)
-    sc, base = setup.scene, setup.params
-    steps = int(round(duration / sc.dt))
-    qpos0, qvel0, cparams = random_drops(sc, drops, seed)
-
-    def one(q, v, p):
-        d = make_data(sc, q, v)
-        _, qpos, qvel, psi, iters = scan_steps(sc, base.replace(contact=p), d, jnp.zeros((steps, sc.nu), sc.dtype),
-                                               jnp.zeros((steps, sc.nv), sc.dtype))
-        return qpos, qvel, psi, iters
-
-    if batch is None:
-        batch = 1 if contact_model == "per_sample" else 50
-    if batch == 1:
-        single = jax.jit(one)
-        run = lambda q, v, p: tuple(x[None] for x in single(q[0], v[0], jax.tree_util.tree_map(lambda a: a[0], p)))  # noqa: E731
-    else:
-        run = jax.jit(jax.vmap(one))
-    out = {"drops": drops, "nonfinite": 0, "diverged": 0, "energy_rises": 0, "max_energy_ratio": 0.0,
-           "seed": seed, "steps": steps, "dt": sc.dt, "contact_model": contact_model,
-           "unconverged_steps": 0, "max_newton_iterations": 0, "batch": batch}
-    t0 = time.perf_counter()
-    worst = []
-    for start in range(0, drops, batch):
-        sl = slice(start, min(start + batch, drops))
-        n = sl.stop - sl.start
-        pad = lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], batch - n, axis=0)]) if n < batch else x  # noqa: E731
-        p = jax.tree_util.tree_map(lambda x: pad(x[sl]), cparams)
-        qpos, qvel, psi, iters = (np.asarray(a)[:n] for a in run(pad(qpos0[sl]), pad(qvel0[sl]), p))
-        limit = NewtonOptions().max_iterations
-        out["unconverged_steps"] += int(np.sum(iters >= limit))
-        out["max_newton_iterations"] = max(out["max_newton_iterations"], int(iters.max()))
-        E = mechanical_energy(sc, qpos, qvel)
-        for i in range(n):
-            if not (np.all(np.isfinite(qpos[i])) and np.all(np.isfinite(qvel[i]))):
-                out["nonfinite"] += 1
-                continue
-            params_i = base.replace(contact=jax.tree_util.tree_map(lambda x: x[start + i], cparams))
-            if first_divergence(sc, params_i, qpos[i], qvel[i], psi[i])[0] is not None:
-                out["diverged"] += 1
-            ratio = float(np.max(E[i]) / E[i, 0])
-            out["max_energy_ratio"] = max(out["max_energy_ratio"], ratio)
-            if ratio > 1.01:
-                out["energy_rises"] += 1
-                worst.append((ratio, start + i))
-    out["wall_time_s"] = time.perf_counter() - t0
-    out["env_steps_per_s"] = drops * steps / out["wall_time_s"]
-    out["worst_runs"] = [{"drop": i, "energy_ratio": r} for r, i in sorted(worst, reverse=True)[:5]]
-    return out
+    return energy_check(drops=drops, seed=seed, duration=duration, batch=batch, contact_model=contact_model)
 
 
 def bench_trajopt(repeats: int = 3) -> dict:
@@ -451,7 +336,7 @@ def bench_trajopt(repeats: int = 3) -> dict:
     import jax.numpy as jnp
 
     from .trajopt.ilqr import Multipliers, _compiled
-    from .trajopt.tasks import PushSphereConfig, push_sphere_task, solve_task
+    from .experiments.push import PushSphereConfig, push_sphere_task, solve_task
 
     task = push_sphere_task(PushSphereConfig())
     fns = _compiled(task.problem)
@@ -468,7 +353,7 @@ def bench_trajopt(repeats: int = 3) -> dict:
     }
     out["push_sphere_solve"] = _solve_summary(solve_task(task))
     if os.environ.get("MENAGERIE_ROOT"):
-        from .trajopt.tasks import PushPandaConfig, push_panda_task
+        from .experiments.push import PushPandaConfig, push_panda_task
 
         out["push_panda_solve"] = _solve_summary(solve_task(push_panda_task(PushPandaConfig())))
     else:
@@ -511,11 +396,11 @@ def bench_nerf(repeats: int = 1, minutes: float = 3.0, eval_at: tuple[float, ...
                loop_minutes: float = 3.0) -> dict:
     """Fields from images: training on the real ``lego_100px.npz`` (90 views, 10 held out)
     for ``minutes`` (held-out PSNR at ``eval_at`` minutes and at the end, rays/s, one process
-    with XLA's default threads), and the ground-truth loop (:mod:`dano.nerf.validate`) on
+    with XLA's default threads), and the ground-truth loop (:mod:`dano.experiments.nerf_loop`) on
     ``bunny_lowpoly.obj`` and ``spot.obj`` with ``loop_minutes`` of training each. Needs
     the shared data (``$DANO_SHARED_DATA`` or ``../shared/data``). 0 minutes skips a part."""
     from .nerf import TrainConfig, load_dataset, train
-    from .nerf.validate import ground_truth_loop
+    from .experiments.nerf_loop import ground_truth_loop
 
     data_dir = _shared_data()
     if data_dir is None:
@@ -535,79 +420,6 @@ def bench_nerf(repeats: int = 1, minutes: float = 3.0, eval_at: tuple[float, ...
     return out
 
 
-def tracking_success_curve(folder, translations=(0.01, 0.02, 0.04, 0.06, 0.08, 0.10, 0.15, 0.20, 0.30),
-                           rotations=(2.0, 5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 90.0), seeds: int = 4,
-                           frames: int = 10, obj=None, config=None) -> list:
-    """Tracking of the first ``frames`` frames of the synthetic-slide video in ``folder`` from
-    the true first pose perturbed by (translation · object size, rotation [deg]) about
-    ``seeds`` random directions per size: per size, the success rate (final frame within 2 %
-    of the size and 5°) and the final errors. obj: the TrackedObject (default: the slide's
-    DANO, silhouettes only); config: its TrackConfig (default: TrackConfig())."""
-    from .tracking import TrackConfig, TrackedObject, load_video, pose_errors, track
-    from .tracking.real2sim import perturb
-    from .tracking.synthetic import slide_scene
-    from .trajectory import load_trajectory
-
-    video = load_video(folder, subtract_background=True)
-    truth = load_trajectory(Path(folder) / "truth.npz").qpos[:, :7]
-    asset = slide_scene()[0].assets[0]
-    size = float(np.linalg.norm(np.ptp(asset.mesh_vertices, axis=0)))
-    obj = TrackedObject.from_asset(asset) if obj is None else obj
-    config = TrackConfig() if config is None else config
-    curve = []
-    for dt, dr in zip(translations, rotations):
-        runs = []
-        for seed in range(seeds):
-            result = track(video, obj, perturb(truth[0], dt * size, dr, seed + 1), config, frames=slice(0, frames))
-            ep, er = pose_errors(result.poses[-1:], truth[frames - 1 : frames])
-            runs.append({"translation_error_percent": float(ep[0] / size * 100), "rotation_error_deg": float(er[0]),
-                         "success": bool(ep[0] < 0.02 * size and er[0] < 5.0)})
-        curve.append({"start_translation_percent": dt * 100, "start_rotation_deg": dr,
-                      "success_rate": float(np.mean([r["success"] for r in runs])), "runs": runs})
-    return curve
-
-
-def tracking_colour(folder, work_dir, minutes: float = 3.0, frames: int = 15,
-                    weights=(0.0, 0.02, 0.1, 1.0)) -> dict:
-    """Photometric tracking on the synthetic-slide video in ``folder``: a radiance field is
-    trained for ``minutes`` on 100 views (128 px, ``render-dataset``) of the surface the video
-    shows, in the DANO's object frame; then the first ``frames`` frames are tracked from the
-    real2sim start (3 cm, 3°) with each colour weight (0: silhouettes only). Returns the
-    field's held-out PSNR and, per weight, RMS / max errors and the median time per frame."""
-    import trimesh
-
-    from .nerf import TrainConfig, load_dataset, train
-    from .nerf.synthetic import render_dataset
-    from .tracking import TrackConfig, TrackedObject, load_video, pose_errors, track
-    from .tracking.real2sim import perturb
-    from .tracking.synthetic import slide_scene, surface_mesh
-    from .trajectory import load_trajectory
-
-    asset = slide_scene()[0].assets[0]
-    vertices, faces = surface_mesh(asset)  # what the video shows, body frame; the field's is the object frame
-    mesh_path = Path(work_dir) / "surface.obj"
-    trimesh.Trimesh(vertices + asset.center_of_mass, faces, process=False).export(mesh_path)
-    render_dataset(mesh_path, Path(work_dir) / "views", views=100, size=128)
-    train_set, held = load_dataset(Path(work_dir) / "views").split(10)
-    trained = train(train_set, TrainConfig(minutes=minutes, background="random"), heldout=held)
-    video = load_video(folder, subtract_background=True)
-    truth = load_trajectory(Path(folder) / "truth.npz").qpos[:frames, :7]
-    size = float(np.linalg.norm(np.ptp(asset.mesh_vertices, axis=0)))
-    start = perturb(truth[0], 0.03, 3.0)
-    out = {"field_psnr_heldout": trained.psnr_heldout, "field_minutes": minutes, "frames": frames, "runs": []}
-    for weight in weights:
-        obj = TrackedObject.from_asset(asset, trained.field if weight > 0 else None,
-                                       trained.occupancy if weight > 0 else None)
-        result = track(video, obj, start, TrackConfig(colour_weight=weight), frames=slice(0, frames))
-        dp, dr = pose_errors(result.poses, truth)
-        rms = float(np.sqrt(np.mean(dp**2)))
-        out["runs"].append({"colour_weight": weight, "rms_mm": rms * 1000, "rms_deg": float(np.sqrt(np.mean(dr**2))),
-                            "max_mm": float(dp.max() * 1000), "max_deg": float(dr.max()),
-                            "rms_percent_of_size": rms / size * 100,
-                            "time_per_frame_s": float(np.median(result.frame_time_s))})
-    return out
-
-
 def bench_tracking(repeats: int = 1, curve: bool = True, colour_minutes: float = 0.0) -> dict:
     """From video to physics (``dano real2sim synthetic-slide``): tracking time per frame, the
     two identifications' results and wall times; the tracking success rate against the
@@ -615,7 +427,8 @@ def bench_tracking(repeats: int = 1, curve: bool = True, colour_minutes: float =
     ``colour_minutes`` > 0, photometric tracking (:func:`tracking_colour`)."""
     import tempfile
 
-    from .tracking.real2sim import synthetic_slide_real2sim
+    from .experiments.real2sim import synthetic_slide_real2sim
+    from .experiments.tracking_curves import tracking_colour, tracking_success_curve
 
     with tempfile.TemporaryDirectory() as tmp:
         report = synthetic_slide_real2sim(Path(tmp) / "run", video_file=False)

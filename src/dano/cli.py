@@ -490,20 +490,6 @@ def simulate(
     return setup, traj, wall
 
 
-def _write_sysid(out_dir: Path, report: dict, resolved: dict, problem, result) -> None:
-    """result.json, config.json (the resolved configuration) and fit.png in ``out_dir``: all three or none."""
-    from contextlib import ExitStack
-
-    from ._files import atomic_path
-    from .viz import plot_sysid
-
-    with ExitStack() as stack:
-        paths = {n: stack.enter_context(atomic_path(out_dir / n)) for n in ("result.json", "config.json", "fit.png")}
-        paths["result.json"].write_text(json.dumps(report, indent=2))
-        paths["config.json"].write_text(json.dumps(resolved, indent=2, default=str))
-        plot_sysid(problem, result, paths["fit.png"])
-
-
 @_names("config")
 def sysid(
     config: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="CONFIG")],
@@ -539,7 +525,9 @@ def sysid(
         bootstrap: contactnets-cube: also refit this many resamples of the fitted tosses (with replacement) for a
             95 % interval, key "bootstrap" of the JSON (TOML problems: [options] bootstrap).
     """
+    from .experiments import is_experiment, run_sysid
     from .sysid.config import run
+    from .sysid.outputs import write_outputs
 
     if config.lower().endswith(".json") and Path(config).is_file():
         from ._config import read_table
@@ -550,32 +538,50 @@ def sysid(
             tosses, start = int(saved.get("tosses", tosses)), float(saved.get("start", start))
             contact_model = str(saved.get("contact_model", contact_model))
             bootstrap = int(saved.get("bootstrap", bootstrap))
-    if config == "contactnets-cube":
-        from .sysid.examples import contactnets_identify
+        elif "example" in saved:  # the config.json of a built-in example reruns it
+            if not is_experiment("sysid", saved["example"]):
+                from .errors import FileFormatError
+                from .experiments import names
 
+                raise FileFormatError(f"{config}: unknown example {saved['example']!r}; one of "
+                                      f"{', '.join(names('sysid'))}")
+            noise_saved = saved.get("noise", {})
+            no_noise = no_noise or (isinstance(noise_saved, dict) and noise_saved.get("position_m") == 0)
+            config = saved["example"]
+    if config == "contactnets-cube":
         if data is None:
             raise ValueError("contactnets-cube needs --data: the ContactNets tosses .npz (arrays toss_<n>, not "
                              "shipped with dano)")
-        if not 2 <= tosses <= 200:
-            raise ValueError(f"--tosses must be 2 to 200, got {tosses}")
-        _check_contact_model(contact_model)
-        if bootstrap and not 2 <= bootstrap <= 10_000:
-            raise ValueError(f"--bootstrap must be 0 or 2 to 10000 resamples, got {bootstrap}")
-        problem, result, report = contactnets_identify(data, tosses, start, contact_model=contact_model,
-                                                       bootstrap=bootstrap)
-        report, nonfinite = _json_safe(report)
-        if nonfinite:
-            report["warnings"].append(f"not finite (written as null): {', '.join(nonfinite)}")
-        for note in report["warnings"]:
-            err.print(f"[yellow]warning:[/] contactnets-cube: {note}", highlight=False, soft_wrap=True)
-        out_dir = out_dir or Path("sysid-contactnets-cube")
-        resolved = {"example": "contactnets-cube", "data": str(Path(data).resolve()), "tosses": tosses,
-                    "start": start, "contact_model": contact_model, "bootstrap": bootstrap}
-        _write_sysid(out_dir, report, resolved, problem, result)
-        if json_:
-            print(json.dumps({k: v for k, v in report.items() if k not in ("grid", "heldout_per_toss")}))
-            return
-        t = Table(title="identification: contactnets-cube")
+        problem, result, run_out = run_sysid(config, data=data, tosses=tosses, start=start,
+                                             contact_model=contact_model, bootstrap=bootstrap)
+    elif is_experiment("sysid", config):
+        problem, result, run_out = run_sysid(config, jacobian=jacobian, noise=not no_noise)
+    else:
+        if Path(config).suffix.lower() not in (".toml", ".json") and not Path(config).exists():
+            from .experiments import names
+
+            raise ValueError(f"unknown identification {config!r}: give a TOML file, a saved config.json or one of "
+                             f"{', '.join(names('sysid'))}")
+        problem, result, run_out = run(config, jacobian=jacobian)
+    report, nonfinite = _json_safe(run_out["report"])
+    notes = list(report.get("warnings", result.warnings))
+    if nonfinite:
+        notes.append(f"not finite (written as null): {', '.join(nonfinite)}; the data do not determine these (check "
+                     "that positions are in metres and that the motion excites the parameters)")
+    report["warnings"] = notes
+    for note in notes:
+        err.print(f"[yellow]warning:[/] {config}: {note}", highlight=False, soft_wrap=True)
+    out_dir = out_dir or Path(f"sysid-{Path(config).stem}")
+    write_outputs(out_dir, report, run_out["config"], problem, result)
+    if json_:
+        print(json.dumps({k: v for k, v in report.items() if k not in ("grid", "heldout_per_toss")}))
+        return
+    out.print(_sysid_table(config, problem, result, report, out_dir))
+
+
+def _sysid_table(config: str, problem, result, report: dict, out_dir: Path) -> Table:
+    t = Table(title=f"identification: {config}")
+    if config == "contactnets-cube":
         t.add_column("quantity")
         t.add_column("value")
         for key in ("sliding_friction", "impact_spring", "impact_damper", "ground_height"):
@@ -585,24 +591,7 @@ def sysid(
                     "grid_heldout_position_rms_mm", "grid_heldout_rotation_rms_deg"):
             t.add_row(key.replace("_", " "), f"{report[key]:.4g}")
         t.caption = f"{report['wall_time_s']:.1f} s (+{report['compile_time_s']:.1f} s compile); wrote {out_dir}/"
-        out.print(t)
-        return
-
-    problem, result, report = run(config, jacobian=jacobian, noise=not no_noise)
-    report["report"], nonfinite = _json_safe(report["report"])
-    notes = list(result.warnings)
-    if nonfinite:
-        notes.append(f"not finite (written as null): {', '.join(nonfinite)}; the data do not determine these (check "
-                     "that positions are in metres and that the motion excites the parameters)")
-    report["report"]["warnings"] = notes
-    for note in notes:
-        err.print(f"[yellow]warning:[/] {config}: {note}", highlight=False, soft_wrap=True)
-    out_dir = out_dir or Path(f"sysid-{Path(config).stem}")
-    _write_sysid(out_dir, report["report"], report["config"], problem, result)
-    if json_:
-        print(json.dumps(report["report"]))
-        return
-    t = Table(title=f"identification: {config}")
+        return t
     for c in ("parameter", "estimate", "std. error", "initial"):
         t.add_column(c)
     for lab, v, sd, x0 in zip(result.labels, result.estimates, result.standard_errors, result.initial):
@@ -610,7 +599,7 @@ def sysid(
     t.caption = (f"rms residual {result.rms_residual:.3g} over {result.num_residuals} residuals; "
                  f"{result.nfev} evaluations; {result.wall_time_s:.2f} s (+{result.compile_time_s:.1f} s compile); "
                  f"wrote {out_dir}/result.json, config.json, fit.png")
-    out.print(t)
+    return t
 
 
 def demo(out_dir: Path = Path("dano-demo"), quiet: bool = False) -> None:
@@ -741,7 +730,7 @@ def trajopt(
         no_video: skip the video.
         quiet: no progress bars.
     """
-    from .trajopt.run import run, write_outputs
+    from .experiments.trajopt_run import run, write_outputs
 
     if contact_model is not None:
         _check_contact_model(contact_model)
@@ -838,13 +827,10 @@ def train_field(
         json_: print one JSON object (psnr_heldout, wall_time_s, rays_per_s, steps, psnr_at_minutes, ...).
         quiet: no progress bar.
     """
-    import csv
-    import io
-
     import numpy as np
 
     from .nerf import TrainConfig, load_dataset, train
-    from .viz.plot import plot_heldout
+    from .nerf.train import write_outputs
 
     if out.exists() and not resume and (not out.is_dir() or any(out.iterdir())):
         hint = " (a field directory: --resume continues it)" if (out / "field.json").exists() else ""
@@ -859,30 +845,8 @@ def train_field(
     train_set, held = dataset.split(holdout)
     with _train_progress(not quiet and not json_) as progress:
         result = train(train_set, config, heldout=held, out_dir=out, resume=resume, progress=progress)
-    score, renders = result.psnr_heldout, result.heldout_renders
-    report = {
-        "psnr_heldout": score,
-        "wall_time_s": result.wall_time_s,
-        "rays_per_s": result.rays_per_s,
-        "steps": result.steps,
-        "psnr_at_minutes": result.psnr_at,
-        "train_views": train_set.num_images,
-        "heldout_views": held.num_images,
-        "image_size": [dataset.cameras.width, dataset.cameras.height],
-        "occupied_fraction": result.occupancy.fraction_occupied(),
-        "data": str(data),
-        "field": str(out),
-    }
-    resolved = dataclasses.asdict(config) | {"data": str(data), "bounds": dataset.bounds.tolist()}
-    atomic_write(out / "config.json", lambda f: f.write((json.dumps(resolved, indent=2) + "\n").encode()))
-    atomic_write(out / "report.json", lambda f: f.write((json.dumps(report, indent=2) + "\n").encode()))
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=["step", "elapsed_s", "loss", "psnr_train", "lr", "complete",
-                                                "samples_per_ray"])
-    writer.writeheader()
-    writer.writerows(result.log)
-    atomic_write(out / "log.csv", lambda f: f.write(buffer.getvalue().encode()))
-    plot_heldout(renders, held, out / "heldout.png")
+    report = write_outputs(out, result, config, dataset, train_set, held, data)
+    score = report["psnr_heldout"]
     if json_:
         print(json.dumps(report))
         return
@@ -1016,7 +980,7 @@ def real2sim(
             wall_time_s, ...).
         quiet: no progress bar.
     """
-    from .tracking.real2sim import synthetic_slide_real2sim
+    from .experiments.real2sim import synthetic_slide_real2sim
 
     _check_new_folder(out)
     if not 0 < friction <= 1.5:
@@ -1039,7 +1003,7 @@ Collision = Literal["hull", "decomposition", "none"]
 def _level_meshes(paths):
     """--mesh FILE (object frame) -> Level list (mesh files may be open, noisy level sets)."""
     from .io import load_mesh
-    from .meshroute import Level
+    from .experiments.meshroute import Level
 
     levels = []
     for p in paths:
@@ -1168,7 +1132,7 @@ def compare_mesh(
 
     from ._files import atomic_path
     from .io.exporters import Decomposition
-    from .meshroute import Scenario, compare_mesh as run, default_levels, extract_levels, render_rest_figure
+    from .experiments.meshroute import Scenario, compare_mesh as run, default_levels, extract_levels, render_rest_figure
 
     _check_contact_model(contact_model)
     _check_resolution(resolution)

@@ -108,3 +108,20 @@ def evaluate(field: DensityField, points: np.ndarray, chunk: int = 1 << 18,
 
 _DENSITY_JIT = jax.jit(lambda f, p: f.density(p))
 _DISTANCE_JIT = jax.jit(lambda f, p: f.signed_distance(p))
+
+
+def interior_density(field) -> float:
+    """Density of full occupancy of a field (its interior value; the surface is half of it):
+    the field's optional ``interior_density()``, else the largest density on a 33³ grid over
+    its bounds. Raises DanoError if that is not positive and finite."""
+    fn = getattr(field, "interior_density", None)
+    if fn is not None:
+        rho = float(fn())
+    else:
+        b = np.asarray(field.bounds(), dtype=np.float64)
+        axes = [np.linspace(b[0, k], b[1, k], 33) for k in range(3)]
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        rho = float(np.max(np.asarray(field.density(jnp.asarray(grid)))))
+    if not np.isfinite(rho) or rho <= 0:
+        raise DanoError(f"the {type(field).__name__}'s interior density must be positive and finite, got {rho}")
+    return rho

@@ -30,6 +30,7 @@ from typing import Sequence
 import numpy as np
 import trimesh
 
+from ..asset import visual_mesh
 from ..errors import DanoError
 
 COLLISION_MODES = ("hull", "decomposition", "none")
@@ -81,8 +82,6 @@ def level_mesh(asset, level: float | None = None, resolution: int = 96, mesh=Non
     else the asset's stored visual mesh. Raises DanoError if the asset has neither the
     field nor a visual mesh needed, or the level is outside the field's range.
     """
-    from ..asset import visual_mesh
-
     if mesh is not None:
         m = trimesh.Trimesh(np.asarray(mesh.vertices) - asset.center_of_mass, np.asarray(mesh.faces), process=False)
     elif level is not None:

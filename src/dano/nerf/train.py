@@ -307,3 +307,44 @@ def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None,
     if out_dir is not None:
         save_field(out_dir, field, occupancy, info({"psnr_heldout": score}), opt_state)
     return result
+
+
+def write_outputs(out_dir: str | Path, result: TrainResult, config: TrainConfig, dataset: Dataset, train_set: Dataset,
+                  heldout: Dataset, data: str | Path) -> dict:
+    """Beside the field directory ``out_dir`` that :func:`train` wrote: ``report.json`` (the
+    returned report: ``psnr_heldout`` [dB], ``wall_time_s``, ``rays_per_s``, ``steps``,
+    ``psnr_at_minutes``, view counts, ``image_size``, ``occupied_fraction``, ``data``,
+    ``field``), ``config.json`` (the resolved configuration), ``log.csv`` (the training log)
+    and ``heldout.png`` (renders over images). Each file is written atomically."""
+    import csv
+    import io
+    import json
+
+    from .._files import atomic_write
+    from ..viz.plot import plot_heldout
+
+    out_dir = Path(out_dir)
+    report = {
+        "psnr_heldout": result.psnr_heldout, "wall_time_s": result.wall_time_s, "rays_per_s": result.rays_per_s,
+        "steps": result.steps, "psnr_at_minutes": result.psnr_at, "train_views": train_set.num_images,
+        "heldout_views": heldout.num_images, "image_size": [dataset.cameras.width, dataset.cameras.height],
+        "occupied_fraction": result.occupancy.fraction_occupied(), "data": str(data), "field": str(out_dir),
+    }
+    resolved = dataclasses.asdict(config) | {"data": str(data), "bounds": dataset.bounds.tolist()}
+    atomic_write(out_dir / "config.json", lambda f: f.write((json.dumps(resolved, indent=2) + "\n").encode()))
+    atomic_write(out_dir / "report.json", lambda f: f.write((json.dumps(report, indent=2) + "\n").encode()))
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=["step", "elapsed_s", "loss", "psnr_train", "lr", "complete",
+                                                "samples_per_ray"])
+    writer.writeheader()
+    writer.writerows(result.log)
+    atomic_write(out_dir / "log.csv", lambda f: f.write(buffer.getvalue().encode()))
+    references, titles = [], []
+    for k, image in enumerate(result.heldout_renders[:4]):
+        ref = heldout.images[k]
+        if heldout.alpha is not None:
+            ref = ref * heldout.alpha[k][..., None] + (1.0 - heldout.alpha[k][..., None])
+        references.append(ref)
+        titles.append(f"{heldout.names[k]}\n{psnr(np.clip(image, 0.0, 1.0), ref):.2f} dB")
+    plot_heldout(result.heldout_renders, references, titles, out_dir / "heldout.png")
+    return report

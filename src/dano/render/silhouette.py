@@ -53,7 +53,7 @@ def surface_distance(field, points: jax.Array, edge_width: float) -> jax.Array:
     the surface: give fields whose edge width is at least a tenth of a pixel's footprint."""
     if hasattr(field, "signed_distance"):
         return field.signed_distance(points)
-    from ..sim.scene import interior_density  # a host value; fields are static in a tracking problem
+    from ..fields.base import interior_density  # a host value; fields are static in a tracking problem
 
     w = float(getattr(field, "edge_width", edge_width))
     occupancy = field.density(points) / interior_density(field)

@@ -28,6 +28,7 @@ from ..asset import DanoAsset
 from ..contact import PAIR_KINDS, ContactParams, Samples, contact_model
 from ..contact.surface import surface_points
 from ..errors import DanoError
+from ..fields.base import interior_density
 
 PRIMITIVES = {
     mujoco.mjtGeom.mjGEOM_PLANE: "plane",
@@ -307,23 +308,6 @@ def _check_dtype(dtype) -> None:
     if dtype == jnp.float64 and not jax.config.jax_enable_x64:
         raise DanoError("float64 needs JAX's 64-bit mode: call dano.enable_float64() (or run inside "
                         "`with jax.enable_x64(True):`) before composing the scene")
-
-
-def interior_density(field) -> float:
-    """Density of full occupancy of a field (its interior value; the surface is half of it):
-    the field's optional ``interior_density()``, else the largest density on a 33³ grid over
-    its bounds. Raises DanoError if that is not positive and finite."""
-    fn = getattr(field, "interior_density", None)
-    if fn is not None:
-        rho = float(fn())
-    else:
-        b = np.asarray(field.bounds(), dtype=np.float64)
-        axes = [np.linspace(b[0, k], b[1, k], 33) for k in range(3)]
-        grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        rho = float(np.max(np.asarray(field.density(jnp.asarray(grid)))))
-    if not np.isfinite(rho) or rho <= 0:
-        raise DanoError(f"the {type(field).__name__}'s interior density must be positive and finite, got {rho}")
-    return rho
 
 
 def default_sample_radius(asset: DanoAsset) -> float:

@@ -1,7 +1,5 @@
-"""Identification runs from a configuration (a TOML file or a built-in example name).
-
-Built-in examples: ``soap`` (the paper's real soap video) and ``bunny-pushes`` (the paper's
-interactive-perception experiment). A TOML file describes a user problem::
+"""Identification runs from a TOML problem file (the built-in examples are experiments:
+:mod:`dano.experiments`). A TOML file describes a user problem::
 
     [scene]
     mjcf = "table.xml"            # optional; default: empty world with a ground plane
@@ -74,10 +72,9 @@ from .._config import read_table, typed_table
 from ..errors import DanoError, FileFormatError
 from .problem import (SEGMENT_NUISANCE_PREFIXES, FitParameter, Observation, SysIdProblem, Weights,
                       identification_params)
+from .outputs import estimates_report
 from .solve import identify
-from .uncertainty import cramer_rao
 
-EXAMPLES = ("soap", "bunny-pushes", "bunny-dynamics")
 
 
 MAX_OBSERVED_SPEED = 100.0  # m/s: faster observed motion means the positions are not in metres
@@ -348,118 +345,32 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
     return problem, solver, dataclasses.asdict(_absolute(cfg, base))
 
 
-def _push_dynamics_bound(problem: SysIdProblem, truth: dict) -> dict:
-    """The Cramér–Rao standard deviations (:func:`~dano.sysid.cramer_rao`) of bunny-dynamics'
-    estimates at the truth (nuisance offsets at zero) under the paper's noise, whatever noise
-    the data carry; ``start_fitted`` says whether the pushes' starts are nuisance parameters
-    (with the noise-free data they are not, and the bound is then the one for known starts).
-    A bound that cannot be computed is reported as {"error": why}, not raised: the fit stands."""
-    from .examples import dynamics_recovery
-
-    value = {"alpha": truth["alpha"], "sliding_friction": truth["sliding_friction"],
-             **{f"com_offset_{a}": truth["com_offset"][k] for k, a in enumerate("xyz")},
-             **{f"second_moment_scale_{a}": truth["second_moment_scale"][k] for k, a in enumerate("xyz")}}
-    theta = np.array([value[p.name] for p in problem.parameters] + [0.0] * (problem.num_parameters
-                                                                             - len(problem.parameters)))
-    out = {"noise": {"position_m": 1e-3, "rotation_deg": 0.5, "pusher_m": 1e-3},
-           "start_fitted": any(lab.startswith(SEGMENT_NUISANCE_PREFIXES) for lab in problem.labels)}
-    try:
-        cov = cramer_rao(problem, theta, problem.residual_noise(1e-3, 0.5, 1e-3))
-    except DanoError as exc:
-        return {**out, "error": str(exc)}
-    bound = dynamics_recovery(dict(zip(problem.labels, theta)), truth, cov)
-    return {**out, **{k: v for k, v in bound.items() if "_std" in k}}
+def solver_options(solver: dict) -> dict:
+    """The keyword arguments of :func:`~dano.sysid.identify` from a resolved solver table
+    (``jacobian``, ``horizons`` and optionally ``scan``, ``starts``, ``max_iterations``,
+    ``noise_rms``, ``bootstrap_samples``, ``profile_points``, ``level``)."""
+    return {"jacobian": solver["jacobian"], "horizons": solver["horizons"], "scan": solver.get("scan"),
+            "starts": solver.get("starts", 2), "max_iterations": solver.get("max_iterations", 50),
+            "noise_rms": solver.get("noise_rms"), "bootstrap_samples": solver.get("bootstrap_samples", 0),
+            "profile_points": solver.get("profile_points"), "level": solver.get("level", 0.95)}
 
 
-def run(config: str | Path, *, jacobian: str | None = None, noise: bool = True) -> tuple[SysIdProblem, object, dict]:
-    """Run an identification: ``config`` is a built-in example name, a TOML file or the
-    ``config.json`` an earlier run saved (which runs the same problem again).
+def run(config: str | Path, *, jacobian: str | None = None) -> tuple[SysIdProblem, object, dict]:
+    """Run an identification from a TOML problem file or the ``config.json`` an earlier run
+    of one saved (which runs the same problem again). Built-in examples (``soap``,
+    ``bunny-pushes``, ...) are experiments: :func:`dano.experiments.run_sysid`.
 
-    Returns (problem, result, report); ``report`` is JSON-able: the estimates as top-level
-    keys (e.g. ``sliding_friction``), their standard errors (``<name>_std``), wall and
-    compile times, the fit residual and, for the soap, its sensitivity to the assumed
-    length scale; for ``bunny-dynamics``, the truth and ``recovery`` (:func:`dynamics_recovery`).
-    ``noise``: for ``bunny-pushes`` and ``bunny-dynamics``, add the paper's pose noise (1 mm, 0.5°).
+    Returns (problem, result, {"report": ..., "config": ...}): ``report`` is
+    :func:`estimates_report`; ``config`` the resolved configuration (defaults included,
+    paths absolute), loadable again. ``jacobian``: "ad" or "fd", overriding the file's.
+    Raises FileFormatError / DanoError naming the file and the key.
     """
-    from .examples import (PUSH_GUESS, PUSH_TRUTH, dynamics_recovery, push_dynamics_problem, push_problem,
-                           soap_problem)
-
-    extra: dict = {}
-    if Path(config).suffix.lower() == ".json" and Path(config).is_file():
-        saved = read_table(config)
-        if "example" in saved:  # the config.json of a built-in example reruns it
-            if saved["example"] not in EXAMPLES:
-                raise FileFormatError(f"{config}: unknown example {saved['example']!r}; one of {', '.join(EXAMPLES)}")
-            noise_saved = saved.get("noise", {})
-            noise = noise and not (isinstance(noise_saved, dict) and noise_saved.get("position_m") == 0)
-            config = saved["example"]
-    if config == "soap":
-        problem, solver = soap_problem(substeps=4), {"jacobian": "ad", "horizons": ()}  # default scan, profile
-        resolved = {"example": "soap", "substeps": 4, "length_scale": 1.0,
-                    "data": "soap_pose_traj.csv (real video, 120 fps) + bluesoap collider (paper)",
-                    "time_scale": "Froude: sqrt(15.342) s of simulation per s of video",
-                    "fit": ["sliding_friction (soap/ground)", "initial velocity x, y (nuisance)"],
-                    "weights": {"position": [1, 1, 0], "rotation": 0}}
-    elif config == "bunny-dynamics":
-        noise_levels = (1e-3, 0.5) if noise else (0.0, 0.0)
-        problem, truth = push_dynamics_problem(*noise_levels)
-        # continuation from the distant guess, no scan; no profiles (8 parameters: minutes more; its
-        # uncertainty is the Cramér–Rao bound reported beside it)
-        solver = {"jacobian": "ad", "horizons": (0.4,), "max_iterations": 100, "scan": 0, "profile_points": 0}
-        resolved = {"example": "bunny-dynamics", "truth": truth, "initial_guess": PUSH_GUESS,
-                    "noise": {"position_m": noise_levels[0], "rotation_deg": noise_levels[1]}, "pushes": 10,
-                    "horizons": [0.4]}
-        extra["truth"] = truth
-    elif config == "bunny-pushes":
-        noise_levels = (1e-3, 0.5) if noise else (0.0, 0.0)
-        problem, solver = push_problem(*noise_levels), {"jacobian": "ad", "horizons": (0.4,), "scan": 0}
-        resolved = {"example": "bunny-pushes", "truth": PUSH_TRUTH, "initial_guess": PUSH_GUESS,
-                    "noise": {"position_m": noise_levels[0], "rotation_deg": noise_levels[1]}, "pushes": 10,
-                    "horizons": [0.4]}
-        extra["truth"] = PUSH_TRUTH
-    else:
-        path = Path(config)
-        if path.suffix.lower() not in (".toml", ".json") and not path.exists():
-            raise DanoError(f"unknown identification {config!r}: give a TOML file, a saved config.json or one of "
-                            f"{', '.join(EXAMPLES)}")
-        problem, solver, resolved = problem_from_toml(path)
+    path = Path(config)
+    if path.suffix.lower() not in (".toml", ".json") and not path.exists():
+        raise DanoError(f"unknown identification {str(config)!r}: give a TOML problem file or a saved config.json")
+    problem, solver, resolved = problem_from_toml(path)
     if jacobian is not None:
         solver["jacobian"] = jacobian
-    if "options" in resolved:  # a user problem: config.json is loadable again (dano sysid config.json)
-        resolved["options"]["jacobian"] = solver["jacobian"]
-    else:
-        resolved["solver"] = {**solver, "method": "scipy.optimize.least_squares (trf), bounds"}
-    result = identify(problem, jacobian=solver["jacobian"], horizons=solver["horizons"],
-                      scan=solver.get("scan"), starts=solver.get("starts", 2),
-                      max_iterations=solver.get("max_iterations", 50),
-                      noise_rms=solver.get("noise_rms"), bootstrap_samples=solver.get("bootstrap_samples", 0),
-                      profile_points=solver.get("profile_points"), level=solver.get("level", 0.95))
-    report = {}
-    for label, v, s in zip(result.labels, result.estimates, result.standard_errors):
-        if not label.startswith(SEGMENT_NUISANCE_PREFIXES):  # per-segment nuisance: in "parameters" only
-            key = label.split(":")[-1] if sum(lab.split(":")[-1] == label.split(":")[-1]
-                                              for lab in result.labels) == 1 else label
-            report[key], report[f"{key}_std"] = float(v), float(s)
-            if result.interval is not None and label in result.interval["lower"]:
-                report[f"{key}_lower"] = result.interval["lower"][label]
-                report[f"{key}_upper"] = result.interval["upper"][label]
-    report.update(result.as_dict())
-    report.update(extra)
-    if config == "bunny-dynamics":
-        report["recovery"] = dynamics_recovery(dict(zip(result.labels, result.estimates)), extra["truth"])
-        report["recovery"]["cramer_rao"] = _push_dynamics_bound(problem, extra["truth"])
-    if config == "soap":
-        sens = {}
-        for scale in (0.9, 1.1):
-            r = identify(soap_problem(length_scale=scale, substeps=4, initial_friction=float(result.estimates[0])),
-                         scan=0, profile_points=0)  # from the estimate: the sensitivity of the local answer
-            sens[str(scale)] = float(r.estimates[0])
-        mu = report["sliding_friction"]
-        report["length_scale_sensitivity"] = {
-            "sliding_friction_at_length_scale": {"0.9": sens["0.9"], "1.0": mu, "1.1": sens["1.1"]},
-            "elasticity_dlnmu_dlnL": float((np.log(sens["1.1"]) - np.log(sens["0.9"])) / (np.log(1.1) - np.log(0.9))),
-            "note": "friction is identified together with the assumed real length per scene unit; "
-                    "scaling all displacements by L scales the identified friction by about L^elasticity",
-        }
-        report["paper_reference"] = {"video_identification": 0.61, "tilted_plane": 0.75}
-    return problem, result, {"report": report, "config": resolved}
+    resolved["options"]["jacobian"] = solver["jacobian"]
+    result = identify(problem, **solver_options(solver))
+    return problem, result, {"report": estimates_report(result), "config": resolved}

@@ -949,7 +949,7 @@ class SysIdProblem:
         """(m,) standard deviation of each residual [residual units] when the observed poses
         carry independent Gaussian noise: ``position`` [m] per axis (a number, or (3,) per
         axis x y z), ``rotation_deg`` [deg] the rms rotation angle (a rotation vector with
-        ``rotation_deg``/√3 per axis, as :func:`~dano.sysid.examples.push_observations` draws
+        ``rotation_deg``/√3 per axis, as :func:`~dano.experiments.sysid_examples.push_observations` draws
         it) and ``joints`` [joint units]; scaled by the weights' square roots like the
         residuals. Raises DanoError if a level is negative or not finite, or if a weighted
         component would have no noise."""

@@ -43,130 +43,109 @@ def plot_samples(asset, path: str | Path, max_arrows: int = 600, seed: int = 0) 
     return path
 
 
-def plot_sysid(problem, result, path, max_trajectories: int = 4) -> Path:
-    """Observed vs fitted trajectories (top-down x–y paths of the tracked DANOs and their
-    positions over time), the cost per iteration and, after a global scan, the cost profile
-    along each parameter, to an image file. Written atomically."""
+def plot_sysid(series, cost_history, path, profiles=None, title: str = "") -> Path:
+    """An identification's fit: observed vs fitted paths (top view) and x, y positions over
+    time, the cost per iteration and, where given, the cost profile along each parameter,
+    to an image file (format from the suffix). Written atomically.
+
+    series: list of dicts, one per tracked object and trajectory: ``label`` (str), ``time``
+    (T,) [s], ``observed`` (T, 2) world x, y [m], ``fitted`` (T, 2) [m] or None.
+    cost_history: (K,) cost ½‖r‖² per iteration. profiles: {label: {"values": (P,),
+    "cost": (P,) with None where not evaluated, "estimate": float}}. title: the figure's title.
+    """
     import matplotlib
     from matplotlib.figure import Figure
 
-    from ..sysid.problem import SEGMENT_NUISANCE_PREFIXES
-
-    segs = problem.segments[:max_trajectories]
-    profiles = (result.scan or {}).get("profile", {})
+    profiles = profiles or {}
     fig = Figure(figsize=(15 + 5 * bool(profiles), 4.5))
     axes = fig.subplots(1, 3 + bool(profiles))
     colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
-    for i, seg in enumerate(segs):
-        obs = problem.observations[seg.obs]
-        fitted = result.fitted[i] if i < len(result.fitted) else None
-        t = np.asarray(obs.time)[seg.start : seg.start + seg.frames]
-        for name, poses in obs.poses.items():
-            k = problem.scene.dano_index(name)
-            a = problem.scene.qpos_adr[k]
-            p = np.asarray(poses)[seg.start : seg.start + seg.frames]
-            c = colors[i % len(colors)]
-            axes[0].plot(p[:, 0], p[:, 1], "o", ms=3, color=c, alpha=0.6, label=f"{obs.name or i} observed")
-            axes[1].plot(t, p[:, 0], "o", ms=3, color=c, alpha=0.6)
-            axes[1].plot(t, p[:, 1], "s", ms=3, color=c, alpha=0.6)
-            if fitted is not None:
-                axes[0].plot(fitted[:, a], fitted[:, a + 1], "-", color=c, label="fitted")
-                axes[1].plot(t, fitted[:, a], "-", color=c)
-                axes[1].plot(t, fitted[:, a + 1], "--", color=c)
+    for i, s in enumerate(series):
+        c, t, p, fitted = colors[i % len(colors)], np.asarray(s["time"]), np.asarray(s["observed"]), s["fitted"]
+        axes[0].plot(p[:, 0], p[:, 1], "o", ms=3, color=c, alpha=0.6, label=f"{s['label']} observed")
+        axes[1].plot(t, p[:, 0], "o", ms=3, color=c, alpha=0.6)
+        axes[1].plot(t, p[:, 1], "s", ms=3, color=c, alpha=0.6)
+        if fitted is not None:
+            fitted = np.asarray(fitted)
+            axes[0].plot(fitted[:, 0], fitted[:, 1], "-", color=c, label="fitted")
+            axes[1].plot(t, fitted[:, 0], "-", color=c)
+            axes[1].plot(t, fitted[:, 1], "--", color=c)
     axes[0].set(xlabel="x [m]", ylabel="y [m]", title="paths (top view)", aspect="equal")
     axes[0].legend(fontsize=7)
     axes[1].set(xlabel="time [s]", ylabel="position [m]", title="x (o, solid) and y (s, dashed)")
-    axes[2].semilogy(np.maximum(result.cost_history, 1e-300), "o-")
+    axes[2].semilogy(np.maximum(np.asarray(cost_history, dtype=float), 1e-300), "o-")
     axes[2].set(xlabel="iteration", ylabel="cost ½‖r‖²", title="cost")
     if profiles:  # the global scan: lowest cost along each parameter, and the estimate
         for (label, prof), c in zip(profiles.items(), colors):
             x = [v for v, y in zip(prof["values"], prof["cost"]) if y is not None]
             y = [y for y in prof["cost"] if y is not None]
             axes[3].semilogy(x, y, "o-", color=c, label=label)
-            axes[3].axvline(result.estimates[result.labels.index(label)], color=c, ls=":")
+            axes[3].axvline(prof["estimate"], color=c, ls=":")
         axes[3].set(xlabel="parameter value", ylabel="lowest cost on the scan", title="global scan (dotted: estimate)")
         axes[3].legend(fontsize=7)
-    interval = result.interval or {"lower": {}, "upper": {}, "level": 0.95}
-
-    def shown(k, v, s):  # the interval where there is one (it is the uncertainty), else the standard error
-        if k in interval["lower"]:
-            return f"{k} = {v:.4g} [{interval['lower'][k]:.4g}, {interval['upper'][k]:.4g}] ({interval['level']:.0%})"
-        return f"{k} = {v:.4g} ± {s:.2g}"
-
-    est = ", ".join(shown(k, v, s) for k, v, s in zip(result.labels, result.estimates, result.standard_errors)
-                    if not k.startswith(SEGMENT_NUISANCE_PREFIXES))
-    fig.suptitle(est, fontsize=10)
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    atomic_write(path, lambda f: fig.savefig(f, format=path.suffix.lstrip(".") or "png", dpi=110))
-    return path
+    return _save(fig, path, dpi=110)
 
 
-def plot_trajopt(task, solution, model_error, path) -> Path:
+def plot_trajopt(log: dict, status: str, iterations: int, runs, path, goals=()) -> Path:
     """A trajectory optimisation's convergence (cost, constraint violation and penalty per
-    iteration) and its top-down paths (plain push, optimised plan, goals and, with a model
-    error, the open-loop and receding-horizon runs in the other world), to an image file.
-    Written atomically."""
+    iteration) and top-down paths, to an image file. Written atomically.
+
+    log: per-iteration arrays ``iteration``, ``cost``, ``merit``, ``max_violation``,
+    ``penalty``, ``step`` (:data:`dano.trajopt.LOG_KEYS`); status, iterations: the solver's.
+    runs: list of (label, object_xy (T, 2) [m], pusher_xy (T, 2) [m] or None, line style),
+    e.g. the initial guess, the optimised plan, an open-loop and a receding-horizon run.
+    goals: list of (label, xy (2,) [m], marker).
+    """
     from matplotlib.figure import Figure
 
-    log = solution.log
     fig = Figure(figsize=(14, 4.5))
     ax_cost, ax_viol, ax_path = fig.subplots(1, 3)
     it = log["iteration"]
     ax_cost.plot(it, log["cost"], label="cost J")
     ax_cost.plot(it, log["merit"], "--", label="augmented Lagrangian")
-    ax_cost.set(xlabel="iteration", ylabel="cost", yscale="symlog", title=f"{solution.status}, "
-                f"{solution.iterations} iterations")
+    ax_cost.set(xlabel="iteration", ylabel="cost", yscale="symlog", title=f"{status}, {iterations} iterations")
     ax_cost.legend()
     ax_viol.semilogy(it, np.maximum(log["max_violation"], 1e-12), label="max constraint violation")
     ax_viol.semilogy(it, log["penalty"], ":", label="penalty μ")
     ax_viol.semilogy(it, np.maximum(log["step"], 1e-6), ".", ms=3, label="line-search step")
     ax_viol.set(xlabel="iteration", title="constraints")
     ax_viol.legend(fontsize=8)
-    runs = [("initial guess", task.X_plain, ":"), ("optimised", np.asarray(solution.states), "-")]
-    if model_error is not None:
-        runs += [(f"open loop, μ={model_error.friction:.3g}", model_error.open_loop_states, "--"),
-                 ("receding horizon", model_error.receding.states, "-.")]
-    from ..trajopt.tasks import pusher_positions
-
-    for label, X, style in runs:
-        b, p = X[:, task.bunny_qpos], pusher_positions(task, X)
-        line, = ax_path.plot(b[:, 0], b[:, 1], style, label=f"bunny, {label}")
-        ax_path.plot(p[:, 0], p[:, 1], style, color=line.get_color(), alpha=0.4)
-    ax_path.plot(*task.bunny_goal[:2], "k*", ms=12, label="bunny goal")
-    if task.pusher_goal is not None:
-        ax_path.plot(*task.pusher_goal[:2], "kx", ms=10, label="pusher goal")
+    for label, obj, pusher, style in runs:
+        line, = ax_path.plot(obj[:, 0], obj[:, 1], style, label=label)
+        if pusher is not None:
+            ax_path.plot(pusher[:, 0], pusher[:, 1], style, color=line.get_color(), alpha=0.4)
+    for label, xy, marker in goals:
+        ax_path.plot(*np.asarray(xy)[:2], marker, ms=11, label=label)
     ax_path.set(xlabel="x [m]", ylabel="y [m]", title="top view (faint: pusher)", aspect="equal")
     ax_path.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
+    return _save(fig, path, dpi=110)
+
+
+def _save(fig, path, dpi: int) -> Path:
+    """Write ``fig`` atomically, the format from the suffix (png by default)."""
     path = Path(path)
-    atomic_write(path, lambda f: fig.savefig(f, format=path.suffix.lstrip(".") or "png", dpi=110))
+    atomic_write(path, lambda f: fig.savefig(f, format=path.suffix.lstrip(".") or "png", dpi=dpi))
     return path
 
 
-def plot_heldout(renders, data, path, max_views: int = 4) -> Path:
-    """Held-out views: the field's renders (top row) over the images (bottom row), with each
-    view's PSNR, to an image file. ``renders``: list of (H, W, 3) in [0, 1]; ``data``: the
-    held-out :class:`~dano.nerf.Dataset`. Written atomically."""
+def plot_heldout(renders, references, titles, path, max_views: int = 4) -> Path:
+    """Held-out views: renders (top row) over the reference images (bottom row), to an image
+    file. renders, references: lists of (H, W, 3) in [0, 1]; titles: one string per view
+    (e.g. its name and PSNR). Written atomically."""
     from matplotlib.figure import Figure
-
-    from ..render import psnr
 
     n = min(max_views, len(renders))
     fig = Figure(figsize=(2.6 * n, 5.4))
     axes = fig.subplots(2, n, squeeze=False)
     for k in range(n):
-        ref = data.images[k]
-        if data.alpha is not None:
-            ref = ref * data.alpha[k][..., None] + (1.0 - data.alpha[k][..., None])
-        image = np.clip(renders[k], 0.0, 1.0)
-        axes[0, k].imshow(image)
-        axes[0, k].set_title(f"{data.names[k]}\n{psnr(image, ref):.2f} dB", fontsize=8)
-        axes[1, k].imshow(ref)
+        axes[0, k].imshow(np.clip(renders[k], 0.0, 1.0))
+        axes[0, k].set_title(titles[k], fontsize=8)
+        axes[1, k].imshow(references[k])
         for ax in axes[:, k]:
             ax.set_axis_off()
     axes[1, 0].set_title("images", fontsize=8)
     fig.tight_layout()
-    path = Path(path)
-    atomic_write(path, lambda f: fig.savefig(f, format=path.suffix.lstrip(".") or "png", dpi=100))
-    return path
+    return _save(fig, path, dpi=100)

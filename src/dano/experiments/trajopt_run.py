@@ -13,7 +13,7 @@ import numpy as np
 from .._config import read_table, typed_table
 from ..errors import DanoError
 from .grasp import GraspPandaConfig
-from .tasks import TASKS, final_errors, limit_report, model_error_run, solve_task, unknown_task
+from .push import TASKS, final_errors, limit_report, model_error_run, solve_task, unknown_task
 
 #: every built-in task: name -> its configuration class
 CONFIGS = {**{name: cls for name, (_, cls) in TASKS.items()}, "grasp-panda": GraspPandaConfig}
@@ -81,7 +81,7 @@ def run(source: str, progress=None, **overrides):
     """Build and solve the task (and the model-error runs if configured). progress:
     optional ``progress(done, total, description)``. Returns (task, solution,
     model_error or None, report dict); for ``grasp-panda`` (task, the chosen
-    :class:`~dano.trajopt.grasp.GraspRun`, None, report)."""
+    :class:`~dano.experiments.grasp.GraspRun`, None, report)."""
     cfg = load_config(source, **overrides)
     if isinstance(cfg, GraspPandaConfig):
         from .grasp import run_grasp
@@ -112,8 +112,6 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
     ``log.csv`` (the iteration log), ``convergence.png`` and, if ``video``, ``<task>.mp4``
     into ``out_dir``: all published together, or none. Returns the paths."""
     from .._files import atomic_path
-    from ..viz.plot import plot_trajopt
-
     if isinstance(task.config, GraspPandaConfig):
         return _write_grasp(task, solution, rep, Path(out_dir), video, progress)
     out_dir = Path(out_dir)
@@ -140,7 +138,7 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
         with open(paths["solution.npz"], "wb") as f:
             np.savez(f, **arrays)
         paths["log.csv"].write_text(csv)
-        plot_trajopt(task, solution, model_error, paths["convergence.png"])
+        _plot(task, solution, model_error, paths["convergence.png"])
         if video:
             if task.apply == "qfrc":
                 qfrc = np.zeros((len(U), task.scene.nv))
@@ -149,6 +147,24 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
             else:
                 _replay_video(task.scene, task.params, X, U, paths[f"{task.config.task}.mp4"], progress)
     return [out_dir / n for n in names]
+
+
+def _plot(task, solution, model_error, path) -> None:
+    """convergence.png: the solver's log and the paths of the initial guess, the plan and,
+    with a model error, the open-loop and receding-horizon runs (:func:`dano.viz.plot_trajopt`)."""
+    from ..viz.plot import plot_trajopt
+    from .push import pusher_positions
+
+    runs = [("initial guess", task.X_plain, ":"), ("optimised", np.asarray(solution.states), "-")]
+    if model_error is not None:
+        runs += [(f"open loop, μ={model_error.friction:.3g}", model_error.open_loop_states, "--"),
+                 ("receding horizon", model_error.receding.states, "-.")]
+    paths = [(f"bunny, {label}", X[:, task.bunny_qpos][:, :2], pusher_positions(task, X)[:, :2], style)
+             for label, X, style in runs]
+    goals = [("bunny goal", task.bunny_goal, "k*")]
+    if task.pusher_goal is not None:
+        goals.append(("pusher goal", task.pusher_goal, "kx"))
+    plot_trajopt(solution.log, solution.status, solution.iterations, paths, path, goals=goals)
 
 
 def _write_report_and_config(paths: dict, rep: dict, config) -> None:

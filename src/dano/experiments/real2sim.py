@@ -1,7 +1,7 @@
 """``dano real2sim synthetic-slide``: video → poses → friction (two stages) and video → friction
 (end to end, through the renderer and the simulator), on a video with a known answer.
 
-The video is :func:`dano.tracking.synthetic.synthetic_slide` (MuJoCo's rasteriser draws the
+The video is :func:`dano.experiments.slide.synthetic_slide` (MuJoCo's rasteriser draws the
 bunny's mesh; dano's tracker renders its density field). Masks come from background
 subtraction. Tracking starts from the first frame's true pose perturbed by ``start_error``
 (3 cm and 3° by default: a user's rough initial guess).
@@ -17,11 +17,11 @@ import numpy as np
 
 from ..sysid import FitParameter, Observation, SysIdProblem, Weights, identify
 from ..trajectory import load_trajectory
-from .inputs import load_video
-from .outputs import write_track_outputs
-from .pixels import identify_from_pixels
-from .synthetic import SLIDE_FRICTION, slide_scene, synthetic_slide
-from .track import TrackConfig, TrackedObject, initial_velocity, pose_errors, track
+from ..tracking.inputs import load_video
+from ..tracking.outputs import write_track_outputs
+from ..tracking.pixels import identify_from_pixels
+from .slide import SLIDE_FRICTION, slide_scene, synthetic_slide
+from ..tracking.track import TrackConfig, TrackedObject, initial_velocity, pose_errors, track
 
 FRICTION_BOUNDS = (0.0, 1.5)
 

@@ -20,10 +20,10 @@ from ..asset import build
 from ..fields import mesh_field
 from ..io import load_mesh
 from ..tracking.track import pose_errors
-from .data import load_dataset
-from .density import DENSITY_RULES, density_grid
-from .synthetic import render_dataset
-from .train import TrainConfig, train
+from ..nerf.data import load_dataset
+from ..nerf.density import DENSITY_RULES, density_grid
+from ..nerf.synthetic import render_dataset
+from ..nerf.train import TrainConfig, train
 
 
 def mass_property_errors(asset, mesh, rule: str) -> dict:

@@ -1,8 +1,11 @@
-"""Built-in identification problems: the paper's real soap video and the bunny pushes."""
+"""Built-in identification problems: the paper's real soap video, the bunny pushes, the
+ContactNets cube tosses, and coverage studies of the defaults."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -10,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from ..data import builtin_file, load_builtin
 from ..sim.scene import DanoObject, compose
 from ..sim.scenes import resting_height
-from .problem import FitParameter, Observation, SysIdProblem, Weights
+from ..sysid.problem import FitParameter, Observation, SysIdProblem, Weights
 
 # ../shared/README.md: the soap video is 120 frames/s; the paper Froude-scaled time by
 # sqrt(15.342) because its collider is 15.342x larger than the real soap.
@@ -292,7 +295,6 @@ def contactnets_tosses(path, tosses: int) -> list[tuple[str, np.ndarray]]:
     ``toss_<n>`` of shape (T, 13) per frame: orientation wxyz, position [m], angular
     velocity (body frame) [rad/s], linear velocity (world frame) [m/s].
     Raises FileFormatError for a file that is not such an archive, DanoError for too few tosses."""
-    from pathlib import Path
 
     from ..errors import DanoError, FileFormatError
 
@@ -404,7 +406,7 @@ def contactnets_identify(path, tosses: int = 10, start: float = 0.3, scan: int =
     JSON-able dict of ``dano sysid contactnets-cube --json``."""
     import time
 
-    from .solve import identify, scan_costs
+    from ..sysid.solve import identify, scan_costs
 
     t0 = time.perf_counter()
     problem, held = contactnets_problem(path, tosses, start, substeps, contact_model)
@@ -481,10 +483,10 @@ def bootstrap_coverage(seeds: int = 20, samples: int = 100, trajectories: int = 
     [{"seed", "estimate", "standard_error", "lower", "upper", "bootstrap_std"}], ...}."""
     from scipy.stats import norm
 
-    from .. import enable_float64
+    from .._jax_setup import enable_float64
     from ..asset import build
     from ..fields import BoxField
-    from .solve import identify
+    from ..sysid.solve import identify
 
     enable_float64()
     asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
@@ -524,11 +526,11 @@ def interval_coverage(seeds: int = 100, trajectories: int = 4, noise: float = 0.
     (how many seeds warned), ...}."""
     import jax.numpy as jnp
 
-    from .. import enable_float64
+    from .._jax_setup import enable_float64
     from ..asset import build
     from ..fields import BoxField
     from ..sim import State, rollout
-    from .solve import identify
+    from ..sysid.solve import identify
 
     enable_float64()
     asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
@@ -565,3 +567,137 @@ def interval_coverage(seeds: int = 100, trajectories: int = 4, noise: float = 0.
             "covers": covers, "coverage": covers / seeds, "profile_covers": prof,
             "bootstrap_covers": int(sum(s["bootstrap"][0] <= friction <= s["bootstrap"][1] for s in boot)),
             "seeds_with_warnings": warned, "per_seed": per_seed}
+
+
+# ------------------------------------------------------------------ the built-in identifications
+def _push_dynamics_bound(problem: SysIdProblem, truth: dict) -> dict:
+    """The Cramér–Rao standard deviations (:func:`~dano.sysid.cramer_rao`) of bunny-dynamics'
+    estimates at the truth (nuisance offsets at zero) under the paper's noise, whatever noise
+    the data carry; ``start_fitted`` says whether the pushes' starts are nuisance parameters
+    (with the noise-free data they are not, and the bound is then the one for known starts).
+    A bound that cannot be computed is reported as {"error": why}, not raised: the fit stands."""
+    from ..errors import DanoError
+    from ..sysid.problem import SEGMENT_NUISANCE_PREFIXES
+    from ..sysid.uncertainty import cramer_rao
+
+    value = {"alpha": truth["alpha"], "sliding_friction": truth["sliding_friction"],
+             **{f"com_offset_{a}": truth["com_offset"][k] for k, a in enumerate("xyz")},
+             **{f"second_moment_scale_{a}": truth["second_moment_scale"][k] for k, a in enumerate("xyz")}}
+    theta = np.array([value[p.name] for p in problem.parameters] + [0.0] * (problem.num_parameters
+                                                                             - len(problem.parameters)))
+    out = {"noise": {"position_m": 1e-3, "rotation_deg": 0.5, "pusher_m": 1e-3},
+           "start_fitted": any(lab.startswith(SEGMENT_NUISANCE_PREFIXES) for lab in problem.labels)}
+    try:
+        cov = cramer_rao(problem, theta, problem.residual_noise(1e-3, 0.5, 1e-3))
+    except DanoError as exc:
+        return {**out, "error": str(exc)}
+    bound = dynamics_recovery(dict(zip(problem.labels, theta)), truth, cov)
+    return {**out, **{k: v for k, v in bound.items() if "_std" in k}}
+
+
+def soap_sensitivity(friction: float) -> dict:
+    """The soap's friction identified again with the assumed real length per scene unit
+    scaled by 0.9 and 1.1, from ``friction`` (no scan, no profile: the sensitivity of the
+    local answer), and the elasticity d ln μ / d ln L."""
+    from ..sysid.solve import identify
+
+    sens = {str(scale): float(identify(soap_problem(length_scale=scale, substeps=4, initial_friction=friction),
+                                       scan=0, profile_points=0).estimates[0]) for scale in (0.9, 1.1)}
+    return {
+        "sliding_friction_at_length_scale": {"0.9": sens["0.9"], "1.0": friction, "1.1": sens["1.1"]},
+        "elasticity_dlnmu_dlnL": float((np.log(sens["1.1"]) - np.log(sens["0.9"])) / (np.log(1.1) - np.log(0.9))),
+        "note": "friction is identified together with the assumed real length per scene unit; "
+                "scaling all displacements by L scales the identified friction by about L^elasticity",
+    }
+
+
+def run_example(name: str, *, jacobian: str | None = None, noise: bool = True) -> tuple[SysIdProblem, object, dict]:
+    """Run a built-in identification: ``soap`` (the paper's real soap video), ``bunny-pushes``
+    (α and friction from 10 simulated pushes) or ``bunny-dynamics`` (the same with the centre
+    of mass and inertia unknown). Returns (problem, result, {"report", "config"}) as
+    :func:`dano.sysid.config.run`; the report adds, for the soap, ``length_scale_sensitivity``
+    and ``paper_reference``; for the pushes, ``truth`` (and for bunny-dynamics ``recovery``).
+    ``noise``: the paper's pose noise (1 mm, 0.5°) on the pushes' observations.
+    Raises DanoError for another name."""
+    from ..errors import DanoError
+    from ..sysid.config import solver_options
+    from ..sysid.outputs import estimates_report
+    from ..sysid.solve import identify
+
+    extra: dict = {}
+    noise_levels = (1e-3, 0.5) if noise else (0.0, 0.0)
+    if name == "soap":
+        problem, solver = soap_problem(substeps=4), {"jacobian": "ad", "horizons": ()}  # default scan, profile
+        resolved = {"example": "soap", "substeps": 4, "length_scale": 1.0,
+                    "data": "soap_pose_traj.csv (real video, 120 fps) + bluesoap collider (paper)",
+                    "time_scale": "Froude: sqrt(15.342) s of simulation per s of video",
+                    "fit": ["sliding_friction (soap/ground)", "initial velocity x, y (nuisance)"],
+                    "weights": {"position": [1, 1, 0], "rotation": 0}}
+    elif name == "bunny-dynamics":
+        problem, truth = push_dynamics_problem(*noise_levels)
+        # continuation from the distant guess, no scan; no profiles (8 parameters: minutes more; its
+        # uncertainty is the Cramér–Rao bound reported beside it)
+        solver = {"jacobian": "ad", "horizons": (0.4,), "max_iterations": 100, "scan": 0, "profile_points": 0}
+        resolved = {"example": "bunny-dynamics", "truth": truth, "initial_guess": PUSH_GUESS,
+                    "noise": {"position_m": noise_levels[0], "rotation_deg": noise_levels[1]}, "pushes": 10,
+                    "horizons": [0.4]}
+        extra["truth"] = truth
+    elif name == "bunny-pushes":
+        problem, solver = push_problem(*noise_levels), {"jacobian": "ad", "horizons": (0.4,), "scan": 0}
+        resolved = {"example": "bunny-pushes", "truth": PUSH_TRUTH, "initial_guess": PUSH_GUESS,
+                    "noise": {"position_m": noise_levels[0], "rotation_deg": noise_levels[1]}, "pushes": 10,
+                    "horizons": [0.4]}
+        extra["truth"] = PUSH_TRUTH
+    else:
+        raise DanoError(f"unknown identification example {name!r}: one of soap, bunny-pushes, bunny-dynamics")
+    if jacobian is not None:
+        solver["jacobian"] = jacobian
+    resolved["solver"] = {**solver, "method": "scipy.optimize.least_squares (trf), bounds"}
+    result = identify(problem, **solver_options(solver))
+    report = {**estimates_report(result), **extra}
+    if name == "bunny-dynamics":
+        report["recovery"] = dynamics_recovery(dict(zip(result.labels, result.estimates)), extra["truth"])
+        report["recovery"]["cramer_rao"] = _push_dynamics_bound(problem, extra["truth"])
+    if name == "soap":
+        report["length_scale_sensitivity"] = soap_sensitivity(report["sliding_friction"])
+        report["paper_reference"] = {"video_identification": 0.61, "tilted_plane": 0.75}
+    return problem, result, {"report": report, "config": resolved}
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactNetsConfig:
+    """``contactnets-cube``: real cube tosses (ContactNets), friction, impact spring and
+    damper and the table height fitted on the even tosses, the odd ones predicted."""
+
+    data: Path
+    """The ContactNets tosses: a .npz of ``toss_<n>`` arrays, (T, 13) each (not shipped with
+    dano, e.g. shared/data/real/contactnets_cube/tosses_100_299.npz)."""
+    tosses: int = 10
+    """Use the first this many tosses (even ones fitted, odd ones held out), 2 to 200."""
+    start: float = 0.3
+    """Initial guess of the sliding friction."""
+    contact_model: str = "centroid"
+    """centroid (the paper's) or per_sample."""
+    bootstrap: int = 0
+    """Also refit this many resamples of the fitted tosses (0 or 2 to 10,000) for a 95 % interval."""
+
+    def __post_init__(self):
+        from ..contact import CONTACT_MODELS
+        from ..errors import DanoError
+
+        if not 2 <= self.tosses <= 200:
+            raise DanoError(f"--tosses must be 2 to 200, got {self.tosses}")
+        if self.contact_model not in CONTACT_MODELS:
+            raise DanoError(f"unknown --contact-model {self.contact_model!r}; available: {', '.join(CONTACT_MODELS)}")
+        if self.bootstrap and not 2 <= self.bootstrap <= 10_000:
+            raise DanoError(f"--bootstrap must be 0 or 2 to 10000 resamples, got {self.bootstrap}")
+
+
+def run_contactnets(config: ContactNetsConfig):
+    """Run ``contactnets-cube`` (:func:`contactnets_identify`). Returns (problem, result,
+    {"report", "config"}); ``config`` reruns it (``dano sysid config.json``)."""
+    problem, result, report = contactnets_identify(config.data, config.tosses, config.start,
+                                                   contact_model=config.contact_model, bootstrap=config.bootstrap)
+    resolved = {"example": "contactnets-cube", "data": str(Path(config.data).resolve()), "tosses": config.tosses,
+                "start": config.start, "contact_model": config.contact_model, "bootstrap": config.bootstrap}
+    return problem, result, {"report": report, "config": resolved}

@@ -54,7 +54,7 @@ import mujoco
 import numpy as np
 
 from ..errors import DanoError
-from .tasks import PANDA_TORQUE, checked, torque_controlled_arm
+from .push import PANDA_TORQUE, checked, torque_controlled_arm
 
 PAD_INNER_HALF_THICKNESS = 0.01  # [m] pads thickened outwards to 2 cm
 GRIP_SITE_OFFSET = 0.1034  # [m] hand frame: the main pads' centre below the hand's origin
@@ -282,8 +282,8 @@ def optimise_approach(task: GraspTask) -> ApproachPlan:
     the joint interpolation). The bunny is not in this problem: the constraint keeps the hand
     above it, and the executed grasp simulates everything together."""
     from ..sim import compose, make_data
-    from .ilqr import Options, solve
-    from .problem import Problem, mjx_dynamics
+    from ..trajopt.ilqr import Options, solve
+    from ..trajopt.problem import Problem, mjx_dynamics
     from .._mjx import mjx
 
     cfg = task.config

@@ -34,9 +34,9 @@ import mujoco
 import numpy as np
 
 from ..errors import DanoError
-from .ilqr import Options, Solution, solve
-from .mpc import RecedingHorizonResult, receding_horizon
-from .problem import Problem, mjx_dynamics
+from ..trajopt.ilqr import Options, Solution, solve
+from ..trajopt.mpc import RecedingHorizonResult, receding_horizon
+from ..trajopt.problem import Problem, mjx_dynamics
 
 G = 9.81
 
@@ -187,7 +187,7 @@ def push_sphere_task(config: PushSphereConfig = PushSphereConfig()) -> PushTask:
     from ..sim import DanoObject, compose
     from ..sim.scene import add_ground
     from ..sim.scenes import initial_state, resting_height
-    from .ilqr import rollout
+    from ..trajopt.ilqr import rollout
 
     config.validate()
     bunny = load_builtin("bunny")
@@ -386,7 +386,7 @@ def model_error_run(task: PushTask, solution: Solution, callback=None) -> ModelE
     in a world whose sliding friction is (1 + model_error)× the model's."""
     import jax
 
-    from .ilqr import rollout
+    from ..trajopt.ilqr import rollout
 
     cfg = task.config
     mu_world = cfg.sliding_friction * (1.0 + cfg.model_error)

@@ -41,8 +41,8 @@ import mujoco
 import numpy as np
 import trimesh
 
-from .errors import DanoError
-from .io.exporters import Decomposition, body_meshes
+from ..errors import DanoError
+from ..io.exporters import Decomposition, body_meshes
 
 COLLISIONS = ("hull", "decomposition")
 
@@ -78,7 +78,7 @@ class Scenario:
 def extract_levels(asset, levels: Sequence[float], resolution: int = 96) -> list[Level]:
     """Marching-cubes meshes (object frame) of the asset's field at ``levels`` (densities).
     Raises DanoError if the asset has no field or a level is outside its range."""
-    from .asset import visual_mesh
+    from ..asset import visual_mesh
 
     if asset.field is None:
         raise DanoError(f"{asset.name}: no density field stored, so no level set can be extracted; give level-set "
@@ -94,7 +94,7 @@ def default_levels(asset, resolution: int = 96) -> list[Level]:
     """The levels compared when none are given: 0.1, 0.5 and 0.9 of the field's interior
     density if the asset stores its field, else its visual mesh. Raises DanoError if it has
     neither."""
-    from .sim.scene import interior_density
+    from ..fields.base import interior_density
 
     if asset.field is not None:
         rho = interior_density(asset.field)
@@ -135,8 +135,8 @@ def mesh_body_model(pieces: Sequence[trimesh.Trimesh], mass: float, friction: fl
     pieces count twice, as in MuJoCo); sliding ``friction`` on both geoms (MuJoCo takes the
     larger of the two); timestep ``dt`` [s], implicitfast integrator. Raises DanoError if
     MuJoCo cannot compile it."""
-    from .io.exporters import add_collision_geoms
-    from .sim.scene import add_ground
+    from ..io.exporters import add_collision_geoms
+    from ..sim.scene import add_ground
 
     spec = mujoco.MjSpec()
     spec.option.timestep = dt
@@ -186,7 +186,7 @@ class _DanoRuns:
     """The DANO in dano on the plane: one scene (one compilation) for every run."""
 
     def __init__(self, asset, sc: Scenario, contact_model: str):
-        from .sim import DanoObject, compose
+        from ..sim import DanoObject, compose
 
         self.sc = sc
         self.scene = compose([DanoObject("dano", asset)], dt=sc.dt, name="mesh-route-dano", contact_model=contact_model)
@@ -198,8 +198,8 @@ class _DanoRuns:
                                                 rolling_friction=0.0)
 
     def _run(self, pos, quat, v, seconds: float) -> np.ndarray:
-        from .sim import rollout
-        from .sim.scenes import initial_state
+        from ..sim import rollout
+        from ..sim.scenes import initial_state
 
         state = initial_state(self.scene, {"dano": (pos, quat)}, {"dano": (v, (0.0, 0.0, 0.0))})
         return rollout(self.scene, state, params=self.params, steps=int(round(seconds / self.sc.dt))).qpos[-1, :7]
@@ -218,7 +218,7 @@ def _start_height(asset, pieces, quat: np.ndarray, clearance: float) -> float:
     vertex are at least ``clearance`` × the object's size above z = 0."""
     from scipy.spatial.transform import Rotation
 
-    from .sim.scenes import resting_height
+    from ..sim.scenes import resting_height
 
     up = Rotation.from_quat(quat, scalar_first=True).as_matrix()[2]
     lowest = max([resting_height(asset, quat)] + [-float(np.min(p.vertices @ up)) for ps in pieces for p in ps])
@@ -287,7 +287,7 @@ def compare_mesh(
         progress(total, total, "colliders, DANO runs")
     rho = None
     if asset.field is not None:
-        from .sim.scene import interior_density
+        from ..fields.base import interior_density
 
         rho = asset.alpha * interior_density(asset.field)
     report_levels, models = [], {}
@@ -342,8 +342,8 @@ def render_rest_figure(asset, report: dict, path, width: int = 320, height: int 
     Raises DanoError if no OpenGL context can be created (set MUJOCO_GL=egl or osmesa)."""
     from matplotlib.figure import Figure
 
-    from ._files import atomic_path
-    from .io.exporters import BodyMeshes, add_to_spec
+    from .._files import atomic_path
+    from ..io.exporters import BodyMeshes, add_to_spec
 
     models = report["_models"]["mesh"]
     panels = []
@@ -367,7 +367,7 @@ def render_rest_figure(asset, report: dict, path, width: int = 320, height: int 
         panels.append((r.render().copy(), title))
         r.close()
 
-    from .sim.scene import add_ground
+    from ..sim.scene import add_ground
 
     spec = mujoco.MjSpec()
     add_ground(spec)

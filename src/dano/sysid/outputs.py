@@ -1,0 +1,75 @@
+"""An identification's outputs: the JSON report of its estimates, the fit plot, and the
+result folder (``result.json``, ``config.json``, ``fit.png``: all three or none)."""
+
+from __future__ import annotations
+
+import json
+from contextlib import ExitStack
+from pathlib import Path
+
+import numpy as np
+
+from .._files import atomic_path
+from ..viz.plot import plot_sysid
+from .problem import SEGMENT_NUISANCE_PREFIXES
+
+
+def estimates_report(result) -> dict:
+    """A JSON-able report of an identification: the estimates as top-level keys (e.g.
+    ``sliding_friction``; the pair or object prefix kept only where a name occurs twice),
+    ``<name>_std``, ``<name>_lower``/``<name>_upper`` where there is an interval, then
+    everything :meth:`SysIdResult.as_dict` holds. Per-segment nuisance parameters are in
+    ``parameters`` only."""
+    report = {}
+    for label, v, s in zip(result.labels, result.estimates, result.standard_errors):
+        if not label.startswith(SEGMENT_NUISANCE_PREFIXES):
+            key = label.split(":")[-1] if sum(lab.split(":")[-1] == label.split(":")[-1]
+                                              for lab in result.labels) == 1 else label
+            report[key], report[f"{key}_std"] = float(v), float(s)
+            if result.interval is not None and label in result.interval["lower"]:
+                report[f"{key}_lower"] = result.interval["lower"][label]
+                report[f"{key}_upper"] = result.interval["upper"][label]
+    report.update(result.as_dict())
+    return report
+
+
+def fit_plot(problem, result, path, max_trajectories: int = 4) -> Path:
+    """Observed vs fitted positions of the first ``max_trajectories`` trajectories, the cost
+    per iteration and the profiles of ``result`` (:func:`dano.viz.plot_sysid`), titled with
+    each estimate and its interval (or standard error), to an image file."""
+    series = []
+    for i, seg in enumerate(problem.segments[:max_trajectories]):
+        obs = problem.observations[seg.obs]
+        fitted = result.fitted[i] if i < len(result.fitted) else None
+        t = np.asarray(obs.time)[seg.start : seg.start + seg.frames]
+        for name, poses in obs.poses.items():
+            a = problem.scene.qpos_adr[problem.scene.dano_index(name)]
+            series.append({"label": obs.name or str(i), "time": t,
+                           "observed": np.asarray(poses)[seg.start : seg.start + seg.frames, :2],
+                           "fitted": None if fitted is None else np.asarray(fitted)[:, a : a + 2]})
+    profiles = {label: {**prof, "estimate": result.estimates[result.labels.index(label)]}
+                for label, prof in (result.scan or {}).get("profile", {}).items()}
+    interval = result.interval or {"lower": {}, "upper": {}, "level": 0.95}
+
+    def shown(k, v, s):  # the interval where there is one (it is the uncertainty), else the standard error
+        if k in interval["lower"]:
+            return f"{k} = {v:.4g} [{interval['lower'][k]:.4g}, {interval['upper'][k]:.4g}] ({interval['level']:.0%})"
+        return f"{k} = {v:.4g} ± {s:.2g}"
+
+    title = ", ".join(shown(k, v, s) for k, v, s in zip(result.labels, result.estimates, result.standard_errors)
+                      if not k.startswith(SEGMENT_NUISANCE_PREFIXES))
+    return plot_sysid(series, result.cost_history, path, profiles=profiles, title=title)
+
+
+def write_outputs(out_dir: str | Path, report: dict, resolved: dict, problem, result) -> list[Path]:
+    """``result.json`` (``report``), ``config.json`` (``resolved``, loadable again by
+    ``dano sysid``) and ``fit.png`` (:func:`fit_plot`) in ``out_dir``: all three or none.
+    Returns the paths written."""
+    out_dir = Path(out_dir)
+    names = ("result.json", "config.json", "fit.png")
+    with ExitStack() as stack:
+        paths = {n: stack.enter_context(atomic_path(out_dir / n)) for n in names}
+        paths["result.json"].write_text(json.dumps(report, indent=2))
+        paths["config.json"].write_text(json.dumps(resolved, indent=2, default=str))
+        fit_plot(problem, result, paths["fit.png"])
+    return [out_dir / n for n in names]
