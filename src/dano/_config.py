@@ -1,14 +1,26 @@
 """Typed configuration files: a TOML or JSON table read into frozen dataclasses.
 
 Unknown keys, missing keys and wrong types are refused naming the key (``[options].substeps:
-expected an integer, got 'x'``); numbers accept integers, never booleans. Used by ``dano
-sysid`` and ``dano simulate --config``.
+expected an integer, got 'x'``); numbers accept integers, never booleans. Values out of
+range are refused by each config's ``__post_init__`` (a DanoError naming the field). The one
+reader of configuration files: ``dano sysid``, ``dano trajopt`` and ``dano simulate --config``
+and the ``config`` of a saved field all come through :func:`read_table` /
+:func:`typed_table`.
+
+Every config dataclass documents its fields with attribute docstrings (a string below each
+field: quantity [unit], shape); :func:`field_docs` reads them and :func:`schema_markdown`
+writes a TOML schema's reference (``docs/config-reference.md``, by
+``scripts/make_config_docs.py``).
 """
 
 from __future__ import annotations
 
+import ast
 import dataclasses
+import functools
+import inspect
 import json
+import textwrap
 import tomllib
 import types
 import typing
@@ -102,3 +114,129 @@ def typed_table(value, cls, where: str):
     return cls(**kwargs)
 
 
+
+
+def check_ranges(config, checks):
+    """``config`` if every ``(setting name, ok)`` in ``checks`` holds; raises DanoError
+    naming the first setting out of range and its value (``horizon out of range: 1``).
+    For a config's ``__post_init__``."""
+    for name, ok in checks:
+        if not ok:
+            raise DanoError(f"{name} out of range: {getattr(config, name)}")
+    return config
+
+
+# ------------------------------------------------------------------ field documentation
+# A config dataclass documents each field with a string right below it (an attribute
+# docstring, as tyro and nerfstudio read them): the CLI's help and docs/config-reference.md.
+
+
+@functools.lru_cache(maxsize=None)
+def _own_field_docs(cls) -> dict:
+    try:
+        source = textwrap.dedent(inspect.getsource(cls))
+    except (OSError, TypeError):
+        return {}
+    node = next((n for n in ast.parse(source).body if isinstance(n, ast.ClassDef)), None)
+    docs, body = {}, node.body if node is not None else []
+    for stmt, after in zip(body, body[1:]):
+        if (isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name) and isinstance(after, ast.Expr)
+                and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str)):
+            docs[stmt.target.id] = " ".join(inspect.cleandoc(after.value.value).split())
+    return docs
+
+
+def field_docs(cls) -> dict[str, str]:
+    """{field name: its attribute docstring, on one line} of the dataclass ``cls`` (fields
+    inherited from dataclass bases included, a redeclared field's own docstring first);
+    fields without one are left out."""
+    docs = {}
+    for klass in reversed(cls.__mro__):
+        if dataclasses.is_dataclass(klass):
+            docs.update(_own_field_docs(klass))
+    return {f.name: docs[f.name] for f in dataclasses.fields(cls) if f.name in docs}
+
+
+def _table_class(tp):
+    """(dataclass, is an array of tables) for a table-valued type, else (None, False)."""
+    if dataclasses.is_dataclass(tp):
+        return tp, False
+    args = typing.get_args(tp)
+    if typing.get_origin(tp) is tuple and len(args) == 2 and args[1] is Ellipsis and dataclasses.is_dataclass(args[0]):
+        return args[0], True
+    return None, False
+
+
+def _type_name(tp) -> str:
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        rest = [a for a in args if a is not type(None)]
+        return " or ".join(_type_name(a) for a in rest) + (" (optional)" if type(None) in args else "")
+    if origin is tuple:
+        if len(args) == 2 and args[1] is Ellipsis:
+            return "array of tables" if dataclasses.is_dataclass(args[0]) else f"array of {_type_name(args[0])}s"
+        return f"array of {len(args)} {_type_name(args[0])}s" if len(set(args)) == 1 else "array"
+    if origin is dict:
+        return f"table of {_type_name(args[1])}s"
+    if dataclasses.is_dataclass(tp):
+        return "table"
+    return {bool: "boolean", int: "integer", float: "number", str: "string", Path: "string"}.get(tp, str(tp))
+
+
+def _toml_value(value) -> str:
+    if value is None:
+        return "left out"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, (tuple, list)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, float):
+        return repr(value)
+    return json.dumps(value) if isinstance(value, str) else str(value)
+
+
+def _default(f: dataclasses.Field, tp) -> str:
+    if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+        return "required"
+    value = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+    if dataclasses.is_dataclass(value):
+        return "see below"
+    return "`" + _toml_value(value) + "`" if value is not None else "left out"
+
+
+def schema_markdown(cls, title: str, level: int = 2, intro: str = "") -> str:
+    """Markdown reference of the configuration dataclass ``cls`` as a TOML file: a heading
+    ``title`` and, per table (the top level, nested tables ``[name]`` and arrays of tables
+    ``[[name]]``, recursively), a table of key, type, default and description (the
+    field's docstring, :func:`field_docs`). Raises DanoError naming a field without a
+    docstring."""
+    parts = [f"{'#' * level} {title}\n"]
+    if intro:
+        parts.append(intro.strip() + "\n")
+
+    def table(klass, name: str | None, array: bool):
+        docs = field_docs(klass)
+        hints = typing.get_type_hints(klass)
+        head = "Top level" if name is None else f"`[[{name}]]`" if array else f"`[{name}]`"
+        rows, nested = [], []
+        for f in dataclasses.fields(klass):
+            if f.name not in docs:
+                raise DanoError(f"{klass.__name__}.{f.name}: no docstring (write one below the field)")
+            sub, sub_array = _table_class(hints[f.name])
+            key = f.name if name is None else f"{name}.{f.name}"
+            if sub is not None:
+                nested.append((sub, key, sub_array))
+                ref = f"`[[{key}]]`" if sub_array else f"`[{key}]`"
+                rows.append((f.name, f"{_type_name(hints[f.name])} ({ref})", _default(f, hints[f.name]), docs[f.name]))
+            else:
+                rows.append((f.name, _type_name(hints[f.name]), _default(f, hints[f.name]), docs[f.name]))
+        cells = lambda r: "| " + " | ".join(c.replace("|", "\\|") for c in r) + " |"
+        parts.append(f"{'#' * (level + 1)} {head}\n\n" + "\n".join(
+            [cells(("key", "type", "default", "description")), "|---|---|---|---|"] + [cells(r) for r in rows]) + "\n")
+        for sub, key, sub_array in nested:
+            table(sub, key, sub_array)
+
+    table(cls, None, False)
+    return "\n".join(parts)

@@ -19,6 +19,8 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from ._files import atomic_write
+from .data import load_asset
+from .sources import check_resolution as _check_resolution
 
 err = Console(stderr=True)
 out = Console()
@@ -93,16 +95,6 @@ def _progress(enabled: bool = True):
         yield update
 
 
-MAX_RESOLUTION = 512  # 1.3e8 nodes: about 5 GB while a signed-distance or marching-cubes grid is built
-MAX_SAMPLES = 10_000_000
-
-
-def _check_resolution(resolution: int) -> None:
-    if not 8 <= resolution <= MAX_RESOLUTION:
-        raise ValueError(f"--resolution {resolution}: must be 8 to {MAX_RESOLUTION} (a grid of about resolution^3 "
-                         f"nodes at ~40 bytes each: {40 * float(resolution) ** 3 / 1e9:.3g} GB)")
-
-
 @_names("source")
 def build(
     source: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="SOURCE")],
@@ -149,64 +141,22 @@ def build(
         voxels: field folders: also write the density grid as a voxel .npz (density, bounds), loadable anywhere.
         quiet: no progress bar.
     """
-    from .asset import build as build_asset
     from .asset import save
-    from .fields import VoxelField, mesh_field
-    from .io import load_paper_collider, source_kind
+    from .sources import build_from_source
 
-    kind = source_kind(source)
-    if not source.is_file() and kind != "field":
-        raise FileNotFoundError(f"{source}: no such file")
-    if kind != "field" and (voxels is not None or density_rule != "solid" or field_scale != 1.0
-                            or surface_opacity != 0.5 or not calibrate_surface):
-        raise ValueError("--density-rule, --surface-opacity, --no-calibrate-surface, --field-scale and --voxels "
-                         "apply to trained-field folders only")
-    _check_resolution(resolution)
-    if not 1 <= samples <= MAX_SAMPLES:
-        raise ValueError(f"--samples {samples}: must be 1 to {MAX_SAMPLES}")
     with _progress(not quiet) as progress:
-        if kind == "jld2":
-            if band is not None or edge_width is not None:
-                raise ValueError("--band and --edge-width do not apply to a .jld2 collider (its samples are fixed)")
-            asset = load_paper_collider(source, normals_mesh=normals_mesh, visual_mesh=visual_mesh)
-            if alpha is not None and mass is not None:
-                raise ValueError("give either --mass or --alpha, not both")
-            if mass is not None or alpha is not None:
-                asset = asset.with_mass(mass if mass is not None else asset.mass * alpha / asset.alpha)
-        else:
-            if kind == "field":
-                field, calibration = _field_density(source, density_rule, resolution, field_scale, surface_opacity,
-                                                    calibrate_surface)
-                if calibration:
-                    err.print(f"solid surface moved out by {calibration['surface_offset']:.4g} m "
-                              f"({calibration['surface_offset_nodes']:.2f} nodes): silhouette area "
-                              f"{calibration['silhouette_area_ratio_before']:.3f} -> "
-                              f"{calibration['silhouette_area_ratio_after']:.3f} of the field's renders")
-            elif kind == "mesh":
-                field = mesh_field(source, resolution=resolution, edge_width=edge_width,
-                                   progress=(lambda d, t: progress(d, t, "signed distance")) if progress else None)
-            else:
-                field = VoxelField.load(source)
-            asset = build_asset(field, alpha=alpha, mass=mass, num_samples=samples, band=band, seed=seed,
-                                name=source.stem, source=str(source.name), progress=progress)
+        result = build_from_source(source, mass=mass, alpha=alpha, samples=samples, band=band, seed=seed,
+                                   resolution=resolution, edge_width=edge_width, normals_mesh=normals_mesh,
+                                   visual_mesh=visual_mesh, density_rule=density_rule, surface_opacity=surface_opacity,
+                                   calibrate_surface=calibrate_surface, field_scale=field_scale, voxels=voxels,
+                                   progress=progress)
+    c, asset = result.calibration, result.asset
+    if c:
+        err.print(f"solid surface moved out by {c['surface_offset']:.4g} m ({c['surface_offset_nodes']:.2f} nodes): "
+                  f"silhouette area {c['silhouette_area_ratio_before']:.3f} -> {c['silhouette_area_ratio_after']:.3f} "
+                  "of the field's renders")
     save(asset, out)
-    if voxels is not None:
-        import numpy as np
-
-        atomic_write(voxels, lambda f: np.savez(f, density=np.asarray(field.values), bounds=field.node_bounds))
     err.print(f"wrote {out} ({asset.num_samples} samples, mass {asset.mass:.6g})")
-
-
-def _field_density(source: Path, rule: str, resolution: int, scale: float, surface_opacity: float,
-                   calibrate: bool):
-    """A trained field's folder -> (the VoxelField a DANO is built from, the surface calibration or {})."""
-    from .nerf import load_field
-    from .nerf.density import density_grid
-
-    field, occupancy, meta = load_field(source)
-    return density_grid(field, rule, resolution=resolution, step=meta.get("training", {}).get("sample_step"),
-                        scale=scale, surface_opacity=surface_opacity, occupancy=occupancy, calibrate=calibrate,
-                        details=True)
 
 
 def _summary_table(asset) -> Table:
@@ -259,7 +209,7 @@ def inspect(
             normals_valid_fraction, extents, bounding_box, volume, mean_density) instead of a table.
         plot: also draw the samples, normals and centre of mass to this image (e.g. samples.png).
     """
-    asset = _load_asset(file)
+    asset = load_asset(file)
     summary = asset.summary()
     if json_:
         print(json.dumps(summary))
@@ -273,55 +223,6 @@ def inspect(
 
         plot_samples(asset, plot)
         err.print(f"wrote {plot}")
-
-
-def _load_asset(src: str):
-    """'FILE.dano' or 'builtin:NAME' -> DanoAsset."""
-    from .asset import load
-    from .data import load_builtin
-
-    return load_builtin(src.split(":", 1)[1]) if src.startswith("builtin:") else load(src)
-
-
-def _parse_object(text: str):
-    """'FILE.dano[@x,y,z[,qw,qx,qy,qz]]' or 'builtin:NAME[@...]' -> DanoObject: position [m,
-    world] and optionally the orientation (a quaternion w x y z, normalised here)."""
-    import numpy as np
-
-    from .sim import DanoObject
-
-    src, _, at = text.partition("@")
-    pos, quat = (0.0, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0)
-    if at:
-        try:
-            values = np.array([float(v) for v in at.split(",")])
-            assert len(values) in (3, 7) and np.all(np.isfinite(values))
-        except (ValueError, AssertionError):
-            raise ValueError(f"--object {text!r}: the pose must be x,y,z or x,y,z,qw,qx,qy,qz (finite numbers)") \
-                from None
-        pos = tuple(values[:3])
-        if len(values) == 7:
-            norm = float(np.linalg.norm(values[3:]))
-            if norm < 1e-9:
-                raise ValueError(f"--object {text!r}: the quaternion qw,qx,qy,qz must not be zero")
-            quat = tuple(values[3:] / norm)
-    asset = _load_asset(src)
-    name = asset.name or Path(src).stem
-    return DanoObject(name, asset, pos, quat)
-
-
-def _apply_params(scene, params, assignments):
-    for item in assignments:
-        key, eq, value = item.partition("=")
-        if not eq:
-            raise ValueError(f"--param {item!r}: expected name=value or pair:name=value")
-        target, _, name = key.rpartition(":")
-        try:
-            v = float(value)
-        except ValueError:
-            raise ValueError(f"--param {item!r}: {value!r} is not a number") from None
-        params = scene.set_param(params, name, v, target or None)
-    return params
 
 
 def _simulate_summary(setup, traj, wall: float) -> Table:
@@ -341,31 +242,6 @@ def _simulate_summary(setup, traj, wall: float) -> Table:
                  + ", ".join(f"{x:.3g}" for x in traj.psi[-1])
                  + f"; wall time {wall:.2f} s (compilation included)")
     return t
-
-
-@dataclass(frozen=True)
-class SimulateConfig:
-    """What ``dano simulate`` ran, saved as ``<output>.config.json`` and read by ``--config``
-    (TOML or JSON; keys as the options; paths relative to the file)."""
-
-    scene: str
-    duration: float | None = None
-    dt: float | None = None
-    param: tuple[str, ...] = ()
-    object: tuple[str, ...] = ()
-    fps: float = 30.0
-    contact_model: str = "centroid"
-    max_steps: int = 2_000_000
-
-
-def _absolute_source(text: str, base: Path) -> str:
-    """'FILE[@x,y,z]' with FILE made absolute against ``base`` (builtin: and scene names kept)."""
-    from .sim.scenes import BUILTIN_SCENES
-
-    src, at, pos = text.partition("@")
-    if src.startswith("builtin:") or src in BUILTIN_SCENES:
-        return text
-    return str((base / src).resolve()) + at + pos
 
 
 @_names("scene")
@@ -404,90 +280,27 @@ def simulate(
         max_steps: refuse a run of more steps than this (duration / dt) up front (default 2000000).
         quiet: no progress bars.
     """
-    import time as _time
-    from contextlib import ExitStack
+    from .sim.run import SimulateConfig, check_video_path, simulate, write_outputs
 
-    import numpy as np
-
-    from ._config import read_table, typed_table
-    from ._files import atomic_path
-    from .errors import DanoError
-    from .sim import rollout, save_trajectory
-    from .sim.scenes import BUILTIN_SCENES, load_scene, mjcf_setup
-
+    given = {"duration": duration, "dt": dt, "param": param, "object": object, "fps": fps,
+             "contact_model": contact_model, "max_steps": max_steps}
+    given = {k: v for k, v in given.items() if v not in (None, ())}
     if config is not None:
-        try:
-            c = typed_table(read_table(config), SimulateConfig, "")
-        except DanoError as exc:
-            raise DanoError(str(exc) if str(config) in str(exc) else f"{config}: {exc}") from exc
-        base = config.parent
-        scene = scene or _absolute_source(c.scene, base)
-        duration = c.duration if duration is None else duration
-        dt = c.dt if dt is None else dt
-        param = param or c.param
-        object = object or tuple(_absolute_source(o, base) for o in c.object)
-        fps = c.fps if fps is None else fps
-        contact_model = c.contact_model if contact_model is None else contact_model
-        max_steps = c.max_steps if max_steps is None else max_steps
-    defaults = SimulateConfig(scene="")
-    fps = defaults.fps if fps is None else fps
-    contact_model = defaults.contact_model if contact_model is None else contact_model
-    max_steps = defaults.max_steps if max_steps is None else max_steps
-    if scene is None:
+        saved = SimulateConfig.read(config)
+        cfg = dataclasses.replace(saved, scene=scene or saved.scene, **given)
+    elif scene is None:
         raise ValueError("give a SCENE (or --config)")
-    _check_contact_model(contact_model)
-    for opt, v in (("duration", duration), ("dt", dt), ("fps", fps if video is not None else None)):
-        if v is not None and not (0 < v < math.inf):
-            raise ValueError(f"--{opt} must be a finite positive number, got {v}")
-    if video is not None and video.suffix.lower() not in (".mp4", ".gif"):
-        raise ValueError(f"--video {video}: must be .mp4 or .gif")
-    if scene in BUILTIN_SCENES:
-        if object:
-            raise ValueError("--object applies to MJCF scenes, not to built-in ones")
-        setup = load_scene(scene, dt, contact_model=contact_model)
     else:
-        path = Path(scene)
-        if path.suffix.lower() != ".xml" and not path.exists():
-            raise ValueError(f"unknown scene {scene!r}; built-in scenes: {', '.join(BUILTIN_SCENES)} (or an MJCF path)")
-        objs = [_parse_object(o) for o in (object or ("builtin:bunny@0,0,1",))]
-        setup = mjcf_setup(path, objs, dt=dt, contact_model=contact_model)  # dt None: the MJCF's
-    params = _apply_params(setup.scene, setup.params, param)
-    T = int(round((duration if duration is not None else setup.duration) / setup.scene.dt))
-    if T < 1:
-        raise ValueError(f"--duration must cover at least one step of {setup.scene.dt:g} s")
-    if T > max_steps:
-        raise ValueError(f"--duration / --dt: {T} steps of {setup.scene.dt:g} s is more than --max-steps {max_steps} "
-                         f"(the trajectory alone would take {T * (setup.scene.nq + setup.scene.nv) * 8 / 1e9:.2g} GB)")
-    times = np.arange(T) * setup.scene.dt
-    controls = setup.controls(times) if setup.controls else None
-    t0 = _time.perf_counter()
+        cfg = SimulateConfig(scene, **given)
+    check_video_path(video)
     with _progress(not quiet) as progress:
-        traj = rollout(setup.scene, setup.state0, controls, params, T, progress=progress)
-    wall = _time.perf_counter() - t0
-    out_ = Console()
-    out_.print(_simulate_summary(setup, traj, wall))
-    resolved = SimulateConfig(scene=_absolute_source(scene, Path.cwd()), duration=T * setup.scene.dt,
-                              dt=setup.scene.dt, param=tuple(param),
-                              object=tuple(_absolute_source(o, Path.cwd()) for o in object), fps=fps,
-                              contact_model=contact_model, max_steps=max_steps)
-    first = out if out is not None else video
-    saved = first.with_name(f"{first.stem}.config.json") if first is not None else None
-    # all outputs or none: they are written to temporary files, published together at the end
-    with ExitStack() as stack:
-        if saved is not None:
-            stack.enter_context(atomic_path(saved)).write_text(json.dumps(dataclasses.asdict(resolved), indent=2))
-        if video is not None:
-            from .viz.video import write_video
-
-            tmp_video = stack.enter_context(atomic_path(video))
-            with _progress(not quiet) as progress:
-                write_video(setup.scene, traj, tmp_video, fps=fps, progress=progress)
-        if out is not None:
-            save_trajectory(traj, stack.enter_context(atomic_path(out)))
-    for path in (out, video, saved):
-        if path is not None:
-            err.print(f"wrote {path}")
-    return setup, traj, wall
+        run = simulate(cfg, progress=progress)
+    Console().print(_simulate_summary(run.setup, run.trajectory, run.wall_time_s))  # `out` is the option here
+    with _progress(not quiet) as progress:
+        written = write_outputs(run, out=out, video=video, progress=progress)
+    for path in written:
+        err.print(f"wrote {path}")
+    return run
 
 
 @_names("config")
@@ -611,33 +424,14 @@ def demo(out_dir: Path = Path("dano-demo"), quiet: bool = False) -> None:
         out_dir: folder for the outputs.
         quiet: no progress bars.
     """
-    from .data import load_builtin
-    from .viz import plot_samples
+    from .experiments.demo import demo as run_demo
 
-    import numpy as np
-
-
-    asset = load_builtin("bunny")
+    with _progress(not quiet) as progress:
+        asset, run, _ = run_demo(out_dir, progress=progress)
     out.print(_summary_table(asset))
-    plot_samples(asset, out_dir / "bunny_samples.png")
-    setup, traj, wall = simulate("bunny-drop", out=out_dir / "bunny-drop.npz", video=out_dir / "bunny-drop.mp4",
-                                 quiet=quiet)
-    k = float(np.asarray(setup.params.contact.impact_spring)[0])
-    summary = {
-        "asset": asset.summary(),
-        "scene": setup.scene.name,
-        "steps": len(traj.time) - 1,
-        "dt": setup.scene.dt,
-        "final_center_of_mass": traj.dano_pose("bunny")[0][-1].tolist(),
-        "final_speed": float(np.linalg.norm(traj.qvel[-1, :3])),
-        "final_overlap": float(traj.psi[-1, 0]),
-        "rest_overlap_mg_over_k": asset.mass * 9.81 / k,
-        "wall_time_s": wall,
-        "files": ["bunny-drop.npz", "bunny-drop.mp4", "bunny_samples.png"],
-    }
-    text = json.dumps(summary, indent=2).encode()
-    atomic_write(out_dir / "summary.json", lambda f: f.write(text))
-    err.print(f"wrote {out_dir / 'bunny_samples.png'} and {out_dir / 'summary.json'}")
+    Console().print(_simulate_summary(run.setup, run.trajectory, run.wall_time_s))
+    for name in ("bunny-drop.npz", "bunny-drop.mp4", "bunny-drop.config.json", "bunny_samples.png", "summary.json"):
+        err.print(f"wrote {out_dir / name}")
 
 
 def bench(
@@ -944,7 +738,7 @@ def track(
         from .nerf import load_field
 
         radiance, radiance_occupancy, _ = load_field(field)
-    obj = TrackedObject.from_asset(_load_asset(object), radiance, radiance_occupancy)
+    obj = TrackedObject.from_asset(load_asset(object), radiance, radiance_occupancy)
     data = load_video(video, camera=camera, masks=masks, background=background, fps=fps, threshold=threshold,
                       subtract_background=subtract_background)
     with _progress(not quiet and not json_) as progress:
@@ -1053,7 +847,7 @@ def export(
     if not 0 < threshold < float("inf"):
         raise ValueError(f"--threshold must be a positive number, got {threshold}")
     _check_resolution(resolution)
-    asset = _load_asset(file)
+    asset = load_asset(file)
     given = load_mesh(mesh, require_watertight=False) if mesh is not None else None
     if given is not None and level is not None:
         raise ValueError("give either --level or --mesh, not both")
@@ -1141,7 +935,7 @@ def compare_mesh(
                           ("threshold", threshold, "positive")):
         if not (0 <= v < float("inf")) or (least == "positive" and v == 0):
             raise ValueError(f"--{opt} must be a finite {least} number, got {v}")
-    asset = _load_asset(source)
+    asset = load_asset(source)
     lv = _level_meshes(mesh) + (extract_levels(asset, levels, resolution) if levels else [])
     lv = lv or default_levels(asset, resolution)
     scenario = Scenario(quat=quat, friction=friction, rest_time=rest_time, slide_time=slide_time,

@@ -43,3 +43,11 @@ def load_builtin(name: str = "bunny"):
 
     with resources.as_file(builtin_path(name)) as p:
         return load(p)
+
+
+def load_asset(source: str):
+    """A DANO asset from ``"FILE.dano"`` or ``"builtin:NAME"`` (:data:`BUILTIN_ASSETS`), as the
+    command line's options name them. Raises DanoError / FileFormatError naming the file."""
+    from ..asset import load
+
+    return load_builtin(source.split(":", 1)[1]) if source.startswith("builtin:") else load(source)

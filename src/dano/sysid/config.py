@@ -158,125 +158,202 @@ def _read_observation(path: Path, obj: str | None, scene, velocities: bool = Fal
 
 # ------------------------------------------------------------------ typed schema
 # Each table of the TOML file is read into a frozen dataclass; unknown keys, missing keys
-# and wrong types are refused naming the key ("[options].substeps: ...").
+# and wrong types are refused naming the key ("[options].substeps: ..."), values out of
+# range by each table's __post_init__ (the whole file's cross-table checks: SysIdConfig's).
+
+
+def _axes_ok(axes: str) -> bool:
+    return not (set(axes) - set("xyz")) and len(set(axes)) == len(axes)
 
 
 @dataclass(frozen=True)
 class ObjectConfig:
+    """``[[scene.object]]``: one DANO of the scene."""
+
     name: str
+    """The object's name (a body of the scene; ``[[trajectory]].object`` and parameter targets name it)."""
     asset: str
+    """Its DANO: a ``.dano`` file (relative to the TOML file's folder) or ``builtin:NAME`` (e.g. ``builtin:bluesoap``)."""
     pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Initial position of its body frame (the centre of mass) [m], world frame, (3,)."""
     quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    """Initial orientation, a unit quaternion (w, x, y, z), world frame, (4,)."""
 
 
 @dataclass(frozen=True)
 class SceneConfig:
+    """``[scene]``: the simulated world."""
+
     dt: float
+    """Simulation step [s] = the observed frame interval / ``[options].substeps``; > 0."""
     object: tuple[ObjectConfig, ...]
+    """The DANOs (at least one), each a ``[[scene.object]]`` table."""
     mjcf: str | None = None
+    """An MJCF world (relative to the TOML file's folder) the objects are added to; left out: an empty world with a
+    ground plane."""
     contact_model: str = "centroid"
+    """DANO contact model of every pair: ``centroid`` (the paper's) or ``per_sample``."""
+
+    def __post_init__(self):
+        if not (0 < self.dt < np.inf):
+            raise DanoError(f"[scene].dt: must be a finite positive step [s], got {self.dt}")
+        if not self.object:
+            raise DanoError("[[scene.object]]: at least one object is needed")
 
 
 @dataclass(frozen=True)
 class TrajectoryConfig:
+    """``[[trajectory]]``: one observed trajectory."""
+
     file: str
+    """The observation (relative to the TOML file's folder): a CSV with a header line and columns
+    ``t,x,y,z,qw,qx,qy,qz`` (time [s], body position [m] and wxyz quaternion, world frame), a ``.npz`` with arrays
+    ``time`` (T,), ``poses`` (T, 7) [, ``velocities`` (T, 6)], or a dano trajectory ``.npz``."""
     object: str | None = None
+    """Which ``[[scene.object]]`` the CSV or plain ``.npz`` tracks; left out for a dano trajectory: every object
+    it holds."""
     velocities: bool = False
+    """Start every window from measured velocities: CSV columns ``vx,vy,vz`` (world [m/s]) and ``wx,wy,wz`` (body
+    [rad/s]), the ``.npz``'s ``velocities`` (T, 6) or the dano trajectory's qvel."""
 
 
 @dataclass(frozen=True)
 class ParameterConfig:
+    """``[[parameter]]``: one parameter to identify, its initial guess and bounds."""
+
     name: str
+    """A contact parameter (``sliding_friction``, ``impact_spring``, ...: Table I), ``alpha``, ``com_offset_x|y|z``
+    [m], ``second_moment_scale_x|y|z`` [-] or ``principal_axes_x|y|z`` [rad]."""
     initial: float
+    """Initial guess, within [lower, upper] (the parameter's unit)."""
     lower: float = 0.0
-    upper: float | None = None  # None: no upper bound
+    """Lower bound; < 0 only for ``com_offset_*`` and ``principal_axes_*``."""
+    upper: float | None = None
+    """Upper bound; left out: none."""
     target: str | None = None
+    """One contact pair (``"soap/ground"``) or, for ``alpha`` and the dynamics parameters, one object; left
+    out: every pair (object)."""
+
+    def __post_init__(self):
+        where = f"[[parameter]] ({self.name}{', ' + self.target if self.target else ''})"
+        upper = np.inf if self.upper is None else self.upper
+        if not (np.isfinite(self.initial) and np.isfinite(self.lower)) or np.isnan(upper):
+            raise DanoError(f"{where}: initial and lower must be finite, upper finite, inf or left out")
+        signed = self.name.startswith(("com_offset_", "principal_axes_"))  # offsets and rotations may be negative
+        if self.lower < 0 and not signed:
+            raise DanoError(f"{where}: lower bound {self.lower} is negative; contact parameters, alpha and second "
+                            "moment scales are >= 0")
+        if not self.lower <= self.initial <= upper:
+            raise DanoError(f"{where}: initial {self.initial} must lie within [lower, upper] = "
+                            f"[{self.lower}, {self.upper}]")
 
 
 @dataclass(frozen=True)
 class OptionsConfig:
+    """``[options]``: how the problem is posed and solved."""
+
     substeps: int = 1
+    """Simulation steps per observed frame interval; >= 1."""
     fit_velocity: str = ""
+    """Nuisance initial linear velocity axes (world frame) fitted per trajectory (window), e.g. ``"xy"``."""
     fit_angular_velocity: str = ""
+    """Nuisance initial angular velocity axes (body frame), e.g. ``"z"``."""
     fit_position: str = ""
+    """Nuisance initial position axes (world frame), e.g. ``"xy"`` for noisy starts."""
     fit_rotation: str = ""
+    """Nuisance initial rotation-vector axes (world frame), e.g. ``"z"`` (the heading)."""
     window: int = 0
+    """> 0: multiple shooting, windows of this many frame intervals (>= 2); 0: one shot per trajectory."""
     auto_windows: bool = False
+    """A window from just before each observed impact instead (not with ``window``)."""
     horizons: tuple[float, ...] = ()
+    """Continuation: first fit these fractions of each trajectory, in (0, 1), e.g. ``[0.4]``."""
     position_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """Weights of the x, y, z position residuals [1/m²], (3,), >= 0."""
     rotation_weight: float | None = None
+    """Weight of the rotation residual [1/rad²], >= 0; left out: rotations weighed by the object's size (θ rad
+    counts as θ·√(tr J / 3m) metres)."""
     jacobian: str = "ad"
+    """Residual Jacobian: ``ad`` (forward-mode automatic differentiation) or ``fd`` (finite differences)."""
     scan: int | None = None
+    """Global start: points per parameter of a scan of the bounds, 2 to 64; 0: off; left out: 15 for one
+    parameter, 8 × 8 for two, 64 Sobol points beyond."""
     starts: int = 2
+    """Local solves from the best scan points (the initial guess among them), 1 to 16."""
     profile_points: int | None = None
+    """Points of a profile through the estimate along each parameter (verification and interval), 8 to 256; 0:
+    off; left out: 32 for one or two parameters, 16 beyond."""
     level: float = 0.95
+    """The interval's confidence level, in (0, 1)."""
     fit_ground: bool = False
+    """Fit the ground plane's height (nuisance ``ground_height`` [m])."""
     fit_tilt: bool = False
+    """With ``fit_ground``: also its tilt (``ground_tilt_x``, ``ground_tilt_y`` [rad])."""
     noise_rms: float | None = None
+    """RMS residual of the measurement noise alone [m], > 0: warn when the fit is worse; left out: no check."""
     bootstrap: int = 0
+    """> 0: resample whole trajectories this many times (2 to 10,000; needs two or more ``[[trajectory]]``) for a
+    percentile interval."""
+
+    def __post_init__(self):
+        if self.substeps < 1:
+            raise DanoError(f"[options].substeps: must be at least 1, got {self.substeps}")
+        if self.window < 0 or self.window == 1:
+            raise DanoError(f"[options].window: must be 0 (no windows) or at least 2 frame intervals, got {self.window}")
+        for key in ("fit_velocity", "fit_angular_velocity", "fit_position", "fit_rotation"):
+            if not _axes_ok(getattr(self, key)):
+                raise DanoError(f"[options].{key}: must be made of the letters x, y, z, each at most once, "
+                                f"got {getattr(self, key)!r}")
+        if self.fit_tilt and not self.fit_ground:
+            raise DanoError("[options].fit_tilt: the ground's tilt is fitted with its height: set fit_ground = true too")
+        if self.auto_windows and self.window:
+            raise DanoError("[options]: give window (a fixed length) or auto_windows = true, not both")
+        if any(not 0 < h < 1 for h in self.horizons):
+            raise DanoError(f"[options].horizons: fractions of the trajectory in (0, 1), got {list(self.horizons)}")
+        if self.scan is not None and self.scan != 0 and not 2 <= self.scan <= 64:
+            raise DanoError(f"[options].scan: 0 (no global scan) or 2 to 64 points per parameter, got {self.scan}")
+        if not 1 <= self.starts <= 16:
+            raise DanoError(f"[options].starts: 1 to 16 local starts, got {self.starts}")
+        if self.profile_points is not None and self.profile_points != 0 and not 8 <= self.profile_points <= 256:
+            raise DanoError(f"[options].profile_points: 0 (off) or 8 to 256 points, got {self.profile_points}")
+        if not 0 < self.level < 1:
+            raise DanoError(f"[options].level: the interval's level, in (0, 1), got {self.level}")
+        if self.noise_rms is not None and not 0 < self.noise_rms < np.inf:
+            raise DanoError(f"[options].noise_rms: a positive rms residual, got {self.noise_rms}")
+        if self.bootstrap != 0 and not 2 <= self.bootstrap <= 10_000:
+            raise DanoError(f"[options].bootstrap: 0 or 2 to 10000 resamples, and at least two [[trajectory]] to "
+                            f"resample (got {self.bootstrap})")
+        if self.jacobian not in ("ad", "fd"):
+            raise DanoError(f"[options].jacobian: 'ad' or 'fd', got {self.jacobian!r}")
+        weights = (*self.position_weights, 0.0 if self.rotation_weight is None else self.rotation_weight)
+        if not all(0 <= w < np.inf for w in weights):
+            raise DanoError("[options]: weights must be finite and non-negative")
 
 
 @dataclass(frozen=True)
 class SysIdConfig:
+    """A ``dano sysid`` problem file (TOML, or the ``config.json`` a run saves)."""
+
     scene: SceneConfig
+    """The simulated world and its objects."""
     trajectory: tuple[TrajectoryConfig, ...] = ()
+    """The observed trajectories (at least one)."""
     parameter: tuple[ParameterConfig, ...] = ()
+    """The parameters to identify (at least one)."""
     contact: dict[str, float] = field(default_factory=dict)
+    """Fixed contact parameters of every pair (``name = value``, Table I's names); the rest keep the paper's
+    defaults, except ``sliding_drag``, held at 0 when ``sliding_friction`` is identified."""
     options: OptionsConfig = OptionsConfig()
+    """How the problem is posed and solved."""
 
-
-def _check_values(c: SysIdConfig) -> None:
-    if not (0 < c.scene.dt < np.inf):
-        raise DanoError(f"[scene].dt: must be a finite positive step [s], got {c.scene.dt}")
-    if not c.scene.object:
-        raise DanoError("[[scene.object]]: at least one object is needed")
-    if not c.trajectory:
-        raise DanoError("[[trajectory]]: at least one trajectory is needed")
-    if not c.parameter:
-        raise DanoError("[[parameter]]: at least one parameter to identify is needed")
-    for i, p in enumerate(c.parameter):
-        where = f"[[parameter]] {i + 1} ({p.name})"
-        upper = np.inf if p.upper is None else p.upper
-        if not (np.isfinite(p.initial) and np.isfinite(p.lower)) or np.isnan(upper):
-            raise DanoError(f"{where}: initial and lower must be finite, upper finite, inf or left out")
-        signed = p.name.startswith(("com_offset_", "principal_axes_"))  # offsets and rotations may be negative
-        if p.lower < 0 and not signed:
-            raise DanoError(f"{where}: lower bound {p.lower} is negative; contact parameters, alpha and second "
-                            "moment scales are >= 0")
-        if not p.lower <= p.initial <= upper:
-            raise DanoError(f"{where}: initial {p.initial} must lie within [lower, upper] = [{p.lower}, {p.upper}]")
-    o = c.options
-    if o.substeps < 1:
-        raise DanoError(f"[options].substeps: must be at least 1, got {o.substeps}")
-    if o.window < 0 or o.window == 1:
-        raise DanoError(f"[options].window: must be 0 (no windows) or at least 2 frame intervals, got {o.window}")
-    for key in ("fit_velocity", "fit_angular_velocity", "fit_position", "fit_rotation"):
-        axes = getattr(o, key)
-        if set(axes) - set("xyz") or len(set(axes)) != len(axes):
-            raise DanoError(f"[options].{key}: must be made of the letters x, y, z, each at most once, got {axes!r}")
-    if o.fit_tilt and not o.fit_ground:
-        raise DanoError("[options].fit_tilt: the ground's tilt is fitted with its height: set fit_ground = true too")
-    if o.auto_windows and o.window:
-        raise DanoError("[options]: give window (a fixed length) or auto_windows = true, not both")
-    if any(not 0 < h < 1 for h in o.horizons):
-        raise DanoError(f"[options].horizons: fractions of the trajectory in (0, 1), got {list(o.horizons)}")
-    if o.scan is not None and o.scan != 0 and not 2 <= o.scan <= 64:
-        raise DanoError(f"[options].scan: 0 (no global scan) or 2 to 64 points per parameter, got {o.scan}")
-    if not 1 <= o.starts <= 16:
-        raise DanoError(f"[options].starts: 1 to 16 local starts, got {o.starts}")
-    if o.profile_points is not None and o.profile_points != 0 and not 8 <= o.profile_points <= 256:
-        raise DanoError(f"[options].profile_points: 0 (off) or 8 to 256 points, got {o.profile_points}")
-    if not 0 < o.level < 1:
-        raise DanoError(f"[options].level: the interval's level, in (0, 1), got {o.level}")
-    if o.noise_rms is not None and not 0 < o.noise_rms < np.inf:
-        raise DanoError(f"[options].noise_rms: a positive rms residual, got {o.noise_rms}")
-    if o.bootstrap != 0 and not (2 <= o.bootstrap <= 10_000 and len(c.trajectory) >= 2):
-        raise DanoError(f"[options].bootstrap: 0 or 2 to 10000 resamples, and at least two [[trajectory]] to resample "
-                        f"(got {o.bootstrap} with {len(c.trajectory)})")
-    if o.jacobian not in ("ad", "fd"):
-        raise DanoError(f"[options].jacobian: 'ad' or 'fd', got {o.jacobian!r}")
-    if not all(0 <= w < np.inf for w in (*o.position_weights, 0.0 if o.rotation_weight is None else o.rotation_weight)):
-        raise DanoError("[options]: weights must be finite and non-negative")
+    def __post_init__(self):
+        if not self.trajectory:
+            raise DanoError("[[trajectory]]: at least one trajectory is needed")
+        if not self.parameter:
+            raise DanoError("[[parameter]]: at least one parameter to identify is needed")
+        if self.options.bootstrap != 0 and len(self.trajectory) < 2:
+            raise DanoError(f"[options].bootstrap: 0 or 2 to 10000 resamples, and at least two [[trajectory]] to "
+                            f"resample (got {self.options.bootstrap} with {len(self.trajectory)})")
 
 
 def read_config(path: str | Path) -> SysIdConfig:
@@ -286,7 +363,6 @@ def read_config(path: str | Path) -> SysIdConfig:
     raw = read_table(path)
     try:
         cfg = typed_table(raw, SysIdConfig, "")
-        _check_values(cfg)
     except DanoError as exc:
         raise FileFormatError(f"{path}: {exc}") from exc
     return cfg

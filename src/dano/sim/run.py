@@ -1,0 +1,213 @@
+"""A simulation run as ``dano simulate`` does it, as library calls: a typed
+:class:`SimulateConfig` (saved beside every output and loadable again), :func:`simulate`
+(scene set-up, parameters, rollout) and :func:`write_outputs` (trajectory, video and the
+resolved configuration: all published together, or none).
+
+Ten lines of Python do what the command does::
+
+    from dano.sim.run import SimulateConfig, simulate, write_outputs
+    run = simulate(SimulateConfig("scene.xml", object=("spot.dano@0,0,0.5",), duration=2.0))
+    write_outputs(run, out="spot.npz", video="spot.mp4")
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from contextlib import ExitStack
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .._config import read_table, typed_table
+from .._files import atomic_path
+from ..contact import CONTACT_MODELS
+from ..data import load_asset
+from ..errors import DanoError
+from ..trajectory import Trajectory, save_trajectory
+from .rollout import rollout
+from .scene import DanoObject, Scene, SimParams
+from .scenes import BUILTIN_SCENES, Setup, load_scene, mjcf_setup
+
+DEFAULT_OBJECT = "builtin:bunny@0,0,1"
+
+
+@dataclass(frozen=True)
+class SimulateConfig:
+    """What ``dano simulate`` runs, saved as ``<output>.config.json`` and read back by
+    ``--config`` (TOML or JSON; keys as the options; paths relative to the file).
+    Raises DanoError naming the option for a value out of range."""
+
+    scene: str
+    """A built-in scene name (bunny-drop, bunny-slide, sphere-hits-bunny, two-bunnies-sphere,
+    panda-push-bunny) or an MJCF path."""
+    duration: float | None = None
+    """Simulated time [s]; None: the scene's."""
+    dt: float | None = None
+    """Time step [s]; None: the scene's (an MJCF's ``<option timestep>``, else 0.01)."""
+    param: tuple[str, ...] = ()
+    """Contact parameters ``name=value`` for every pair or ``PAIR:name=value`` for one
+    (e.g. ``sliding_friction=0.3``, ``bunny/ground:impact_spring=5e4``, ``alpha=0.2``)."""
+    object: tuple[str, ...] = ()
+    """MJCF scenes: DANOs to add, ``FILE.dano`` or ``builtin:NAME``, optionally
+    ``@x,y,z`` or ``@x,y,z,qw,qx,qy,qz`` (world frame [m], quaternion wxyz); empty: the bunny at 1 m."""
+    fps: float = 30.0
+    """Video frame rate [1/s]."""
+    contact_model: str = "centroid"
+    """DANO contact model of every pair: centroid (the paper's) or per_sample."""
+    max_steps: int = 2_000_000
+    """Refuse a run of more steps than this (duration / dt) up front."""
+
+    def __post_init__(self):
+        if self.contact_model not in CONTACT_MODELS:
+            raise DanoError(f"unknown --contact-model {self.contact_model!r}; available: {', '.join(CONTACT_MODELS)}")
+        for opt, v in (("duration", self.duration), ("dt", self.dt), ("fps", self.fps)):
+            if v is not None and not (0 < v < math.inf):
+                raise DanoError(f"--{opt} must be a finite positive number, got {v}")
+        if self.max_steps < 1:
+            raise DanoError(f"--max-steps must be at least 1, got {self.max_steps}")
+
+    @classmethod
+    def read(cls, path: str | Path) -> SimulateConfig:
+        """A saved configuration (TOML or JSON), with paths made absolute against its folder.
+        Raises DanoError naming the file and the key."""
+        path = Path(path)
+        try:
+            c = typed_table(read_table(path), cls, "")
+        except DanoError as exc:
+            raise DanoError(str(exc) if str(path) in str(exc) else f"{path}: {exc}") from exc
+        return dataclasses.replace(c, scene=absolute_source(c.scene, path.parent),
+                                   object=tuple(absolute_source(o, path.parent) for o in c.object))
+
+    def absolute(self, base: str | Path = ".") -> SimulateConfig:
+        """The same configuration with file paths absolute against ``base``."""
+        return dataclasses.replace(self, scene=absolute_source(self.scene, Path(base)),
+                                   object=tuple(absolute_source(o, Path(base)) for o in self.object))
+
+
+def absolute_source(text: str, base: Path) -> str:
+    """'FILE[@x,y,z...]' with FILE made absolute against ``base`` (builtin: and scene names kept)."""
+    src, at, pos = text.partition("@")
+    if src.startswith("builtin:") or src in BUILTIN_SCENES:
+        return text
+    return str((Path(base) / src).resolve()) + at + pos
+
+
+def parse_object(text: str) -> DanoObject:
+    """'FILE.dano[@x,y,z[,qw,qx,qy,qz]]' or 'builtin:NAME[@...]' -> :class:`DanoObject`:
+    position [m, world] (default 0, 0, 1) and optionally the orientation (a quaternion
+    w x y z, normalised here). Raises DanoError for a malformed pose."""
+    src, _, at = text.partition("@")
+    pos, quat = (0.0, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0)
+    if at:
+        try:
+            values = np.array([float(v) for v in at.split(",")])
+            ok = len(values) in (3, 7) and bool(np.all(np.isfinite(values)))
+        except ValueError:
+            ok = False
+        if not ok:
+            raise DanoError(f"--object {text!r}: the pose must be x,y,z or x,y,z,qw,qx,qy,qz (finite numbers)")
+        pos = tuple(values[:3])
+        if len(values) == 7:
+            norm = float(np.linalg.norm(values[3:]))
+            if norm < 1e-9:
+                raise DanoError(f"--object {text!r}: the quaternion qw,qx,qy,qz must not be zero")
+            quat = tuple(values[3:] / norm)
+    asset = load_asset(src)
+    return DanoObject(asset.name or Path(src).stem, asset, pos, quat)
+
+
+def apply_params(scene: Scene, params: SimParams, assignments) -> SimParams:
+    """``params`` with each ``name=value`` / ``PAIR:name=value`` of ``assignments`` set
+    (:meth:`Scene.set_param`). Raises DanoError for a malformed assignment."""
+    for item in assignments:
+        key, eq, value = item.partition("=")
+        if not eq:
+            raise DanoError(f"--param {item!r}: expected name=value or pair:name=value")
+        target, _, name = key.rpartition(":")
+        try:
+            v = float(value)
+        except ValueError:
+            raise DanoError(f"--param {item!r}: {value!r} is not a number") from None
+        params = scene.set_param(params, name, v, target or None)
+    return params
+
+
+@dataclass(frozen=True)
+class SimulationRun:
+    """A finished run: the scene set-up, the parameters used, the trajectory, the wall time
+    [s] (compilation included) and the resolved configuration (every default filled in)."""
+
+    setup: Setup
+    params: SimParams
+    trajectory: Trajectory
+    wall_time_s: float
+    config: SimulateConfig
+
+
+def setup_for(config: SimulateConfig) -> Setup:
+    """The scene of ``config``: a built-in scene, or the MJCF with its DANOs placed.
+    Raises DanoError for an unknown scene or objects given to a built-in one."""
+    if config.scene in BUILTIN_SCENES:
+        if config.object:
+            raise DanoError("--object applies to MJCF scenes, not to built-in ones")
+        return load_scene(config.scene, config.dt, contact_model=config.contact_model)
+    path = Path(config.scene)
+    if path.suffix.lower() != ".xml" and not path.exists():
+        raise DanoError(f"unknown scene {config.scene!r}; built-in scenes: {', '.join(BUILTIN_SCENES)} "
+                        "(or an MJCF path)")
+    objs = [parse_object(o) for o in (config.object or (DEFAULT_OBJECT,))]
+    return mjcf_setup(path, objs, dt=config.dt, contact_model=config.contact_model)  # dt None: the MJCF's
+
+
+def simulate(config: SimulateConfig, progress=None) -> SimulationRun:
+    """Set up ``config``'s scene, apply its parameters and roll it out (one compiled scan).
+    progress: optional callback ``(done, total, label)``. Raises DanoError for a run of more
+    than ``max_steps`` steps or less than one, and :class:`~dano.sim.SimulationDiverged` when
+    the state leaves the finite range (nothing returned)."""
+    setup = setup_for(config)
+    params = apply_params(setup.scene, setup.params, config.param)
+    dt = setup.scene.dt
+    T = int(round((config.duration if config.duration is not None else setup.duration) / dt))
+    if T < 1:
+        raise DanoError(f"--duration must cover at least one step of {dt:g} s")
+    if T > config.max_steps:
+        raise DanoError(f"--duration / --dt: {T} steps of {dt:g} s is more than --max-steps {config.max_steps} "
+                        f"(the trajectory alone would take {T * (setup.scene.nq + setup.scene.nv) * 8 / 1e9:.2g} GB)")
+    controls = setup.controls(np.arange(T) * dt) if setup.controls else None
+    t0 = time.perf_counter()
+    traj = rollout(setup.scene, setup.state0, controls, params, T, progress=progress)
+    resolved = dataclasses.replace(config.absolute(), duration=T * dt, dt=dt)
+    return SimulationRun(setup, params, traj, time.perf_counter() - t0, resolved)
+
+
+def check_video_path(video: str | Path | None) -> None:
+    """Raises DanoError unless ``video`` is None or ends in .mp4 or .gif (checked before a run)."""
+    if video is not None and Path(video).suffix.lower() not in (".mp4", ".gif"):
+        raise DanoError(f"--video {video}: must be .mp4 or .gif")
+
+
+def write_outputs(run: SimulationRun, out: str | Path | None = None, video: str | Path | None = None,
+                  progress=None) -> list[Path]:
+    """Write the trajectory ``out`` (.npz: time, qpos, qvel, psi, names), the ``video`` (.mp4
+    or .gif, rendered headless with MuJoCo at the config's fps) and the resolved
+    configuration ``<first output>.config.json``: all published together at the end, or none.
+    Returns the paths written. Raises DanoError for a video suffix other than .mp4/.gif."""
+    from ..viz.video import write_video
+
+    out, video = (None if p is None else Path(p) for p in (out, video))
+    check_video_path(video)
+    first = out if out is not None else video
+    saved = first.with_name(f"{first.stem}.config.json") if first is not None else None
+    with ExitStack() as stack:
+        if saved is not None:
+            stack.enter_context(atomic_path(saved)).write_text(json.dumps(dataclasses.asdict(run.config), indent=2))
+        if video is not None:
+            write_video(run.setup.scene, run.trajectory, stack.enter_context(atomic_path(video)), fps=run.config.fps,
+                        progress=progress)
+        if out is not None:
+            save_trajectory(run.trajectory, stack.enter_context(atomic_path(out)))
+    return [p for p in (out, video, saved) if p is not None]
