@@ -18,14 +18,17 @@ from dano.nerf.density import density_grid
 from dano.nerf.synthetic import render_dataset
 from dano.render import Cameras, RenderOptions, image_rays, opencv_from_blender, pixel_rays, render_rays
 
-BUNNY = "../shared/data/meshes/bunny_lowpoly.obj"
-LEGO = "../shared/data/nerf/lego_100px.npz"
+from .conftest import SHARED
+
+# real data: the tests that read these ask for the `shared` fixture (a skip when it is missing)
+BUNNY = str(SHARED / "meshes" / "bunny_lowpoly.obj")
+LEGO = str(SHARED / "nerf" / "lego_100px.npz")
 TINY = FieldConfig(levels=4, features=2, log2_table_size=12, base_resolution=8, max_resolution=48, hidden=16,
                    color_hidden=16)
 
 
 @pytest.fixture(scope="module")
-def bunny_views(tmp_path_factory):
+def bunny_views(tmp_path_factory, shared):
     """Six 32-px RGBA views of the low-poly bunny rendered by MuJoCo (exact cameras)."""
     out = tmp_path_factory.mktemp("views") / "bunny"
     render_dataset(BUNNY, out, views=6, size=32)
@@ -104,7 +107,7 @@ def test_blender_and_opencv_cameras_give_the_same_rays():
     np.testing.assert_allclose(np.asarray(d[0]), [0, 0, -1], atol=1e-6)
 
 
-def test_rendered_views_are_consistent_with_their_cameras(tmp_path):
+def test_rendered_views_are_consistent_with_their_cameras(tmp_path, shared):
     """Mesh vertices projected with the written cameras land on the rendered alpha mask, best
     with no shift: the cameras are the ones MuJoCo rendered with."""
     import trimesh
@@ -283,7 +286,7 @@ def test_command_line_defaults_are_the_library_defaults():
         assert defaults[name] == getattr(config, name), name
 
 
-def test_lego_npz_reads_as_the_paper_set():
+def test_lego_npz_reads_as_the_paper_set(shared):
     data = load_dataset(LEGO)
     assert data.images.shape == (100, 100, 100, 3) and data.alpha is None
     train_set, held = data.split(10)

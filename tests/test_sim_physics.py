@@ -45,10 +45,17 @@ def energy(scene, traj, body=1):
     return 0.5 * mass * np.sum(traj.qvel[:, :3] ** 2, 1) + 0.5 * np.sum(I * w**2, 1) + mass * G * traj.qpos[:, 2]
 
 
-@pytest.mark.parametrize("model", ["centroid", "per_sample"])
-def test_paper_bunny_drop_settles(model):
-    setup = load_scene("bunny-drop", contact_model=model)
-    traj = rollout(setup.scene, setup.state0, None, setup.params, 500)  # 5 s
+@pytest.fixture(scope="module", params=["centroid", "per_sample"])
+def paper_drop(request):
+    """(contact model, setup, trajectory) of the built-in bunny drop, 500 steps (5 s), float64:
+    simulated once per contact model for the two tests below."""
+    from .make_golden_contact import simulate_drop
+
+    return (request.param, *simulate_drop(request.param))
+
+
+def test_paper_bunny_drop_settles(paper_drop):
+    _, setup, traj = paper_drop  # load_scene("bunny-drop", contact_model=...), 500 steps
     bunny = setup.scene.assets[0]
     z = traj.qpos[-1, 2]
     assert 0.25 < z < 0.55
@@ -58,6 +65,26 @@ def test_paper_bunny_drop_settles(model):
     E = energy(setup.scene, traj)
     assert np.max(E - E[0]) <= 1e-9 * E[0]  # never more energy than at the start
     assert E[-1] < 0.7 * E[0]
+
+
+def test_paper_bunny_drop_matches_the_golden_trajectory(paper_drop):
+    """Regression guard for the simulation WITH contact: the drop against the trajectory stored
+    by tests/make_golden_contact.py (which says when and how to regenerate it), every 5th step.
+    It is the same code path in float64, so only round-off may differ: this drop amplifies it
+    little (a 1e-15 change of the initial state ends at most 4e-15 apart in qpos, 2e-13 in
+    qvel), and 1e-9 leaves room for another CPU's instruction choices, while a change of the
+    physics as small as friction x (1 + 1e-6) moves qpos by 5e-7 and qvel by 5e-6."""
+    from .make_golden_contact import EVERY, GOLDEN, STEPS, golden_arrays
+
+    model, _, traj = paper_drop
+    golden = np.load(GOLDEN)
+    assert int(golden["steps"]) == STEPS and int(golden["every"]) == EVERY
+    assert traj.psi[:, 0].max() > 1e-3 and np.ptp(traj.qpos[:, 2]) > 0.5  # it falls and hits the ground
+    ours = golden_arrays(traj, model)
+    for key, atol in (("qpos", 1e-9), ("qvel", 1e-8), ("psi", 1e-11)):
+        name = f"{model}_{key}"
+        assert ours[name].shape == golden[name].shape, name
+        np.testing.assert_allclose(ours[name], golden[name], rtol=0, atol=atol, err_msg=name)
 
 
 def test_paper_step_of_real_soap_is_stable():

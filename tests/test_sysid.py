@@ -175,9 +175,9 @@ def test_real_soap_video():
     is what a bar of soap on a table can have; the references (video fit 0.61, tilted plane
     0.75) are reported next to the result, not asserted. Its wall time is a benchmark
     (``dano bench --suite sysid``), not a test assert."""
-    from dano.sysid.config import run
+    from dano.experiments import run_sysid
 
-    problem, result, report = run("soap")
+    problem, result, report = run_sysid("soap")
     r = report["report"]
     assert 0.3 < r["sliding_friction"] < 0.9
     assert r["sliding_friction_std"] < 0.03

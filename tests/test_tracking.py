@@ -259,3 +259,38 @@ def test_colour_term_tracks_with_a_radiance_field(bunny, one_frame, occupancy):
     assert dp[0] < 0.02 * size and dr[0] < 5.0, (dp, dr)
     with pytest.raises(DanoError, match="radiance"):
         track(video, TrackedObject.from_asset(bunny), start, TrackConfig(colour_weight=0.1))
+
+
+@pytest.mark.slow
+def test_pixel_fit_uses_the_identification_solver(tmp_path, monkeypatch):
+    """identify_from_pixels on a 6-frame, 160x120 synthetic slide: its local solve is
+    identification's (dano.sysid.solve.solve_least_squares), started from the scan's best
+    point; the answer costs no more than any scanned point; the result keeps its keys."""
+    from dano.experiments.slide import VideoCamera, slide_trajectory, synthetic_slide
+    from dano.sysid import solve
+    from dano.tracking import pixels
+
+    calls = []
+
+    def spy(*args, **kwargs):
+        calls.append((np.array(args[1]), solve.solve_least_squares(*args, **kwargs)))
+        return calls[-1][1]
+
+    monkeypatch.setattr(pixels, "solve_least_squares", spy)
+    folder = synthetic_slide(tmp_path / "slide", duration=0.1, camera=VideoCamera(width=160, height=120))
+    scene, truth = slide_trajectory(duration=0.1)
+    ticks = []
+    result = pixels.identify_from_pixels(scene, scene.default_params(), load_video(folder),
+                                         TrackedObject.from_asset(scene.assets[0]), np.asarray(truth.qpos[0]),
+                                         np.asarray(truth.qvel[0]), substeps=2, scan=3, stride=8, max_iterations=4,
+                                         progress=lambda k, n, what: ticks.append(what))
+    (x0, fit), = calls
+    values, costs = result.scan["values"], result.scan["costs"]
+    assert len(values) == 6 and x0[0] == values[int(np.argmin(costs))]
+    np.testing.assert_array_equal(result.estimates, fit.x)
+    assert result.cost == fit.cost <= costs.min() and result.nfev == fit.nfev <= 4
+    assert len(ticks) == 6 + result.nfev
+    assert set(result.as_dict()) == {"parameters", "cost", "scan", "nfev", "njev", "wall_time_s", "compile_time_s",
+                                     "success", "message"}
+    assert list(result.as_dict()["parameters"]) == ["sliding_friction", "dx", "dy", "dz", "vx", "vy", "vz", "wx",
+                                                    "wy", "wz"]

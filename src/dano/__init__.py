@@ -18,7 +18,8 @@ from .errors import DanoError, FileFormatError  # noqa: E402
 from .io import load_paper_collider  # noqa: E402
 
 _LAZY = {
-    "DanoObject": "sim", "NewtonOptions": "sim", "Scene": "sim", "SimParams": "sim", "SimulationDiverged": "sim",
+    "DanoObject": "sim", "NewtonConfig": "sim", "NewtonOptions": "sim", "Scene": "sim", "SimParams": "sim",
+    "SimulationDiverged": "sim",
     "State": "sim", "compose": "sim", "make_data": "sim", "rollout": "sim", "rollout_arrays": "sim", "step": "sim",
     "Trajectory": "trajectory", "save_trajectory": "trajectory", "load_trajectory": "trajectory",
     "ContactParams": "contact", "FitParameter": "sysid", "Observation": "sysid", "SysIdProblem": "sysid",

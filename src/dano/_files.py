@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import numpy as np
+
+from .errors import DanoError, FileFormatError
 
 
 @contextmanager
@@ -42,10 +45,6 @@ def atomic_dir(out_dir: str | Path) -> Iterator[Path]:
     """Yield a temporary folder beside ``out_dir``; on success it becomes ``out_dir`` (usual
     permissions; an empty ``out_dir`` is replaced), on any error it is removed. Raises
     DanoError up front if ``out_dir`` exists and is not an empty folder."""
-    import shutil
-
-    from .errors import DanoError
-
     out_dir = Path(out_dir)
     if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
         raise DanoError(f"{out_dir}: exists and is not an empty folder; choose a new output folder")
@@ -84,8 +83,6 @@ def read_npz(path: str | Path, required=(), what: str = "") -> dict:
     Raises FileFormatError naming ``path`` if it cannot be read (``what`` says what it was
     meant to be) or lacks any of the ``required`` arrays.
     """
-    from .errors import FileFormatError
-
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:

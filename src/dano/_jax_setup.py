@@ -25,10 +25,14 @@ Explicit switches (the ``dano`` command line turns both on):
 
 from __future__ import annotations
 
+import functools
+import importlib.metadata
 import os
 import sys
 import warnings
 
+# jax is imported inside the functions below, never at the top: this module must run before
+# jax is imported, so that the XLA_FLAGS it sets still take effect.
 FUSION_FLAG = "--xla_cpu_use_fusion_emitters=false"
 
 
@@ -47,12 +51,10 @@ def jaxlib_has_fusion_flag() -> bool:
     """Whether the installed jaxlib knows ``--xla_cpu_use_fusion_emitters`` (before 0.11; jaxlib
     0.11 removed it and aborts at start-up on an unknown XLA flag). Read from the package's
     metadata, without importing it."""
-    from importlib.metadata import PackageNotFoundError, version
-
     try:
-        parts = version("jaxlib").split(".")[:2]
+        parts = importlib.metadata.version("jaxlib").split(".")[:2]
         return tuple(int("".join(c for c in p if c.isdigit()) or 0) for p in parts) < (0, 11)
-    except (PackageNotFoundError, ValueError):  # pragma: no cover - no jaxlib: nothing to configure
+    except (importlib.metadata.PackageNotFoundError, ValueError):  # pragma: no cover - no jaxlib: nothing to configure
         return False
 
 
@@ -105,8 +107,6 @@ def enable_compilation_cache(path: str | None = None) -> str:
 def in_float64(fn):
     """Decorator: run ``fn`` with JAX's 64-bit mode on (``jax.enable_x64(True)``), whatever
     the process-wide setting; for computations that must be float64 (asset building)."""
-    import functools
-
     @functools.wraps(fn)
     def wrapped(*args, **kwargs):
         import jax

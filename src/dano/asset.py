@@ -30,7 +30,7 @@ from ._version import __version__
 from ._files import atomic_write
 from ._jax_setup import in_float64
 from .errors import DanoError, FileFormatError
-from .fields import DensityField, from_arrays, to_arrays
+from .fields import DensityField, TransformedField, from_arrays, to_arrays
 from .fields.base import check_bounds, evaluate
 
 #: ``progress(done, total, description)``, called from long loops; may be None.
@@ -469,8 +469,6 @@ class DanoAsset(_PrincipalInertia):
         density: lengths ×s, mass and weights ×s³, inertia ×s⁵; the field is wrapped in a
         :class:`~dano.fields.TransformedField` (the object frame scales about its origin,
         so the centre of mass moves to s·μ)."""
-        from .fields import TransformedField
-
         s = float(factor)
         if not np.isfinite(s) or s <= 0:
             raise DanoError(f"scale factor must be a finite positive number, got {factor}")

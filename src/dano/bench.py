@@ -7,12 +7,33 @@ import dataclasses
 import os
 import platform
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
+
+from ._jax_setup import enable_float64
+from ._version import __version__
+from .asset import build
+from .experiments.energy import energy_check
+from .experiments.nerf_loop import ground_truth_loop
+from .experiments.push import PushPandaConfig, PushSphereConfig, push_panda_task, push_sphere_task, solve_task
+from .experiments.real2sim import synthetic_slide_real2sim
+from .experiments.sysid_examples import (PUSH_TRUTH, analytic_slides, contactnets_identify, contactnets_problem,
+                                         push_problem, soap_problem)
+from .experiments.tracking_curves import tracking_colour, tracking_success_curve
+from .fields import BoxField, SphereField, mesh_field
+from .nerf import TrainConfig, load_dataset, train
+from .sim import DanoObject, SimParams, State, compose, rollout_arrays
+from .sim.scenes import load_scene
+from .sysid import FitParameter, SysIdProblem, Weights, identify
+from .trajopt.ilqr import Multipliers, _compiled
 
 
 def _time(fn: Callable[[], object], repeats: int) -> dict:
@@ -56,9 +77,6 @@ def bench_build(repeats: int = 3, mesh_path=None) -> dict:
     """
     import trimesh
 
-    from .asset import build
-    from .fields import SphereField, mesh_field
-
     results = {}
     sphere = SphereField(0.5)
     results["build_analytic_sphere_5000"] = _time(lambda: build(sphere, num_samples=5000), repeats)
@@ -100,15 +118,8 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     * ``jacfwd_200``: forward-mode Jacobian of a 200-step bunny rollout w.r.t. 2 parameters
       (sliding friction, mass scale α).
     """
-    import dataclasses
-
-    import jax.numpy as jnp
-    import mujoco
     import mujoco.rollout
     import trimesh
-
-    from .sim import SimParams, State, rollout_arrays
-    from .sim.scenes import load_scene
 
     out: dict = {}
     setup = load_scene("bunny-drop")
@@ -192,9 +203,6 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
     * ``contactnets_cube`` (with ``cube_data``, the ContactNets .npz): the whole example's wall
       and compile time on ``cube_tosses`` tosses, and its local solve with AD vs FD Jacobians.
     """
-    from .sysid import identify
-    from .experiments.sysid_examples import PUSH_TRUTH, push_problem, soap_problem
-
     out: dict = {}
     problem = soap_problem(substeps=4)
     for jac in ("ad", "fd"):
@@ -217,8 +225,6 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
     out["soap_command"] = command_times(["sysid", "soap", "--json", "--out-dir", "{out}"],
                                         repeats=max(repeats - 1, 1))
     if cube_data:
-        from .experiments.sysid_examples import contactnets_identify, contactnets_problem
-
         report = contactnets_identify(cube_data, cube_tosses)[2]
         out["contactnets_cube"] = {k: report[k] for k in (
             "num_tosses", "sliding_friction", "cost", "wall_time_s", "compile_time_s", "heldout_position_rms_mm")}
@@ -240,10 +246,6 @@ def command_times(args: list[str], repeats: int = 2) -> dict:
     included): once with an empty compilation cache (cold), then ``repeats`` times with the cache
     that run filled (warm; median). ``{out}`` in an argument becomes a fresh folder in a
     temporary directory for each run. Returns {"command", "cold_s", "warm_s", "warm_runs"}."""
-    import subprocess
-    import sys
-    import tempfile
-
     def once(cache: str, out: str) -> float:
         env = {**os.environ, "DANO_CACHE_DIR": cache}
         t0 = time.perf_counter()
@@ -261,13 +263,6 @@ def _compile_by_lengths(count: int = 20) -> dict:
     """Compile time of an identification's residual and Jacobian for ``count`` trajectories of
     ``count`` different lengths (11, 12, … frames) against one trajectory of the longest
     length: the lengths are padded into one batch, so the first should not cost much more."""
-    from . import enable_float64
-    from .asset import build
-    from .fields import BoxField
-    from .sim import DanoObject, compose
-    from .sysid import FitParameter, SysIdProblem, Weights
-    from .experiments.sysid_examples import analytic_slides
-
     enable_float64()
     asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
                   name="box")
@@ -292,11 +287,6 @@ def bench_batched(repeats: int = 3, steps: int = 200, batches: tuple[int, ...] |
     """Batched throughput: ``jax.vmap`` of the bunny-drop rollout over B initial states
     (perturbed drop velocities), as env-steps per second. Default B: 1, 16, 64 on CPU and
     1, 1024, 4096 on a GPU."""
-    import jax.numpy as jnp
-
-    from .sim import State, rollout_arrays
-    from .sim.scenes import load_scene
-
     setup = load_scene("bunny-drop")
     sc, s0, p = setup.scene, setup.state0, setup.params
     if batches is None:
@@ -320,8 +310,6 @@ def bench_energy(repeats: int = 1, drops: int = 1000, seed: int = 0, duration: f
                  batch: int | None = None, contact_model: str = "centroid") -> dict:
     """Energy check of the contact solve (:func:`dano.experiments.energy.energy_check`):
     ``drops`` random paper-bunny drops; counts of non-finite, diverged and energy-gaining runs."""
-    from .experiments.energy import energy_check
-
     del repeats
     return energy_check(drops=drops, seed=seed, duration=duration, batch=batch, contact_model=contact_model)
 
@@ -333,11 +321,6 @@ def bench_trajopt(repeats: int = 3) -> dict:
     pass; ``forward``: one line-search rollout), each timed separately on the plain push,
     and one full solve from the plain push (iterations, time to convergence, time per
     iteration, compile time); with ``$MENAGERIE_ROOT``, a full solve of push-panda too."""
-    import jax.numpy as jnp
-
-    from .trajopt.ilqr import Multipliers, _compiled
-    from .experiments.push import PushSphereConfig, push_sphere_task, solve_task
-
     task = push_sphere_task(PushSphereConfig())
     fns = _compiled(task.problem)
     x0, U, p = jnp.asarray(task.x0), jnp.asarray(task.U_plain), task.params
@@ -353,8 +336,6 @@ def bench_trajopt(repeats: int = 3) -> dict:
     }
     out["push_sphere_solve"] = _solve_summary(solve_task(task))
     if os.environ.get("MENAGERIE_ROOT"):
-        from .experiments.push import PushPandaConfig, push_panda_task
-
         out["push_panda_solve"] = _solve_summary(solve_task(push_panda_task(PushPandaConfig())))
     else:
         out["push_panda_solve"] = "skipped: set MENAGERIE_ROOT"
@@ -369,8 +350,6 @@ def _solve_summary(sol) -> dict:
 
 
 def environment() -> dict:
-    from . import __version__
-
     return {
         "dano": __version__,
         "jax": jax.__version__,
@@ -399,9 +378,6 @@ def bench_nerf(repeats: int = 1, minutes: float = 3.0, eval_at: tuple[float, ...
     with XLA's default threads), and the ground-truth loop (:mod:`dano.experiments.nerf_loop`) on
     ``bunny_lowpoly.obj`` and ``spot.obj`` with ``loop_minutes`` of training each. Needs
     the shared data (``$DANO_SHARED_DATA`` or ``../shared/data``). 0 minutes skips a part."""
-    from .nerf import TrainConfig, load_dataset, train
-    from .experiments.nerf_loop import ground_truth_loop
-
     data_dir = _shared_data()
     if data_dir is None:
         return {"skipped": "set DANO_SHARED_DATA to the folder holding nerf/ and meshes/"}
@@ -425,11 +401,6 @@ def bench_tracking(repeats: int = 1, curve: bool = True, colour_minutes: float =
     two identifications' results and wall times; the tracking success rate against the
     size of the initial pose error (:func:`tracking_success_curve`, 36 starts); with
     ``colour_minutes`` > 0, photometric tracking (:func:`tracking_colour`)."""
-    import tempfile
-
-    from .experiments.real2sim import synthetic_slide_real2sim
-    from .experiments.tracking_curves import tracking_colour, tracking_success_curve
-
     with tempfile.TemporaryDirectory() as tmp:
         report = synthetic_slide_real2sim(Path(tmp) / "run", video_file=False)
         out = {k: v for k, v in report.items() if k not in ("per_frame", "pixels_fit", "track_config")}

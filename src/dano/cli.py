@@ -635,7 +635,7 @@ def train_field(
     dataset = load_dataset(data, bounds=box)
     config = TrainConfig(minutes=minutes, steps=steps, holdout=holdout, background=background,
                          mask_weight=mask_weight, rays_per_step=rays_per_step, eval_at_minutes=tuple(eval_at),
-                         seed=seed).check(dataset)
+                         seed=seed).check_data(dataset)
     train_set, held = dataset.split(holdout)
     with _train_progress(not quiet and not json_) as progress:
         result = train(train_set, config, heldout=held, out_dir=out, resume=resume, progress=progress)
@@ -732,7 +732,6 @@ def track(
     _check_new_folder(out)
     config = TrackConfig(iterations=iterations, stride=stride, colour_weight=colour_weight,
                          smoothness_weight=smoothness_weight, colour_rays=colour_rays)
-    config.check()
     radiance = radiance_occupancy = None
     if field is not None:
         from .nerf import load_field
@@ -930,11 +929,8 @@ def compare_mesh(
 
     _check_contact_model(contact_model)
     _check_resolution(resolution)
-    for opt, v, least in (("friction", friction, "non-negative"), ("slide-speed", slide_speed, "non-negative"),
-                          ("rest-time", rest_time, "positive"), ("slide-time", slide_time, "positive"),
-                          ("threshold", threshold, "positive")):
-        if not (0 <= v < float("inf")) or (least == "positive" and v == 0):
-            raise ValueError(f"--{opt} must be a finite {least} number, got {v}")
+    if not 0 < threshold < float("inf"):  # the scenario's own values are checked by ScenarioConfig
+        raise ValueError(f"--threshold must be a finite positive number, got {threshold}")
     asset = load_asset(source)
     lv = _level_meshes(mesh) + (extract_levels(asset, levels, resolution) if levels else [])
     lv = lv or default_levels(asset, resolution)

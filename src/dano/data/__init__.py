@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from importlib import resources
 
+from ..asset import load
 from ..errors import DanoError
 
 BUILTIN_ASSETS = ("bunny", "bunny_lowpoly", "bluesoap")
@@ -39,8 +40,6 @@ def builtin_file(name: str):
 
 def load_builtin(name: str = "bunny"):
     """Load a built-in asset (default: the paper bunny) as a :class:`~dano.asset.DanoAsset`."""
-    from ..asset import load
-
     with resources.as_file(builtin_path(name)) as p:
         return load(p)
 
@@ -48,6 +47,4 @@ def load_builtin(name: str = "bunny"):
 def load_asset(source: str):
     """A DANO asset from ``"FILE.dano"`` or ``"builtin:NAME"`` (:data:`BUILTIN_ASSETS`), as the
     command line's options name them. Raises DanoError / FileFormatError naming the file."""
-    from ..asset import load
-
     return load_builtin(source.split(":", 1)[1]) if source.startswith("builtin:") else load(source)

@@ -6,9 +6,15 @@ from __future__ import annotations
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
+from ..contact import ContactParams
+from ..pose import quat_to_matrix, random_quats
+from ..sim import NewtonConfig, make_data, scan_steps
 from ..sim.energy import mechanical_energy
+from ..sim.rollout import first_divergence
+from ..sim.scenes import load_scene
 
 
 ENERGY_RANGES = {
@@ -24,20 +30,15 @@ def random_drops(scene, drops: int, seed: int = 0, height=(0.3, 1.5), max_speed:
     with (B, 1) fields). Orientation uniform; the lowest sample starts ``height`` [m] above
     the ground; velocity and spin uniform in direction, magnitude uniform up to
     ``max_speed`` [m/s] and ``max_spin`` [rad/s]; parameters from :data:`ENERGY_RANGES`."""
-    import jax.numpy as jnp
-    from scipy.spatial.transform import Rotation
-
-    from ..contact import ContactParams
-
     rng = np.random.default_rng(seed)
-    rot = Rotation.random(drops, random_state=rng)
+    quat = random_quats(rng, drops)
     pts = np.array(scene.assets[0].points)
-    lowest = np.array([-np.min(r.apply(pts)[:, 2]) for r in rot])
+    lowest = -np.min(pts @ quat_to_matrix(quat)[:, 2, :].T, axis=0)  # heights: the matrices' last rows
     z = lowest + rng.uniform(*height, drops)
     unit = lambda n: (lambda v: v / np.linalg.norm(v, axis=1, keepdims=True))(rng.normal(size=(n, 3)))  # noqa: E731
     v = unit(drops) * rng.uniform(0, max_speed, (drops, 1))
     w = unit(drops) * rng.uniform(0, max_spin, (drops, 1))
-    qpos = np.concatenate([np.zeros((drops, 2)), z[:, None], rot.as_quat(scalar_first=True)], axis=1)
+    qpos = np.concatenate([np.zeros((drops, 2)), z[:, None], quat], axis=1)
     params = {}
     for name, (lo, hi) in ENERGY_RANGES.items():
         if name in ("impact_spring", "impact_damper"):
@@ -60,12 +61,6 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
     contact_model: of the bunny/ground pair. batch: drops per vmapped call (default 50 for
     the centroid model; 1, unbatched, for per_sample, whose gathering of the samples in
     reach only pays off outside ``jax.vmap``)."""
-    import jax.numpy as jnp
-
-
-    from ..sim import NewtonOptions, make_data, scan_steps
-    from ..sim.rollout import first_divergence
-    from ..sim.scenes import load_scene
 
     setup = load_scene("bunny-drop", contact_model=contact_model)
     sc, base = setup.scene, setup.params
@@ -96,7 +91,7 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
         pad = lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], batch - n, axis=0)]) if n < batch else x  # noqa: E731
         p = jax.tree_util.tree_map(lambda x: pad(x[sl]), cparams)
         qpos, qvel, psi, iters = (np.asarray(a)[:n] for a in run(pad(qpos0[sl]), pad(qvel0[sl]), p))
-        limit = NewtonOptions().max_iterations
+        limit = NewtonConfig().max_iterations
         out["unconverged_steps"] += int(np.sum(iters >= limit))
         out["max_newton_iterations"] = max(out["max_newton_iterations"], int(iters.max()))
         E = mechanical_energy(sc, qpos, qvel)

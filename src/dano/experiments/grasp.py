@@ -37,7 +37,7 @@ largest overlap carry only ≈ 5 N) and the table keeps the paper's values; slid
 on both (rubber pads, a wooden table); h = 2 ms. At the push tasks' 10 ms, with one
 constraint pass per step, this contact diverged (at 10 N the fingers were driven through
 their limits and the state grew to 1e124 within two steps); the step's second constraint
-pass (:class:`dano.sim.NewtonOptions`) keeps 10 ms bounded too, but 2 ms is what was
+pass (:class:`dano.sim.NewtonConfig`) keeps 10 ms bounded too, but 2 ms is what was
 measured. A run whose velocities exceed 1e3 or are not finite is marked ``diverged`` and
 never chosen.
 """
@@ -53,8 +53,16 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from .._config import check_ranges
+from .._mjx import mjx
+from ..data import load_builtin
 from ..errors import DanoError
-from .push import PANDA_TORQUE, checked, torque_controlled_arm
+from ..sim import DanoObject, NewtonConfig, compose, make_data, step
+from ..sim.scene import add_ground
+from ..sim.scenes import initial_state, menagerie_panda, resting_height
+from ..trajopt.ilqr import ILQRConfig, solve
+from ..trajopt.problem import Problem, mjx_dynamics
+from .push import PANDA_TORQUE, torque_controlled_arm
 
 PAD_INNER_HALF_THICKNESS = 0.01  # [m] pads thickened outwards to 2 cm
 GRIP_SITE_OFFSET = 0.1034  # [m] hand frame: the main pads' centre below the hand's origin
@@ -71,38 +79,42 @@ PHASES = (("approach", 1.0), ("descend", 0.8), ("settle", 0.4), ("close", 0.5), 
 
 @dataclass(frozen=True)
 class GraspPandaConfig:
-    """Settings of ``grasp-panda``."""
+    """Settings of ``grasp-panda`` (a ``dano trajopt`` TOML/JSON file: these keys at the top
+    level). Raises DanoError naming the first setting out of range."""
 
     task: str = "grasp-panda"
-    """the task's name"""
+    """The task's name: ``grasp-panda``."""
     dt: float = 0.002
-    """time step h [s] (the stiff pads' contact: see the module's notes)"""
+    """Time step h [s], in (0, 0.01] (the stiff pads' contact: see the module's notes)."""
     sliding_friction: float = 0.8
-    """sliding friction μ of the pads and the table"""
+    """Sliding friction μ [-] of the pads and the table, in (0, 10)."""
     pad_spring: float = 1e6
-    """impact spring k of the two finger-pad pairs [N per unit overlap]"""
+    """Impact spring k of the two finger-pad pairs [N per unit overlap], in (0, 1e9)."""
     pad_damper: float = 1e7
-    """impact damper c of the finger-pad pairs"""
+    """Impact damper c of the finger-pad pairs [N·s/m per unit overlap], in [0, 1e10)."""
     lift_height: float = 0.10
-    """lift goal [m]"""
+    """Lift goal [m], in (0, 0.3]."""
     grip_forces: tuple[float, ...] = (10.0, 15.0, 20.0, 30.0, 40.0, 50.0)
-    """grip forces per finger scanned for the closing force [N]"""
+    """Grip forces per finger scanned for the closing force [N], each in (0, 70]; at least one."""
     slip_tolerance_mm: float = 5.0
-    """largest accepted slip of the object in the hand over the hold [mm]"""
+    """Largest accepted slip of the object in the hand over the hold [mm], > 0."""
     friction_cone_deg: float = 15.0
-    """antipodal test: largest angle between a sample's normal and the grip axis [deg]"""
+    """Antipodal test: largest angle between a sample's normal and the grip axis [deg], in (0, 60)."""
     contact_model: str = "centroid"
-    """DANO contact model of the main run: centroid (the paper's) or per_sample"""
+    """DANO contact model of the main run: ``centroid`` (the paper's) or ``per_sample``."""
     compare_models: bool = True
-    """also run the other contact model at the chosen grasp and force"""
+    """Also run the other contact model at the chosen grasp and force."""
     optimise_approach: bool = True
-    """optimise the approach (home to pre-grasp) with the constrained iLQR; false: PD
-    tracking of a joint-space interpolation"""
+    """Optimise the approach (home to pre-grasp) with the constrained iLQR; false: PD tracking of a joint-space
+    interpolation."""
     approach_iterations: int = 100
-    """iLQR iteration budget of the approach"""
+    """iLQR iteration budget of the approach, >= 1."""
 
     def validate(self):
-        """Raises DanoError naming the first setting out of range."""
+        """Old API, kept: the settings are checked when the config is built; returns it."""
+        return self
+
+    def __post_init__(self):
         checks = [("task", self.task == "grasp-panda"), ("dt", 0 < self.dt <= 0.01),
                   ("sliding_friction", 0 < self.sliding_friction < 10), ("pad_spring", 0 < self.pad_spring < 1e9),
                   ("pad_damper", 0 <= self.pad_damper < 1e10), ("lift_height", 0 < self.lift_height <= 0.3),
@@ -111,7 +123,7 @@ class GraspPandaConfig:
                   ("friction_cone_deg", 0 < self.friction_cone_deg < 60),
                   ("contact_model", self.contact_model in ("centroid", "per_sample")),
                   ("approach_iterations", isinstance(self.approach_iterations, int) and self.approach_iterations >= 1)]
-        return checked(self, checks)
+        check_ranges(self, checks)
 
 
 def hand_spec() -> mujoco.MjSpec:
@@ -120,8 +132,6 @@ def hand_spec() -> mujoco.MjSpec:
     closes), damped finger joints, the two main fingertip pads as the only collision geoms
     ("left_finger_pad", "right_finger_pad") and a site "grip" between them. Raises
     DanoError if the Panda is not found."""
-    from ..sim.scenes import menagerie_panda
-
     spec = mujoco.MjSpec.from_file(str(menagerie_panda("grasp-panda", hand=True)))
     actuators = torque_controlled_arm(spec)
     if len(actuators) != 8:
@@ -281,11 +291,6 @@ def optimise_approach(task: GraspTask) -> ApproachPlan:
     the pre-grasp joint angles, at rest. Started from the scripted approach (PD tracking of
     the joint interpolation). The bunny is not in this problem: the constraint keeps the hand
     above it, and the executed grasp simulates everything together."""
-    from ..sim import compose, make_data
-    from ..trajopt.ilqr import Options, solve
-    from ..trajopt.problem import Problem, mjx_dynamics
-    from .._mjx import mjx
-
     cfg = task.config
     scene = compose([], hand_spec(), dt=APPROACH_DT, name="grasp-panda-approach", ground=False)
     params = scene.default_params()
@@ -326,7 +331,7 @@ def optimise_approach(task: GraspTask) -> ApproachPlan:
 
     _, (X0, U0) = jax.jit(lambda x: jax.lax.scan(pd, x, jnp.asarray(q_ref)))(jnp.asarray(x0))
     X0, U0 = np.asarray(X0), np.asarray(U0)
-    sol = solve(problem, x0, U0, params, Options(max_iterations=cfg.approach_iterations))
+    sol = solve(problem, x0, U0, params, ILQRConfig(max_iterations=cfg.approach_iterations))
     X, U = np.asarray(sol.states), np.asarray(sol.controls)
     heights = np.asarray(jax.jit(jax.vmap(grip_height))(jnp.asarray(X)))
     starts = np.concatenate([x0[None], X0[:-1]])  # the stage costs' states x_0 … x_{T−1}
@@ -380,11 +385,6 @@ def grasp_scene(config: GraspPandaConfig, contact_model: str | None = None):
     """The scene (the hand, the 15 cm, 0.25 kg bunny at rest at (0.5, 0) on the table), its
     params (pads stiffened) and x0 = [qpos, qvel] (nx,): the arm at Menagerie's home, the
     fingers open. contact_model: None for the config's."""
-    from ..data import load_builtin
-    from ..sim import DanoObject, compose
-    from ..sim.scene import add_ground
-    from ..sim.scenes import initial_state, resting_height
-
     spec = hand_spec()
     add_ground(spec)
     bunny = load_builtin("bunny").scaled(0.15).with_mass(0.25)
@@ -411,7 +411,6 @@ def with_contact_model(task: GraspTask, contact_model: str) -> GraspTask:
 def build(config: GraspPandaConfig = GraspPandaConfig()) -> GraspTask:
     """Build the scene, choose the grasp and solve the IK waypoints. Raises DanoError for
     settings out of range, a missing Panda, no grasp within the hand or an unreachable one."""
-    config.validate()
     scene, params, x0 = grasp_scene(config)
     ba = scene.qpos_adr[0]
     start = x0[ba:ba + 3]
@@ -475,11 +474,9 @@ def _schedules(task: GraspTask):
 
 def simulate(task: GraspTask, forces, newton=None) -> tuple[list[GraspRun], float]:
     """Simulate the grasp with each grip force per finger in ``forces`` [N] (one compiled
-    rollout, vmapped over the forces); newton: the step's NewtonOptions (default: the
+    rollout, vmapped over the forces); newton: the step's NewtonConfig (default: the
     step's defaults). Returns (runs, compile time [s])."""
-    from ..sim import NewtonOptions, make_data, step
-
-    newton = newton or NewtonOptions()
+    newton = newton or NewtonConfig()
     scene, params = task.scene, task.params
     nq = scene.nq
     knots, q_ref, qd_ref, ramp, ff = _schedules(task)

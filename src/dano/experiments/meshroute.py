@@ -17,7 +17,7 @@ Metrics per level and mode (keys of the JSON report):
   of its centre of mass from the DANO's [m]), ``inertia_error`` (‖J_mesh − J‖_F / ‖J‖_F);
   ``mass_error`` ((ρ·V − m)/m with ρ = α × the field's interior density; ``None`` when the
   asset has no field, as for the paper colliders);
-* rest: the DANO first settles from ``Scenario.quat``; from that stable orientation
+* rest: the DANO first settles from ``ScenarioConfig.quat``; from that stable orientation
   (``start_quat``), a little above the ground, the DANO and each mesh body are dropped and
   settle for ``rest_time`` s: ``rest_height`` (body-frame origin z [m]),
   ``rest_height_error`` (minus the DANO's), ``rest_tilt_deg`` (how differently the mesh body
@@ -41,8 +41,15 @@ import mujoco
 import numpy as np
 import trimesh
 
+from .._files import atomic_path
+from ..asset import visual_mesh
 from ..errors import DanoError
-from ..io.exporters import Decomposition, body_meshes
+from ..fields.base import interior_density
+from ..io.exporters import BodyMeshes, Decomposition, add_collision_geoms, add_to_spec, body_meshes
+from ..pose import normalize_quat, quat_error, quat_inverse, quat_to_matrix, rotate
+from ..sim import DanoObject, compose, rollout
+from ..sim.scene import add_ground
+from ..sim.scenes import initial_state, resting_height
 
 COLLISIONS = ("hull", "decomposition")
 
@@ -59,27 +66,43 @@ class Level:
 
 
 @dataclass(frozen=True)
-class Scenario:
-    """The two scenes: drop from ``clearance`` [m] above the lowest point and settle for
-    ``rest_time`` [s]; then slide at ``slide_speed`` [m/s] along +x for ``slide_time`` [s].
-    quat: (4,) wxyz orientation of the drop (object axes in the world); friction: sliding
-    friction (both engines); dt: dano's step [s]; mujoco_dt: MuJoCo's."""
+class ScenarioConfig:
+    """The two scenes of :func:`compare_mesh`: a drop that settles, then a slide. Raises
+    DanoError naming the setting for a value out of range."""
 
     quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    """Orientation of the drop, a wxyz quaternion (object axes in the world), (4,), non-zero."""
     friction: float = 0.2
+    """Sliding friction μ [-] (both engines), finite, >= 0."""
     rest_time: float = 3.0
+    """Settling time after the drop [s], finite, > 0."""
     slide_time: float = 2.0
+    """Duration of the slide [s], finite, > 0."""
     slide_speed: float = 1.0
+    """Initial speed of the slide along +x [m/s], finite, >= 0."""
     clearance: float = 0.02
+    """Drop height above the lowest point's contact [m], finite, >= 0."""
     dt: float = 0.01
+    """dano's time step [s], finite, > 0."""
     mujoco_dt: float = 0.002
+    """MuJoCo's time step [s], finite, > 0."""
+
+    def __post_init__(self):
+        for opt, v, least in (("friction", self.friction, "non-negative"),
+                              ("slide-speed", self.slide_speed, "non-negative"),
+                              ("rest-time", self.rest_time, "positive"), ("slide-time", self.slide_time, "positive"),
+                              ("clearance", self.clearance, "non-negative"), ("dt", self.dt, "positive"),
+                              ("mujoco-dt", self.mujoco_dt, "positive")):
+            if not (0 <= v < float("inf")) or (least == "positive" and v == 0):
+                raise DanoError(f"--{opt} must be a finite {least} number, got {v}")
+
+
+Scenario = ScenarioConfig  # old name, kept
 
 
 def extract_levels(asset, levels: Sequence[float], resolution: int = 96) -> list[Level]:
     """Marching-cubes meshes (object frame) of the asset's field at ``levels`` (densities).
     Raises DanoError if the asset has no field or a level is outside its range."""
-    from ..asset import visual_mesh
-
     if asset.field is None:
         raise DanoError(f"{asset.name}: no density field stored, so no level set can be extracted; give level-set "
                         "meshes instead (--mesh)")
@@ -94,8 +117,6 @@ def default_levels(asset, resolution: int = 96) -> list[Level]:
     """The levels compared when none are given: 0.1, 0.5 and 0.9 of the field's interior
     density if the asset stores its field, else its visual mesh. Raises DanoError if it has
     neither."""
-    from ..fields.base import interior_density
-
     if asset.field is not None:
         rho = interior_density(asset.field)
         return extract_levels(asset, [f * rho for f in (0.1, 0.5, 0.9)], resolution)
@@ -107,16 +128,13 @@ def default_levels(asset, resolution: int = 96) -> list[Level]:
 
 def _quat_angle_deg(q1: np.ndarray, q2: np.ndarray) -> float:
     """Angle of the rotation between two orientations [deg]."""
-    d = abs(float(np.dot(q1 / np.linalg.norm(q1), q2 / np.linalg.norm(q2))))
-    return float(np.degrees(2.0 * np.arccos(min(1.0, d))))
+    return float(np.degrees(np.linalg.norm(quat_error(q1, q2))))
 
 
 def _tilt_deg(q1: np.ndarray, q2: np.ndarray) -> float:
     """Angle between the world's up direction seen in two orientations' body frames [deg]:
     how differently the body leans, whatever its heading (yaw)."""
-    from scipy.spatial.transform import Rotation
-
-    up = [Rotation.from_quat(q, scalar_first=True).inv().apply([0.0, 0.0, 1.0]) for q in (q1, q2)]
+    up = [rotate(quat_inverse(normalize_quat(q)), np.array([0.0, 0.0, 1.0])) for q in (q1, q2)]
     return float(np.degrees(np.arccos(np.clip(np.dot(up[0], up[1]), -1.0, 1.0))))
 
 
@@ -135,9 +153,6 @@ def mesh_body_model(pieces: Sequence[trimesh.Trimesh], mass: float, friction: fl
     pieces count twice, as in MuJoCo); sliding ``friction`` on both geoms (MuJoCo takes the
     larger of the two); timestep ``dt`` [s], implicitfast integrator. Raises DanoError if
     MuJoCo cannot compile it."""
-    from ..io.exporters import add_collision_geoms
-    from ..sim.scene import add_ground
-
     spec = mujoco.MjSpec()
     spec.option.timestep = dt
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
@@ -167,7 +182,7 @@ def _advance(m: mujoco.MjModel, d: mujoco.MjData, seconds: float) -> None:
     mujoco.mj_forward(m, d)
 
 
-def _simulate_mujoco(m: mujoco.MjModel, qpos0: np.ndarray, sc: Scenario):
+def _simulate_mujoco(m: mujoco.MjModel, qpos0: np.ndarray, sc: ScenarioConfig):
     """Rest then slide in MuJoCo C; returns (rest qpos (7,), slide displacement (3,) [m])."""
     d = mujoco.MjData(m)
     d.qpos[:] = qpos0
@@ -185,9 +200,7 @@ def _simulate_mujoco(m: mujoco.MjModel, qpos0: np.ndarray, sc: Scenario):
 class _DanoRuns:
     """The DANO in dano on the plane: one scene (one compilation) for every run."""
 
-    def __init__(self, asset, sc: Scenario, contact_model: str):
-        from ..sim import DanoObject, compose
-
+    def __init__(self, asset, sc: ScenarioConfig, contact_model: str):
         self.sc = sc
         self.scene = compose([DanoObject("dano", asset)], dt=sc.dt, name="mesh-route-dano", contact_model=contact_model)
         # MuJoCo's condim-3 contact: Coulomb sliding friction, no drags, no rolling friction.
@@ -198,9 +211,6 @@ class _DanoRuns:
                                                 rolling_friction=0.0)
 
     def _run(self, pos, quat, v, seconds: float) -> np.ndarray:
-        from ..sim import rollout
-        from ..sim.scenes import initial_state
-
         state = initial_state(self.scene, {"dano": (pos, quat)}, {"dano": (v, (0.0, 0.0, 0.0))})
         return rollout(self.scene, state, params=self.params, steps=int(round(seconds / self.sc.dt))).qpos[-1, :7]
 
@@ -216,11 +226,7 @@ class _DanoRuns:
 def _start_height(asset, pieces, quat: np.ndarray, clearance: float) -> float:
     """Body-origin height at which the DANO's lowest sample and every collider's lowest
     vertex are at least ``clearance`` × the object's size above z = 0."""
-    from scipy.spatial.transform import Rotation
-
-    from ..sim.scenes import resting_height
-
-    up = Rotation.from_quat(quat, scalar_first=True).as_matrix()[2]
+    up = quat_to_matrix(quat)[2]
     lowest = max([resting_height(asset, quat)] + [-float(np.min(p.vertices @ up)) for ps in pieces for p in ps])
     return lowest + clearance * float(np.ptp(asset.points, axis=0).max())
 
@@ -245,7 +251,7 @@ def compare_mesh(
     levels: Sequence[Level],
     *,
     collisions: Sequence[str] = COLLISIONS,
-    scenario: Scenario = Scenario(),
+    scenario: ScenarioConfig = ScenarioConfig(),
     decomposition: Decomposition = Decomposition(),
     contact_model: str = "centroid",
     progress: Callable[[int, int, str], None] | None = None,
@@ -287,8 +293,6 @@ def compare_mesh(
         progress(total, total, "colliders, DANO runs")
     rho = None
     if asset.field is not None:
-        from ..fields.base import interior_density
-
         rho = asset.alpha * interior_density(asset.field)
     report_levels, models = [], {}
     for i, lv in enumerate(levels):
@@ -342,9 +346,6 @@ def render_rest_figure(asset, report: dict, path, width: int = 320, height: int 
     Raises DanoError if no OpenGL context can be created (set MUJOCO_GL=egl or osmesa)."""
     from matplotlib.figure import Figure
 
-    from .._files import atomic_path
-    from ..io.exporters import BodyMeshes, add_to_spec
-
     models = report["_models"]["mesh"]
     panels = []
 
@@ -366,8 +367,6 @@ def render_rest_figure(asset, report: dict, path, width: int = 320, height: int 
         r.update_scene(d, cam, opt)
         panels.append((r.render().copy(), title))
         r.close()
-
-    from ..sim.scene import add_ground
 
     spec = mujoco.MjSpec()
     add_ground(spec)

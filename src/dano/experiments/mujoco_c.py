@@ -14,8 +14,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import mujoco
 import numpy as np
+import trimesh
 from scipy.spatial import ConvexHull
+
+from ..asset import build, save
+from ..fields import mesh_field
 
 _XML = """<mujoco model="toy">
   <option timestep="{timestep}" cone="elliptic"/>
@@ -60,12 +65,6 @@ def mujoco_c_slides(out_dir, mesh="bunny_lowpoly.obj", size=0.2, mass=0.7, frict
     (MuJoCo's body mass), dano_com [m] (the DANO's centre of mass, object frame), rest_pose (x, y, z,
     qw, qx, qy, qz).
     """
-    import mujoco
-    import trimesh
-
-    import dano
-    from dano.fields import mesh_field
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     m = trimesh.load(mesh, process=False, force="mesh")
@@ -142,8 +141,8 @@ def mujoco_c_slides(out_dir, mesh="bunny_lowpoly.obj", size=0.2, mass=0.7, frict
         stops.append(float(np.linalg.norm(rows[-1, 1:4] - rows[0, 1:4])))
         tilts.append(float(np.degrees(tilt)))
 
-    asset = dano.build(mesh_field(obj), mass=mass, num_samples=num_samples, seed=seed, name="toy")
-    dano_path = dano.save(asset, out / "toy.dano")
+    asset = build(mesh_field(obj), mass=mass, num_samples=num_samples, seed=seed, name="toy")
+    dano_path = save(asset, out / "toy.dano")
 
     toml = out / "problem.toml"
     fmt = lambda v: "[" + ", ".join(f"{x:.9g}" for x in v) + "]"  # noqa: E731

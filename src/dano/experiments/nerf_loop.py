@@ -19,6 +19,9 @@ import numpy as np
 from ..asset import build
 from ..fields import mesh_field
 from ..io import load_mesh
+from ..sim import rollout
+from ..sim.scene import DanoObject, compose
+from ..sim.scenes import PAPER_DROP_QUAT, initial_state, resting_height
 from ..tracking.track import pose_errors
 from ..nerf.data import load_dataset
 from ..nerf.density import DENSITY_RULES, density_grid
@@ -66,10 +69,6 @@ def _final_pose(asset, kind: str, scale: float, duration: float = 2.0):
     +x at 1.5 m/s with friction 0.3 (the bunny tips over forwards: a bifurcation that
     amplifies any difference); ``slide_<d>deg``, thrown upright at 1.5 m/s along the direction
     d [deg from +x] with friction :data:`LEVEL_SLIDE_FRICTION`."""
-    from ..sim import rollout
-    from ..sim.scene import DanoObject, compose
-    from ..sim.scenes import PAPER_DROP_QUAT, initial_state, resting_height
-
     a = asset.scaled(scale).with_mass(1.0)
     friction = 0.3
     if kind == "drop":

@@ -29,66 +29,73 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from .._config import check_ranges
+from ..data import load_builtin
 from ..errors import DanoError
-from ..trajopt.ilqr import Options, Solution, solve
+from ..sim import DanoObject, compose
+from ..sim.scene import add_ground
+from ..sim.scenes import PANDA_WAYPOINTS, initial_state, menagerie_panda, resting_height
+from ..trajopt.ilqr import ILQRConfig, Solution, rollout, solve
 from ..trajopt.mpc import RecedingHorizonResult, receding_horizon
 from ..trajopt.problem import Problem, mjx_dynamics
 
 G = 9.81
 
 
-def checked(config, checks):
-    """``config`` if every (setting name, ok) in ``checks`` holds; raises DanoError naming
-    the first setting out of range and its value."""
-    for name, ok in checks:
-        if not ok:
-            raise DanoError(f"{name} out of range: {getattr(config, name)}")
-    return config
+checked = check_ranges  # old name, kept
 
 
 @dataclass(frozen=True)
 class PushConfig:
-    """Settings shared by the push tasks."""
+    """Settings shared by the push tasks (a ``dano trajopt`` TOML/JSON file: these keys at the
+    top level). Raises DanoError naming the first setting out of range (``horizon out of
+    range: 1``)."""
 
     task: str = "push-sphere"
-    """the task's name"""
+    """The task's name (picks which task's settings apply): ``push-sphere``."""
     dt: float = 0.02
-    """time step h [s]"""
+    """Time step h [s], > 0."""
     horizon: int = 60
-    """T, steps"""
+    """Horizon T [steps], 2 to 10,000."""
     sliding_friction: float = 0.05
-    """sliding friction μ of both contact pairs"""
+    """Sliding friction μ [-] of both contact pairs, >= 0."""
     impact_spring: float = 3e4
-    """impact spring k [N per unit overlap]"""
+    """Impact spring k [N per unit overlap] of both contact pairs, > 0."""
     impact_damper: float = 3e5
-    """impact damper c [N s/m per unit overlap]"""
+    """Impact damper c [N·s/m per unit overlap] of both contact pairs, >= 0."""
     state_weight: float = 0.1
-    """weight of ½|qvel|² per stage"""
+    """Weight of ½|qvel|² per stage [1/(unit of qvel)²], >= 0."""
     control_weight: float = 0.2
-    """weight of ½|u/u_ref|² per stage (u_ref: the task's control scale)"""
+    """Weight of ½|u/u_ref|² per stage [-] (u_ref: the task's control scale), > 0."""
     max_iterations: int = 300
-    """iLQR iterations in all"""
+    """iLQR iterations in all, >= 1."""
     constraint_tolerance: float = 1e-3
-    """largest allowed constraint violation [m; N m for torque bounds; rad for joint limits]"""
+    """Largest allowed constraint violation [m; N·m for torque bounds; rad for joint limits], > 0."""
     penalty_initial: float = 10.0
-    """initial augmented-Lagrangian penalty μ₀ (large enough that the goal outweighs the control cost from
-    the first iteration: with too small a μ₀ the first step drops the push and loses the contact gradient)"""
+    """Initial augmented-Lagrangian penalty μ₀, in (0, 1e8) (large enough that the goal outweighs the control
+    cost from the first iteration: with too small a μ₀ the first step drops the push and loses the contact
+    gradient)."""
     model_error: float = 0.0
-    """if > 0: also run the plan, open loop and with receding horizon, in a world whose sliding friction is
-    (1 + model_error) times the model's"""
+    """If > 0: also run the plan, open loop and with receding horizon, in a world whose sliding friction is
+    (1 + model_error) times the model's; > -1."""
     replan_every: int = 5
-    """receding horizon: steps executed between re-plans"""
+    """Receding horizon: steps executed between re-plans, >= 1."""
     replan_iterations: int = 30
-    """receding horizon: iLQR iterations per re-plan"""
+    """Receding horizon: iLQR iterations per re-plan, >= 1."""
     contact_model: str = "centroid"
-    """DANO contact model: centroid (the paper's) or per_sample"""
+    """DANO contact model: ``centroid`` (the paper's) or ``per_sample``."""
+
+    def __post_init__(self):
+        check_ranges(self, self._checks())
 
     def _checks(self) -> list:
-        return [("task", self.task in TASKS and isinstance(self, TASKS[self.task][1])),
+        task = type(self).__dataclass_fields__["task"].default  # each task's class names its own task
+        return [("task", self.task == task),
                 ("dt", self.dt > 0 and np.isfinite(self.dt)), ("horizon", 2 <= self.horizon <= 10000),
                 ("sliding_friction", 0 <= self.sliding_friction < np.inf),
                 ("impact_spring", 0 < self.impact_spring < np.inf), ("impact_damper", 0 <= self.impact_damper < np.inf),
@@ -100,8 +107,8 @@ class PushConfig:
                 ("replan_iterations", self.replan_iterations >= 1)]
 
     def validate(self):
-        """Raises DanoError naming the first setting out of range."""
-        return checked(self, self._checks())
+        """Old API, kept: the settings are checked when the config is built; returns it."""
+        return self
 
 
 @dataclass(frozen=True)
@@ -109,7 +116,7 @@ class PushSphereConfig(PushConfig):
     """Settings of ``push-sphere`` (the defaults are the paper's task)."""
 
     sideways: float = 1.0
-    """bunny goal: this far (+y) from where the plain push leaves it [m]"""
+    """Bunny goal: this far (+y) from where the plain push leaves it [m], finite."""
 
     def _checks(self) -> list:
         return super()._checks() + [("sideways", np.isfinite(self.sideways))]
@@ -120,19 +127,19 @@ class PushPandaConfig(PushConfig):
     """Settings of ``push-panda``."""
 
     task: str = "push-panda"
-    """the task's name"""
+    """The task's name: ``push-panda``."""
     dt: float = 0.01
-    """time step h [s]"""
+    """Time step h [s], > 0."""
     horizon: int = 80
-    """T, steps"""
+    """Horizon T [steps], 2 to 10,000."""
     sliding_friction: float = 0.3
-    """sliding friction μ of both contact pairs"""
+    """Sliding friction μ [-] of both contact pairs, >= 0."""
     penalty_initial: float = 1000.0
-    """initial augmented-Lagrangian penalty μ₀"""
+    """Initial augmented-Lagrangian penalty μ₀, in (0, 1e8)."""
     goal_distance: float = 0.10
-    """bunny goal: this far from its start [m]"""
+    """Bunny goal: this far from its start [m], 0 to 0.3."""
     goal_angle: float = 30.0
-    """... in this direction, degrees from the scripted push's line (+x) towards +y"""
+    """... in this direction [deg] from the scripted push's line (+x) towards +y, finite."""
 
     def _checks(self) -> list:
         return super()._checks() + [("goal_distance", 0 <= self.goal_distance <= 0.3),
@@ -183,13 +190,6 @@ def _params(scene, config: PushConfig):
 
 def push_sphere_task(config: PushSphereConfig = PushSphereConfig()) -> PushTask:
     """Build the push-sphere task: the scene, the plain push and the constrained problem."""
-    from ..data import load_builtin
-    from ..sim import DanoObject, compose
-    from ..sim.scene import add_ground
-    from ..sim.scenes import initial_state, resting_height
-    from ..trajopt.ilqr import rollout
-
-    config.validate()
     bunny = load_builtin("bunny")
     z = resting_height(bunny) + 0.001
     spec = mujoco.MjSpec()
@@ -260,8 +260,6 @@ def panda_spec() -> mujoco.MjSpec:
     """The Menagerie Panda (``$MENAGERIE_ROOT``) as a torque-controlled arm
     (:func:`torque_controlled_arm`) with a spherical pusher (geom "pusher") 16.7 cm beyond
     link 7's frame. Raises DanoError if the Panda is not found."""
-    from ..sim.scenes import menagerie_panda
-
     spec = mujoco.MjSpec.from_file(str(menagerie_panda("push-panda")))
     if len(torque_controlled_arm(spec)) != 7:
         raise DanoError(f"expected the Panda's 7 actuators, found {len(spec.actuators)}")
@@ -273,14 +271,6 @@ def panda_spec() -> mujoco.MjSpec:
 def push_panda_task(config: PushPandaConfig = PushPandaConfig()) -> PushTask:
     """Build the push-panda task: the Panda scene, the PD-tracked straight push (the
     initial guess) and the constrained problem."""
-    import jax
-
-    from ..data import load_builtin
-    from ..sim import DanoObject, compose
-    from ..sim.scene import add_ground
-    from ..sim.scenes import PANDA_WAYPOINTS, initial_state, resting_height
-
-    config.validate()
     spec = panda_spec()
     add_ground(spec)
     bunny = load_builtin("bunny").scaled(0.15).with_mass(0.25)
@@ -327,10 +317,10 @@ def push_panda_task(config: PushPandaConfig = PushPandaConfig()) -> PushTask:
                     PANDA_TORQUE.copy(), config)
 
 
-def solver_options(config: PushConfig) -> Options:
+def solver_options(config: PushConfig) -> ILQRConfig:
     """The solver settings of a task: its μ₀, tolerance and iteration budget."""
-    return Options(max_iterations=config.max_iterations, constraint_tolerance=config.constraint_tolerance,
-                   penalty_initial=config.penalty_initial)
+    return ILQRConfig(max_iterations=config.max_iterations, constraint_tolerance=config.constraint_tolerance,
+                      penalty_initial=config.penalty_initial)
 
 
 def pusher_positions(task: PushTask, X) -> np.ndarray:
@@ -384,10 +374,6 @@ class ModelErrorResult:
 def model_error_run(task: PushTask, solution: Solution, callback=None) -> ModelErrorResult:
     """Replay ``solution``'s controls open loop, then run the receding-horizon controller,
     in a world whose sliding friction is (1 + model_error)× the model's."""
-    import jax
-
-    from ..trajopt.ilqr import rollout
-
     cfg = task.config
     mu_world = cfg.sliding_friction * (1.0 + cfg.model_error)
     world_params = task.params.replace(contact=task.params.contact.replace(

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..pose import normalize_quat, quat_multiply, rotvec_to_quat
 from ..sysid import FitParameter, Observation, SysIdProblem, Weights, identify
 from ..trajectory import load_trajectory
 from ..tracking.inputs import load_video
@@ -29,14 +30,12 @@ FRICTION_BOUNDS = (0.0, 1.5)
 def perturb(pose: np.ndarray, translation: float, degrees: float, seed: int = 0) -> np.ndarray:
     """``pose`` (7,) moved by ``translation`` [m] and turned by ``degrees`` about random
     (seeded) directions."""
-    from scipy.spatial.transform import Rotation
-
     rng = np.random.default_rng(seed)
     a, b = rng.normal(size=3), rng.normal(size=3)
     out = np.asarray(pose, dtype=np.float64).copy()
     out[:3] += translation * a / np.linalg.norm(a)
-    turn = Rotation.from_rotvec(np.radians(degrees) * b / np.linalg.norm(b))
-    out[3:] = (Rotation.from_quat(out[3:], scalar_first=True) * turn).as_quat(scalar_first=True)
+    turn = rotvec_to_quat(np.radians(degrees) * b / np.linalg.norm(b))
+    out[3:] = quat_multiply(normalize_quat(out[3:]), turn)
     return out
 
 

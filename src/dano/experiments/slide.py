@@ -20,10 +20,18 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+import mujoco
 import numpy as np
 
 from .._files import atomic_dir
+from ..asset import visual_mesh
+from ..data import load_builtin
 from ..errors import DanoError
+from ..nerf.synthetic import add_lights, rendered_camera
+from ..sim import rollout
+from ..sim.scene import DanoObject, compose
+from ..sim.scenes import initial_state, resting_height
+from ..trajectory import Trajectory, save_trajectory
 
 #: the synthetic slide: the built-in low-poly bunny (1.29 m across) thrown across the ground
 SLIDE_FRICTION = 0.35
@@ -49,10 +57,6 @@ class VideoCamera:
 
 def _video_model(vertices, faces, camera: VideoCamera, supersample: int, colour=(0.72, 0.55, 0.38),
                  flat: bool = False):
-    import mujoco
-
-    from ..nerf.synthetic import add_lights
-
     spec = mujoco.MjSpec()
     spec.visual.global_.offwidth = camera.width * supersample
     spec.visual.global_.offheight = camera.height * supersample
@@ -91,10 +95,6 @@ def render_video(asset, poses: np.ndarray, camera: VideoCamera = VideoCamera(), 
     (H, W, 3) uint8, camera_to_world (4, 4) Blender convention, focal [px])``.
     Raises DanoError if the asset has no mesh or no OpenGL context can be made.
     """
-    import mujoco
-
-    from ..nerf.synthetic import rendered_camera
-
     vertices, faces = (asset.mesh_vertices, asset.mesh_faces) if mesh is None else mesh
     if len(faces) == 0:
         raise DanoError(f"{asset.name}: has no visual mesh to render")
@@ -144,10 +144,6 @@ def slide_scene(dt: float = 0.01):
     """The synthetic slide's scene and initial state: the built-in ``bunny_lowpoly`` DANO
     (3.2 kg, 1.29 m across, paper contact defaults) 2 cm above resting contact, thrown at
     3 m/s with a spin. Returns ``(scene, state)``."""
-    from ..data import load_builtin
-    from ..sim.scene import DanoObject, compose
-    from ..sim.scenes import initial_state, resting_height
-
     asset = load_builtin("bunny_lowpoly")
     z = resting_height(asset) + SLIDE_LIFT
     scene = compose([DanoObject("bunny", asset, (0, 0, z))], dt=dt, name="synthetic-slide")
@@ -160,9 +156,6 @@ def slide_trajectory(friction: float = SLIDE_FRICTION, duration: float = 1.2, fp
     """The synthetic slide's ground truth (:func:`slide_scene` with sliding ``friction``): it
     slides about a metre, tips onto its side and spins down. Returns ``(scene, trajectory)``
     with a frame every 1/``fps`` s."""
-    from ..sim import rollout
-    from ..trajectory import Trajectory
-
     substeps = int(round(1.0 / (fps * dt)))
     if substeps < 1 or abs(substeps * dt * fps - 1.0) > 1e-9:
         raise DanoError(f"the frame interval 1/{fps} s must be a whole number of {dt} s steps")
@@ -182,8 +175,6 @@ def write_video_folder(out_dir: str | Path, frames, masks, background, camera_to
     it appears complete or not at all. Raises DanoError if ``out_dir`` exists and is not an
     empty folder."""
     import imageio.v3 as iio
-
-    from ..trajectory import save_trajectory
 
     out_dir = Path(out_dir)
     with atomic_dir(out_dir) as tmp:
@@ -212,8 +203,6 @@ def surface_mesh(asset, resolution: int = 192):
     silhouette fit sit ~1 cm too far from the camera (measured: the field's silhouette
     covered 1.3–2.0 % more pixels than masks of the coarse mesh at the true poses).
     Raises DanoError if the asset's field has no signed distance."""
-    from ..asset import visual_mesh
-
     field = asset.field
     if field is None or not hasattr(field, "signed_distance"):
         raise DanoError(f"{asset.name}: a synthetic video needs a DANO whose field has a signed distance")

@@ -5,23 +5,38 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import time
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
+import mujoco
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from .._jax_setup import enable_float64
+from ..asset import build
+from ..contact import CONTACT_MODELS
 from ..data import builtin_file, load_builtin
-from ..sim.scene import DanoObject, compose
+from ..errors import DanoError, FileFormatError
+from ..fields import BoxField
+from ..pose import normalize_quat, quat_error, quat_multiply, rotate, rotvec_to_quat
+from ..sim import State, rollout, rollout_arrays
+from ..sim.dynamics import model_with_params, moments_of_inertia, second_moments
+from ..sim.scene import DanoObject, add_ground, compose
 from ..sim.scenes import resting_height
-from ..sysid.problem import FitParameter, Observation, SysIdProblem, Weights
+from ..sysid.config import solver_options
+from ..sysid.outputs import estimates_report
+from ..sysid.problem import FitParameter, Observation, SEGMENT_NUISANCE_PREFIXES, SysIdProblem, Weights
+from ..sysid.solve import identify, scan_costs
+from ..sysid.uncertainty import cramer_rao
 
 # ../shared/README.md: the soap video is 120 frames/s; the paper Froude-scaled time by
 # sqrt(15.342) because its collider is 15.342x larger than the real soap.
 SOAP_FPS = 120.0
 SOAP_FROUDE = np.sqrt(15.342)
 SOAP_FRAME_DT = SOAP_FROUDE / SOAP_FPS  # 0.03264 s of simulation per video frame
-#: paper's mapping from the NeRF world frame to its simulation frame
-SOAP_MAP_ROTATION = Rotation.from_rotvec(0.39 * np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0))
+#: paper's mapping from the NeRF world frame to its simulation frame (a rotation vector [rad])
+SOAP_MAP_ROTVEC = 0.39 * np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0)
 SOAP_MAP_OFFSET = np.array([0.0, 0.0, 1.2])
 SOAP_MAP_SCALE = 1.0 / 3.0
 
@@ -36,16 +51,15 @@ def soap_poses(length_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """
     data = np.loadtxt(builtin_file("soap_pose_traj.csv").open(), delimiter=",")
     p, q = data[:3].T, data[3:].T
-    pos = SOAP_MAP_ROTATION.apply(p - p[0] + SOAP_MAP_OFFSET) * SOAP_MAP_SCALE
+    turn = rotvec_to_quat(SOAP_MAP_ROTVEC)
+    pos = rotate(turn, p - p[0] + SOAP_MAP_OFFSET) * SOAP_MAP_SCALE
     pos = pos[0] + length_scale * (pos - pos[0])
-    quat = (SOAP_MAP_ROTATION * Rotation.from_quat(q, scalar_first=True)).as_quat(scalar_first=True)
+    quat = quat_multiply(turn, normalize_quat(q))
     quat *= np.sign(quat[:, :1])
     return np.arange(len(pos)) * SOAP_FRAME_DT, np.concatenate([pos, quat], axis=1)
 
 
 def _soap_scene(substeps: int):
-    import jax
-
     return _soap_scene_cached(substeps, bool(jax.config.jax_enable_x64))
 
 
@@ -86,10 +100,6 @@ def pusher_scene(bunny=None, dt: float = 0.01, kp: float = 500.0, kv: float = 14
     floating sphere (radius 0.25, mass 10) on three slide joints ``pusher_x/y/z`` driven by
     position actuators (PD: F = kp·(target − x) − kv·ẋ, gravity compensated). The sphere
     touches only the bunny (DANO contact), not the ground."""
-    import mujoco
-
-    from ..sim.scene import add_ground
-
     bunny = bunny or load_builtin("bunny")
     spec = mujoco.MjSpec()
     add_ground(spec)
@@ -117,14 +127,9 @@ def push_observations(scene, z_bunny: float, params, num_pushes: int = 10, durat
     ``duration`` s. Bunny and sphere are at rest for the
     first ``rest_frames`` frames (the sphere reaches the bunny after about 0.35 s): the
     observations say so, and the initial state is averaged over them."""
-    import jax.numpy as jnp
-
-    from ..sim import State, rollout_arrays
-
     rng = np.random.default_rng(seed)
     dt = scene.dt
     steps = int(round(duration / dt))
-    import mujoco
 
     pj = [int(scene.mj_model.jnt_qposadr[mujoco.mj_name2id(scene.mj_model, mujoco.mjtObj.mjOBJ_JOINT, f"pusher_{a}")])
           for a in "xyz"]  # the sphere's slide joints (actuated in this order)
@@ -156,8 +161,8 @@ def push_observations(scene, z_bunny: float, params, num_pushes: int = 10, durat
             bunny[:, :3] += rng.normal(0, position_noise, bunny[:, :3].shape)
             pusher += rng.normal(0, position_noise, pusher.shape)
         if rotation_noise_deg:
-            noise = Rotation.from_rotvec(rng.normal(0, np.radians(rotation_noise_deg) / np.sqrt(3), (len(t), 3)))
-            bunny[:, 3:] = (Rotation.from_quat(bunny[:, 3:], scalar_first=True) * noise).as_quat(scalar_first=True)
+            noise = rotvec_to_quat(rng.normal(0, np.radians(rotation_noise_deg) / np.sqrt(3), (len(t), 3)))
+            bunny[:, 3:] = quat_multiply(normalize_quat(bunny[:, 3:]), noise)
         obs.append(Observation(time=t, poses={"bunny": bunny},
                                joints={"pusher_x": pusher[:, 0], "pusher_y": pusher[:, 1], "pusher_z": pusher[:, 2]},
                                qvel0=np.zeros(scene.nv), controls=targets, name=f"push {k}", rest_frames=rest_frames,
@@ -199,8 +204,6 @@ def second_moment_scale_for(base_inertia: np.ndarray, moment_factors) -> np.ndar
     """(3,) factors on the principal second moments Σ that turn principal moments
     ``base_inertia`` (3,) into ``base_inertia * moment_factors``. Raises ValueError if that
     inertia is not physical (a triangle inequality fails)."""
-    from ..sim.dynamics import second_moments
-
     target = second_moments(np.asarray(base_inertia) * np.asarray(moment_factors))
     if np.any(target < 0):
         raise ValueError(f"moments {np.asarray(base_inertia) * moment_factors} violate a triangle inequality")
@@ -218,8 +221,6 @@ def push_dynamics_problem(position_noise: float = 0.0, rotation_noise_deg: float
     principal_moments (3,) [kg m²] of the truth, base_moments (3,) [kg m²] of the guess).
     ``push_height``: the sphere centre's height along the pushes [m] (0.3: the paper's, at the
     bunny's centre of mass; higher pushes tip it and excite the roll and pitch moments)."""
-    from ..sim.dynamics import model_with_params
-
     scene, z = pusher_scene()
     pair = "bunny/ground"
     asset = scene.assets[scene.dano_index("bunny")]
@@ -257,8 +258,6 @@ def dynamics_recovery(estimates: dict, truth: dict, covariance: np.ndarray | Non
     moments (3,), of α and of the friction. With ``covariance`` (n, n), of the parameters in
     ``estimates``' order (e.g. :func:`~dano.sysid.cramer_rao` at the truth), also their
     standard deviations on the same scales (``*_std``, the moments' by the delta method)."""
-    from ..sim.dynamics import moments_of_inertia, second_moments
-
     labels = list(estimates)
     com_keys = [f"bunny:com_offset_{a}" for a in "xyz"]
     scale_keys = [f"bunny:second_moment_scale_{a}" for a in "xyz"]
@@ -295,9 +294,6 @@ def contactnets_tosses(path, tosses: int) -> list[tuple[str, np.ndarray]]:
     ``toss_<n>`` of shape (T, 13) per frame: orientation wxyz, position [m], angular
     velocity (body frame) [rad/s], linear velocity (world frame) [m/s].
     Raises FileFormatError for a file that is not such an archive, DanoError for too few tosses."""
-
-    from ..errors import DanoError, FileFormatError
-
     path = Path(path)
     try:
         with np.load(path) as z:
@@ -330,9 +326,6 @@ def cube_observation(name: str, a: np.ndarray) -> Observation:
 def cube_scene(substeps: int = 2, contact_model: str = "centroid"):
     """An analytic-box DANO of the ContactNets cube (side 0.1048 m, 0.37 kg, 3000 samples)
     on the ground plane, h = frame interval / ``substeps``."""
-    from ..asset import build
-    from ..fields import BoxField
-
     half = CUBE_SIDE / 2
     asset = build(BoxField((half, half, half), edge_width=0.002), mass=CUBE_MASS, num_samples=3000,
                   mesh_resolution=16, seed=0, name="contactnets_cube")
@@ -349,8 +342,6 @@ def contactnets_problem(path, tosses: int = 10, start: float = 0.3, substeps: in
     and the held-out (odd) observations. Drag terms are off (the paper's default sliding drag
     0.1 would add a viscous law the data do not ask for); rotation residuals weigh 0.1 per
     rad² against 1 per m². Raises DanoError for fewer than 2 tosses or a bad start."""
-    from ..errors import DanoError
-
     if tosses < 2:
         raise DanoError(f"--tosses must be at least 2 (half fitted, half held out), got {tosses}")
     if not 0.0 <= start <= 1.5:
@@ -376,9 +367,7 @@ def pose_errors(observations: list[Observation], simulated: list[np.ndarray]) ->
         o = obs.poses["cube"]
         n = min(len(o), len(q))
         dp = np.linalg.norm(q[1:n, :3] - o[1:n, :3], axis=1)
-        rot = (Rotation.from_quat(q[1:n, 3:7], scalar_first=True).inv()
-               * Rotation.from_quat(o[1:n, 3:], scalar_first=True))
-        da = np.degrees(rot.magnitude())
+        da = np.degrees(np.linalg.norm(quat_error(q[1:n, 3:7], o[1:n, 3:]), axis=1))
         pos_sq.append(dp**2)
         rot_sq.append(da**2)
         per.append({"name": obs.name, "position_rms_mm": 1e3 * float(np.sqrt(np.mean(dp**2))),
@@ -404,10 +393,6 @@ def contactnets_identify(path, tosses: int = 10, start: float = 0.3, scan: int =
     chosen by the same fit cost). ``bootstrap`` > 0: also resample the fitted tosses this many
     times (:func:`dano.sysid.bootstrap`). Returns (problem, result, report) with ``report`` the
     JSON-able dict of ``dano sysid contactnets-cube --json``."""
-    import time
-
-    from ..sysid.solve import identify, scan_costs
-
     t0 = time.perf_counter()
     problem, held = contactnets_problem(path, tosses, start, substeps, contact_model)
     result = identify(problem, scan=scan, starts=starts, bootstrap_samples=bootstrap)
@@ -483,11 +468,6 @@ def bootstrap_coverage(seeds: int = 20, samples: int = 100, trajectories: int = 
     [{"seed", "estimate", "standard_error", "lower", "upper", "bootstrap_std"}], ...}."""
     from scipy.stats import norm
 
-    from .._jax_setup import enable_float64
-    from ..asset import build
-    from ..fields import BoxField
-    from ..sysid.solve import identify
-
     enable_float64()
     asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
                   name="box")
@@ -524,14 +504,6 @@ def interval_coverage(seeds: int = 100, trajectories: int = 4, noise: float = 0.
     Identification from μ = 0.3 in [0, 2] with every default. Returns {"seeds", "covers",
     "coverage", "per_seed": [{"seed", "estimate", "lower", "upper", "method"}], "warnings"
     (how many seeds warned), ...}."""
-    import jax.numpy as jnp
-
-    from .._jax_setup import enable_float64
-    from ..asset import build
-    from ..fields import BoxField
-    from ..sim import State, rollout
-    from ..sysid.solve import identify
-
     enable_float64()
     asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
                   name="box")
@@ -576,10 +548,6 @@ def _push_dynamics_bound(problem: SysIdProblem, truth: dict) -> dict:
     the data carry; ``start_fitted`` says whether the pushes' starts are nuisance parameters
     (with the noise-free data they are not, and the bound is then the one for known starts).
     A bound that cannot be computed is reported as {"error": why}, not raised: the fit stands."""
-    from ..errors import DanoError
-    from ..sysid.problem import SEGMENT_NUISANCE_PREFIXES
-    from ..sysid.uncertainty import cramer_rao
-
     value = {"alpha": truth["alpha"], "sliding_friction": truth["sliding_friction"],
              **{f"com_offset_{a}": truth["com_offset"][k] for k, a in enumerate("xyz")},
              **{f"second_moment_scale_{a}": truth["second_moment_scale"][k] for k, a in enumerate("xyz")}}
@@ -599,8 +567,6 @@ def soap_sensitivity(friction: float) -> dict:
     """The soap's friction identified again with the assumed real length per scene unit
     scaled by 0.9 and 1.1, from ``friction`` (no scan, no profile: the sensitivity of the
     local answer), and the elasticity d ln μ / d ln L."""
-    from ..sysid.solve import identify
-
     sens = {str(scale): float(identify(soap_problem(length_scale=scale, substeps=4, initial_friction=friction),
                                        scan=0, profile_points=0).estimates[0]) for scale in (0.9, 1.1)}
     return {
@@ -619,11 +585,6 @@ def run_example(name: str, *, jacobian: str | None = None, noise: bool = True) -
     and ``paper_reference``; for the pushes, ``truth`` (and for bunny-dynamics ``recovery``).
     ``noise``: the paper's pose noise (1 mm, 0.5°) on the pushes' observations.
     Raises DanoError for another name."""
-    from ..errors import DanoError
-    from ..sysid.config import solver_options
-    from ..sysid.outputs import estimates_report
-    from ..sysid.solve import identify
-
     extra: dict = {}
     noise_levels = (1e-3, 0.5) if noise else (0.0, 0.0)
     if name == "soap":
@@ -682,9 +643,6 @@ class ContactNetsConfig:
     """Also refit this many resamples of the fitted tosses (0 or 2 to 10,000) for a 95 % interval."""
 
     def __post_init__(self):
-        from ..contact import CONTACT_MODELS
-        from ..errors import DanoError
-
         if not 2 <= self.tosses <= 200:
             raise DanoError(f"--tosses must be 2 to 200, got {self.tosses}")
         if self.contact_model not in CONTACT_MODELS:

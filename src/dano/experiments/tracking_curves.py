@@ -7,6 +7,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..nerf import TrainConfig, load_dataset, train
+from ..nerf.synthetic import render_dataset
+from ..tracking import TrackConfig, TrackedObject, load_video, pose_errors, track
+from ..trajectory import load_trajectory
+from .real2sim import perturb
+from .slide import slide_scene, surface_mesh
+
 
 def tracking_success_curve(folder, translations=(0.01, 0.02, 0.04, 0.06, 0.08, 0.10, 0.15, 0.20, 0.30),
                            rotations=(2.0, 5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 90.0), seeds: int = 4,
@@ -16,11 +23,6 @@ def tracking_success_curve(folder, translations=(0.01, 0.02, 0.04, 0.06, 0.08, 0
     ``seeds`` random directions per size: per size, the success rate (final frame within 2 %
     of the size and 5°) and the final errors. obj: the TrackedObject (default: the slide's
     DANO, silhouettes only); config: its TrackConfig (default: TrackConfig())."""
-    from ..tracking import TrackConfig, TrackedObject, load_video, pose_errors, track
-    from .real2sim import perturb
-    from .slide import slide_scene
-    from ..trajectory import load_trajectory
-
     video = load_video(folder, subtract_background=True)
     truth = load_trajectory(Path(folder) / "truth.npz").qpos[:, :7]
     asset = slide_scene()[0].assets[0]
@@ -48,13 +50,6 @@ def tracking_colour(folder, work_dir, minutes: float = 3.0, frames: int = 15,
     real2sim start (3 cm, 3°) with each colour weight (0: silhouettes only). Returns the
     field's held-out PSNR and, per weight, RMS / max errors and the median time per frame."""
     import trimesh
-
-    from ..nerf import TrainConfig, load_dataset, train
-    from ..nerf.synthetic import render_dataset
-    from ..tracking import TrackConfig, TrackedObject, load_video, pose_errors, track
-    from .real2sim import perturb
-    from .slide import slide_scene, surface_mesh
-    from ..trajectory import load_trajectory
 
     asset = slide_scene()[0].assets[0]
     vertices, faces = surface_mesh(asset)  # what the video shows, body frame; the field's is the object frame

@@ -11,9 +11,13 @@ from pathlib import Path
 import numpy as np
 
 from .._config import read_table, typed_table
+from .._files import atomic_path
 from ..errors import DanoError
-from .grasp import GraspPandaConfig
-from .push import TASKS, final_errors, limit_report, model_error_run, solve_task, unknown_task
+from ..sim import State, rollout
+from ..viz.plot import plot_trajopt
+from ..viz.video import write_video
+from .grasp import GraspPandaConfig, run_grasp
+from .push import TASKS, final_errors, limit_report, model_error_run, pusher_positions, solve_task, unknown_task
 
 #: every built-in task: name -> its configuration class
 CONFIGS = {**{name: cls for name, (_, cls) in TASKS.items()}, "grasp-panda": GraspPandaConfig}
@@ -41,7 +45,7 @@ def load_config(source: str, **overrides):
     unused = sorted(set(given) - {f.name for f in dataclasses.fields(cfg)})
     if unused:
         raise DanoError(f"{cfg.task} does not use {', '.join('--' + k.replace('_', '-') for k in unused)}")
-    return dataclasses.replace(cfg, **given).validate()
+    return dataclasses.replace(cfg, **given)  # checked as it is built
 
 
 def report(task, solution, model_error=None) -> dict:
@@ -84,8 +88,6 @@ def run(source: str, progress=None, **overrides):
     :class:`~dano.experiments.grasp.GraspRun`, None, report)."""
     cfg = load_config(source, **overrides)
     if isinstance(cfg, GraspPandaConfig):
-        from .grasp import run_grasp
-
         task, chosen, rep = run_grasp(cfg, progress=progress)
         return task, chosen, None, rep
     build = TASKS[cfg.task][0]
@@ -111,7 +113,6 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
     (the initial guess), the goals and, with a model error, the world's open-loop and receding-horizon states),
     ``log.csv`` (the iteration log), ``convergence.png`` and, if ``video``, ``<task>.mp4``
     into ``out_dir``: all published together, or none. Returns the paths."""
-    from .._files import atomic_path
     if isinstance(task.config, GraspPandaConfig):
         return _write_grasp(task, solution, rep, Path(out_dir), video, progress)
     out_dir = Path(out_dir)
@@ -152,9 +153,6 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
 def _plot(task, solution, model_error, path) -> None:
     """convergence.png: the solver's log and the paths of the initial guess, the plan and,
     with a model error, the open-loop and receding-horizon runs (:func:`dano.viz.plot_trajopt`)."""
-    from ..viz.plot import plot_trajopt
-    from .push import pusher_positions
-
     runs = [("initial guess", task.X_plain, ":"), ("optimised", np.asarray(solution.states), "-")]
     if model_error is not None:
         runs += [(f"open loop, μ={model_error.friction:.3g}", model_error.open_loop_states, "--"),
@@ -176,9 +174,6 @@ def _replay_video(scene, params, X, U, path: Path, progress, qfrc=None) -> None:
     """Replay the controls U (T, nu) (or the generalised forces qfrc (T, nv)) from X[0] and
     render the video to ``path``; raises DanoError if the replay does not end where the
     states X (T + 1, nx) do (1e-6 m)."""
-    from ..sim import State, rollout
-    from ..viz.video import write_video
-
     nq, steps = scene.nq, len(X) - 1
     traj = rollout(scene, State(X[0, :nq], X[0, nq:]), U, params, steps, qfrc=qfrc)
     gap = float(np.abs(traj.qpos[-1] - X[-1, :nq]).max())
@@ -191,8 +186,6 @@ def _write_grasp(task, run, rep: dict, out_dir: Path, video: bool, progress) -> 
     """grasp-panda's outputs: report.json, config.json, solution.npz (time, states,
     controls, qpos, qvel, the joint waypoints, the grasp and, when optimised, the approach
     plan: approach_states, approach_controls at approach_dt) and the video, all or none."""
-    from .._files import atomic_path
-
     names = ["report.json", "config.json", "solution.npz"] + (["grasp-panda.mp4"] if video else [])
     X, U = np.asarray(run.states), np.asarray(run.controls)
     nq = task.scene.nq

@@ -9,9 +9,9 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import DanoError
+from ..pose import quat_to_matrix
 from .base import as_points
 
 
@@ -44,7 +44,7 @@ class TransformedField:
         t = np.asarray(offset, dtype=np.float64)
         if t.shape != (3,) or not np.all(np.isfinite(t)):
             raise DanoError(f"offset must be 3 finite numbers, got {t.tolist()}")
-        R = Rotation.from_quat(q, scalar_first=True).as_matrix()
+        R = quat_to_matrix(q)  # normalises
         return cls(base, scale, jnp.asarray(R), jnp.asarray(t))
 
     def density(self, points: jax.Array) -> jax.Array:

@@ -30,6 +30,7 @@ from typing import Sequence
 import numpy as np
 import trimesh
 
+from .._files import atomic_path
 from ..asset import visual_mesh
 from ..errors import DanoError
 
@@ -294,8 +295,6 @@ def export(asset, path: str | Path, *, meshes: BodyMeshes | None = None, collisi
     Raises DanoError for an unknown suffix or mode, or if MuJoCo cannot compile the result
     (nothing is written then).
     """
-    from .._files import atomic_path
-
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in EXPORT_SUFFIXES:

@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._config import typed_table
 from .._files import atomic_write, read_npz
 from .._version import __version__
 from ..errors import FileFormatError
@@ -98,7 +99,7 @@ def load_field(directory: str | Path) -> tuple[HashGridField, OccupancyGrid, dic
     meta = read_meta(directory)
     try:
         # fields saved before sigma_unit existed had σ = exp(h)
-        config = FieldConfig(**{"sigma_unit": 1.0, **meta["config"]}).check()
+        config = typed_table({"sigma_unit": 1.0, **meta["config"]}, FieldConfig, "config")
         template = HashGridField.create(meta["bounds"], config)
     except Exception as exc:
         raise FileFormatError(f"{directory / 'field.json'}: bad field description ({exc})") from exc

@@ -27,11 +27,15 @@ from dataclasses import field as dataclass_field
 from typing import Any, NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage, special
 
 from ..errors import DanoError
 from ..fields import VoxelField, evaluate
+from ..render import Cameras, RenderConfig, image_rays, render_image
+from ..render.silhouette import silhouette_rays
+from .synthetic import fibonacci_directions
 
 DENSITY_RULES = ("solid", "occupancy", "sigma")
 
@@ -85,8 +89,6 @@ class _DistanceSurface:
     its box is the node box (trilinear inside)."""
 
     def __init__(self, distance_nodes: np.ndarray, node_bounds: np.ndarray, spacing: float):
-        import jax.numpy as jnp
-
         self.grid = VoxelField(jnp.asarray(distance_nodes * spacing, jnp.float32),
                                jnp.asarray(node_bounds[0], jnp.float32), jnp.asarray(node_bounds[1], jnp.float32))
         self.box = np.asarray(node_bounds, dtype=np.float64)
@@ -117,9 +119,6 @@ class _Opacity:
 def _calibration_cameras(centre: np.ndarray, radius: float, views: int, size: int):
     """``views`` cameras (Blender convention) evenly around a sphere of ``radius`` at
     ``centre``, 3 radii away, each image just holding the sphere."""
-    from ..render import Cameras
-    from .synthetic import fibonacci_directions
-
     distance = 3.0 * radius
     tan_half = 1.05 * radius / np.sqrt(distance**2 - radius**2)
     poses = []
@@ -168,9 +167,6 @@ def silhouette_offset(field, distance: np.ndarray, node_bounds: np.ndarray, step
     """
     from scipy.optimize import brentq
 
-    from ..render import RenderOptions, image_rays, render_image
-    from ..render.silhouette import silhouette_rays
-
     spacing = float((node_bounds[1, 0] - node_bounds[0, 0]) / (distance.shape[0] - 1))
     solid = _DistanceSurface(distance, node_bounds, spacing)
     inside = np.argwhere(distance <= 0)
@@ -179,7 +175,7 @@ def silhouette_offset(field, distance: np.ndarray, node_bounds: np.ndarray, step
     cameras = _calibration_cameras((lo + hi) / 2, 0.55 * float(np.linalg.norm(hi - lo)) + 2 * spacing, views, size)
     box = np.asarray(field.bounds(), dtype=np.float64)
     opacity = _Opacity(field, tuple(map(tuple, box.tolist())))
-    options = RenderOptions.for_bounds(box, int(np.ceil(np.linalg.norm(box[1] - box[0]) / step)),
+    options = RenderConfig.for_bounds(box, int(np.ceil(np.linalg.norm(box[1] - box[0]) / step)),
                                        budget=None if occupancy is None else 4096 * 64)
     silhouette_step = 0.5 * spacing
     sil_samples = int(np.ceil(np.linalg.norm(solid.bounds()[1] - solid.bounds()[0]) / silhouette_step)) + 2

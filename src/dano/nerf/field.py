@@ -33,22 +33,23 @@ _PRIMES = (1, 2654435761, 805459861)
 
 @dataclass(frozen=True)
 class FieldConfig:
-    """Architecture of a :class:`HashGridField`."""
+    """Architecture of a :class:`HashGridField`. Raises DanoError on a configuration that
+    cannot be built."""
 
     levels: int = 4
-    """Hash-grid levels L."""
+    """Hash-grid levels L, >= 1."""
     features: int = 4
-    """Features per level F."""
+    """Features per level F, >= 1."""
     log2_table_size: int = 18
-    """log2 of entries T per level."""
+    """log2 of entries T per level, 1 to 24."""
     base_resolution: int = 16
-    """Coarsest grid resolution N_min (cells across the box)."""
+    """Coarsest grid resolution N_min [cells across the box], >= 1."""
     max_resolution: int = 128
-    """Finest grid resolution N_max."""
+    """Finest grid resolution N_max [cells across the box], >= N_min."""
     hidden: int = 32
-    """Width of the density MLP's hidden layer."""
+    """Width of the density MLP's hidden layer, >= 1."""
     color_hidden: int = 32
-    """Width of the colour MLP's two hidden layers."""
+    """Width of the colour MLP's two hidden layers, >= 1."""
     sigma_unit: float | None = None
     """σ = sigma_unit·exp(h) [1/field unit], h the density MLP's output. None: 3√3 / the box
     diagonal, set when the field is created, so that σ·(sample step) and hence training are
@@ -57,7 +58,10 @@ class FieldConfig:
     Fields saved before this setting existed have 1."""
 
     def check(self) -> "FieldConfig":
-        """Raises DanoError on a configuration that cannot be built."""
+        """Old API, kept: the settings are checked when the config is built; returns it."""
+        return self
+
+    def __post_init__(self):
         for name in ("levels", "features", "log2_table_size", "base_resolution", "max_resolution", "hidden",
                      "color_hidden"):
             value = getattr(self, name)
@@ -69,7 +73,6 @@ class FieldConfig:
             raise DanoError("field config: log2_table_size must be <= 24")
         if self.sigma_unit is not None and not (np.isfinite(self.sigma_unit) and self.sigma_unit > 0):
             raise DanoError(f"field config: sigma_unit must be a positive number or None, got {self.sigma_unit!r}")
-        return self
 
     def resolutions(self) -> np.ndarray:
         if self.levels == 1:
@@ -92,7 +95,6 @@ def _dense(key, fan_in, fan_out):
 
 def init_params(config: FieldConfig, key: jax.Array) -> dict:
     """Random parameters: tables uniform in ±1e-4, MLPs He-uniform, biases zero (float32)."""
-    config.check()
     k = jax.random.split(key, 6)
     size = 1 << config.log2_table_size
     width = config.levels * config.features
@@ -155,7 +157,7 @@ class HashGridField:
 
         Raises DanoError on empty, degenerate or non-finite bounds or a bad config.
         """
-        config = (config or FieldConfig()).check()
+        config = config or FieldConfig()
         b = check_bounds(bounds, "field bounds")
         box = (tuple(map(float, b[0])), tuple(map(float, b[1])))
         if config.sigma_unit is None:

@@ -18,6 +18,7 @@ import numpy as np
 
 from .._files import atomic_dir
 from ..errors import DanoError
+from ..io import load_mesh
 
 _MARGIN = 0.10
 
@@ -145,8 +146,6 @@ def render_dataset(mesh_path: str | Path, out_dir: str | Path, views: int = 100,
     DanoError if ``out_dir`` exists and is not empty, FileFormatError for a bad mesh.
     """
     import imageio.v3 as iio
-
-    from ..io import load_mesh
 
     out_dir = Path(out_dir)
     if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):

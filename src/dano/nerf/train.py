@@ -11,7 +11,10 @@ steps. The clock counts compilation and training, not evaluation or checkpoint w
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import io
+import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -23,19 +26,23 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from .._files import atomic_write
 from ..errors import DanoError
 from ..render.cameras import pixel_rays
-from ..render.volume import OccupancyGrid, RenderOptions, psnr, render_image, render_rays, update_occupancy
+from ..render.volume import OccupancyGrid, RenderConfig, psnr, render_image, render_rays, update_occupancy
 from .checkpoint import load_field, load_optimizer_state, save_field
 from .data import Dataset
 from .field import FieldConfig, HashGridField
+from ..viz.plot import plot_heldout
 
 BACKGROUNDS = ("white", "black", "random")
 
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """How a field is trained (saved as ``config.json`` beside every trained field)."""
+    """How a field is trained (saved as ``config.json`` beside every trained field). Raises
+    DanoError naming the option for values that cannot train; :meth:`check_data` checks it
+    against a dataset."""
 
     minutes: float = 3.0
     """Training time [min] (compilation included, evaluation excluded)."""
@@ -75,8 +82,7 @@ class TrainConfig:
     field: FieldConfig = dataclasses.field(default_factory=FieldConfig)
     """Architecture of the hash-grid field."""
 
-    def check(self, data: Dataset | None = None) -> "TrainConfig":
-        """Raises DanoError naming the option for values that cannot train."""
+    def __post_init__(self):
         if not (self.minutes > 0 and math.isfinite(self.minutes)):
             raise DanoError(f"--minutes must be a positive number, got {self.minutes}")
         for name in ("rays_per_step", "samples_per_ray", "samples_across", "occupancy_resolution", "occupancy_every"):
@@ -88,10 +94,18 @@ class TrainConfig:
             raise DanoError("learning rates must satisfy 0 < final-learning-rate <= learning-rate")
         if self.background not in BACKGROUNDS:
             raise DanoError(f"--background must be one of {BACKGROUNDS}, got {self.background!r}")
-        if data is not None and data.alpha is None and (self.background == "random" or self.mask_weight > 0):
+
+    def check_data(self, data: Dataset) -> "TrainConfig":
+        """Returns self; raises DanoError if ``data`` cannot be trained on with these
+        settings (a random background or a mask loss without alpha masks)."""
+        if data.alpha is None and (self.background == "random" or self.mask_weight > 0):
             raise DanoError(f"{data.source}: --background random and --mask-weight need RGBA images (alpha masks)")
-        self.field.check()
         return self
+
+    def check(self, data: Dataset | None = None) -> "TrainConfig":
+        """Old API, kept: the settings are checked when the config is built; with ``data``,
+        :meth:`check_data`. Returns self."""
+        return self if data is None else self.check_data(data)
 
 
 @dataclass
@@ -110,10 +124,10 @@ class TrainResult:
     """The final field's renders (H, W, 3) of the held-out views (empty without them)."""
 
 
-def render_options(bounds, config: TrainConfig, chunk: int | None = None) -> RenderOptions:
+def render_options(bounds, config: TrainConfig, chunk: int | None = None) -> RenderConfig:
     """The sampling used for training (``chunk`` rays per call; default rays_per_step)."""
     rays = chunk or config.rays_per_step
-    opts = RenderOptions.for_bounds(bounds, config.samples_across)
+    opts = RenderConfig.for_bounds(bounds, config.samples_across)
     return dataclasses.replace(opts, budget=max(rays * config.samples_per_ray, opts.num_samples))
 
 
@@ -160,7 +174,7 @@ def _background(config: TrainConfig, key, n):
     return jnp.full((n, 3), 1.0 if config.background == "white" else 0.0, jnp.float32)
 
 
-def _make_step(config: TrainConfig, options: RenderOptions, optimizer, height: int, width: int):
+def _make_step(config: TrainConfig, options: RenderConfig, optimizer, height: int, width: int):
     n = config.rays_per_step
 
     def step(field, opt_state, occupancy, images, alpha, cameras, key, lr):
@@ -229,7 +243,7 @@ def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None,
 
     Raises DanoError for an inconsistent configuration, FileFormatError for a bad checkpoint.
     """
-    config.check(data)
+    config.check_data(data)
     bounds = data.bounds
     options = render_options(bounds, config)
     threshold = -math.log1p(-config.occupancy_alpha) / options.step
@@ -316,13 +330,6 @@ def write_outputs(out_dir: str | Path, result: TrainResult, config: TrainConfig,
     ``psnr_at_minutes``, view counts, ``image_size``, ``occupied_fraction``, ``data``,
     ``field``), ``config.json`` (the resolved configuration), ``log.csv`` (the training log)
     and ``heldout.png`` (renders over images). Each file is written atomically."""
-    import csv
-    import io
-    import json
-
-    from .._files import atomic_write
-    from ..viz.plot import plot_heldout
-
     out_dir = Path(out_dir)
     report = {
         "psnr_heldout": result.psnr_heldout, "wall_time_s": result.wall_time_s, "rays_per_s": result.rays_per_s,

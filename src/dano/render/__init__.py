@@ -10,6 +10,7 @@ from images) and pose tracking.
 from .cameras import Cameras, blender_from_opencv, check_poses, image_rays, opencv_from_blender, pixel_rays
 from .volume import (
     OccupancyGrid,
+    RenderConfig,
     RenderOptions,
     RenderOutput,
     psnr,
@@ -21,6 +22,7 @@ from .volume import (
 __all__ = [
     "Cameras",
     "OccupancyGrid",
+    "RenderConfig",
     "RenderOptions",
     "RenderOutput",
     "blender_from_opencv",

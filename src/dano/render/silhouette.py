@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..fields.base import interior_density
 from .volume import _box_interval, _to_object_frame
 
 _FAR = 1.0e3  # [m] the distance given to rays that miss the field's box
@@ -53,10 +54,8 @@ def surface_distance(field, points: jax.Array, edge_width: float) -> jax.Array:
     the surface: give fields whose edge width is at least a tenth of a pixel's footprint."""
     if hasattr(field, "signed_distance"):
         return field.signed_distance(points)
-    from ..fields.base import interior_density  # a host value; fields are static in a tracking problem
-
     w = float(getattr(field, "edge_width", edge_width))
-    occupancy = field.density(points) / interior_density(field)
+    occupancy = field.density(points) / interior_density(field)  # a host value: fields are static here
     inside = jnp.clip(occupancy, 1e-6, 1.0 - 1e-6)
     # beyond the resolvable tail (occupancy < 1e-6) the point counts as far outside
     return jnp.where(occupancy < 1e-6, _FAR, -w * jnp.log(inside / (1.0 - inside)))

@@ -22,35 +22,39 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import jaxlie
 import numpy as np
 
 from ..errors import DanoError
+from ..pose import quat_to_matrix
+from .cameras import image_rays
 
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
-class RenderOptions:
-    """How rays are sampled (all static: a change recompiles).
-
-    step: sample spacing δ along the ray [m]; num_samples: candidates per ray (the ray's
-    chord through the field's box must be ≤ num_samples·δ, or its far end is not sampled);
-    budget: field evaluations per call (the occupied samples of all rays, packed ray by ray);
-    None: room for every candidate (R·num_samples); near: no samples closer than this to the origin [m].
-    """
+class RenderConfig:
+    """How rays are sampled (all static: a change recompiles)."""
 
     step: float = field(metadata=dict(static=True))
+    """Sample spacing δ along the ray [m]."""
     num_samples: int = field(metadata=dict(static=True))
+    """Candidate samples per ray (the ray's chord through the field's box must be ≤ num_samples·δ, or its far
+    end is not sampled)."""
     budget: int | None = field(default=None, metadata=dict(static=True))
+    """Field evaluations per call (the occupied samples of all rays, packed ray by ray); None: room for every
+    candidate (R·num_samples)."""
     near: float = field(default=0.0, metadata=dict(static=True))
+    """No samples closer than this to the ray's origin [m]."""
 
     @classmethod
     def for_bounds(cls, bounds, samples_across: int = 256, budget: int | None = None,
-                   near: float = 0.0) -> "RenderOptions":
-        """Options whose step is the box diagonal / ``samples_across``; every chord fits."""
+                   near: float = 0.0) -> "RenderConfig":
+        """Settings whose step is the box diagonal / ``samples_across``; every chord fits."""
         b = np.asarray(bounds, dtype=np.float64)
         diagonal = float(np.linalg.norm(b[1] - b[0]))
         return cls(diagonal / samples_across, int(samples_across) + 1, budget, near)
+
+
+RenderOptions = RenderConfig  # old name, kept
 
 
 class RenderOutput(NamedTuple):
@@ -141,7 +145,7 @@ def _to_object_frame(origins, directions, pose):
     if pose is None:
         return origins, directions
     position, quaternion = pose
-    rotation = jaxlie.SO3(quaternion / jnp.linalg.norm(quaternion)).as_matrix()
+    rotation = quat_to_matrix(quaternion)  # normalises
     # x_object = Rᵀ (x_world − p): row vectors times R
     return (origins - position) @ rotation, directions @ rotation
 
@@ -155,7 +159,7 @@ def _box_interval(origins, directions, lower, upper, near):
     return enter, leave
 
 
-def render_rays(field, origins: jax.Array, directions: jax.Array, options: RenderOptions, *,
+def render_rays(field, origins: jax.Array, directions: jax.Array, options: RenderConfig, *,
                 pose: tuple[jax.Array, jax.Array] | None = None, occupancy: OccupancyGrid | None = None,
                 background: Any = 1.0, key: jax.Array | None = None) -> RenderOutput:
     """Render R rays through ``field`` placed at ``pose``.
@@ -226,7 +230,7 @@ def _segmented_cumsum(x: jax.Array, start: jax.Array) -> jax.Array:
 _RENDER_JIT = jax.jit(render_rays, static_argnames=("options",))
 
 
-def render_image(field, cameras, camera: int, options: RenderOptions, *, pose=None,
+def render_image(field, cameras, camera: int, options: RenderConfig, *, pose=None,
                  occupancy: OccupancyGrid | None = None, background: Any = 1.0,
                  chunk: int = 4096) -> RenderOutput:
     """Render one whole image of ``cameras`` (a :class:`~dano.render.Cameras`): every ray in
@@ -235,8 +239,6 @@ def render_image(field, cameras, camera: int, options: RenderOptions, *, pose=No
     Returns a :class:`RenderOutput` of numpy arrays shaped (H, W, 3) / (H, W).
     Raises DanoError if ``options.budget`` cannot hold one ray's samples.
     """
-    from .cameras import image_rays
-
     if options.budget is not None and options.budget < options.num_samples:
         raise DanoError(f"render budget {options.budget} is smaller than one ray's {options.num_samples} samples")
     origins, directions = (np.asarray(a) for a in image_rays(cameras, camera))

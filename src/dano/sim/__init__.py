@@ -10,11 +10,12 @@ from .._jax_setup import check_xla_flags
 check_xla_flags()  # warn once if JAX started without the CPU fusion-emitter fix
 
 from ..trajectory import Trajectory, load_trajectory, save_trajectory
-from .implicit import NewtonOptions
+from .implicit import NewtonConfig, NewtonOptions
 from .rollout import SimulationDiverged, rollout, rollout_arrays, scan_steps
 from .scene import DanoObject, Scene, SimParams, compose
 from .dynamics import State, StepInfo, make_data, overlaps, step, step_with_info
 
-__all__ = ["DanoObject", "NewtonOptions", "Scene", "SimParams", "SimulationDiverged", "State", "StepInfo",
+__all__ = ["DanoObject", "NewtonConfig", "NewtonOptions",
+           "Scene", "SimParams", "SimulationDiverged", "State", "StepInfo",
            "Trajectory", "compose", "load_trajectory", "make_data", "overlaps", "rollout", "rollout_arrays",
            "save_trajectory", "scan_steps", "step", "step_with_info"]

@@ -28,13 +28,13 @@ from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
-import jaxlie
 import mujoco
 import numpy as np
 
 from .._mjx import mjx
 from ..contact import PAIR_KINDS
-from .implicit import ImplicitProblem, NewtonOptions, contact_force, solve_velocity
+from ..pose import normalize_quat, quat_multiply, rotvec_to_quat
+from .implicit import ImplicitProblem, NewtonConfig, contact_force, solve_velocity
 from .scene import Scene, SimParams
 
 
@@ -126,9 +126,9 @@ def model_with_params(scene: Scene, params: SimParams):
                 body_inertia=m.body_inertia.at[ids].set(inertia * alpha[:, None]))
     if params.com_offset is not None:
         repl["body_ipos"] = m.body_ipos.at[ids].add(params.com_offset)
-    if params.principal_axes is not None:  # (jaxlie: a NaN-free exponential map at zero rotation)
-        turn = jax.vmap(lambda q, r: (jaxlie.SO3(q) @ jaxlie.SO3.exp(r)).wxyz)
-        repl["body_iquat"] = m.body_iquat.at[ids].set(turn(m.body_iquat[ids], params.principal_axes))
+    if params.principal_axes is not None:  # (a NaN-free exponential map at zero rotation)
+        turn = quat_multiply(m.body_iquat[ids], rotvec_to_quat(jnp.asarray(params.principal_axes)))
+        repl["body_iquat"] = m.body_iquat.at[ids].set(turn)
     return m.replace(**repl)
 
 
@@ -181,11 +181,11 @@ def overlaps(scene: Scene, params: SimParams, data) -> jax.Array:
 
 
 #: a further constraint pass runs when the contact force at the solved velocity differs from
-#: the one MuJoCo's constraint solver saw by more than this fraction (NewtonOptions.constraint_passes)
+#: the one MuJoCo's constraint solver saw by more than this fraction (NewtonConfig.constraint_passes)
 PASS_CHANGE = 0.05
 
 
-def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonOptions = NewtonOptions()):
+def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig = NewtonConfig()):
     """:func:`step`, also returning its :class:`StepInfo`."""
     m = model_with_params(scene, params)
     h = scene.dt
@@ -258,31 +258,19 @@ def _quaternion_slots(scene: Scene) -> tuple[tuple[int, int], ...]:
 
 
 def _rotate_quaternions(scene: Scene, qpos0, v, h: float, qpos):
-    """``qpos`` with each free/ball joint's quaternion set to normalize(q0 ⊗ exp(h·ω/2)),
-    q0 from ``qpos0``, ω (body frame) from ``v``; exp through cos(θ/2) and
-    sin(θ/2)/|ω| as even functions of θ² = h²|ω|² (Taylor series near 0), so that value and
-    derivatives are exact at ω = 0 too."""
+    """``qpos`` with each free/ball joint's quaternion set to normalize(q0 ⊗ exp(h·ω)),
+    q0 from ``qpos0``, ω (body frame) from ``v``; the exponential map of :mod:`dano.pose`
+    (Taylor series near 0), so that value and derivatives are exact at ω = 0 too."""
     slots = _quaternion_slots(scene)
     if not slots:
         return qpos
     qa = np.asarray([a for a, _ in slots])[:, None] + np.arange(4)
     wa = np.asarray([b for _, b in slots])[:, None] + np.arange(3)
-    q0, w = qpos0[qa], v[wa]
-    th2 = h * h * jnp.sum(w * w, axis=-1)
-    small = th2 < 1e-6
-    th = jnp.sqrt(jnp.where(small, 1.0, th2))
-    c = jnp.where(small, 1.0 - th2 / 8.0 + th2 * th2 / 384.0, jnp.cos(0.5 * th))
-    s = jnp.where(small, 0.5 * h * (1.0 - th2 / 24.0 + th2 * th2 / 1920.0), h * jnp.sin(0.5 * th) / th)
-    r = jnp.concatenate([c[:, None], s[:, None] * w], axis=-1)
-    w0, x0 = q0[:, :1], q0[:, 1:]
-    w1, x1 = r[:, :1], r[:, 1:]
-    q = jnp.concatenate([w0 * w1 - jnp.sum(x0 * x1, axis=-1, keepdims=True),
-                         w0 * x1 + w1 * x0 + jnp.cross(x0, x1)], axis=-1)
-    q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+    q = normalize_quat(quat_multiply(qpos0[qa], rotvec_to_quat(h * v[wa])))
     return qpos.at[qa].set(q.astype(qpos.dtype))
 
 
-def step(scene: Scene, params: SimParams, data, newton: NewtonOptions = NewtonOptions()):
+def step(scene: Scene, params: SimParams, data, newton: NewtonConfig = NewtonConfig()):
     """Advance MJX ``data`` by one time step ``scene.dt`` with DANO contact (paper §IV on
     MuJoCo MJX; see the module documentation). Pure and jittable; ``jax.vmap`` over data,
     params or scene arrays; differentiable (forward and reverse mode) in data, params and

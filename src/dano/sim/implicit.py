@@ -39,22 +39,23 @@ from ..errors import DanoError
 
 
 @dataclass(frozen=True)
-class NewtonOptions:
-    """max_iterations: Newton iterations per step; tolerance: relative step size below
-    which the solve has converged (None: 1e-10 in float64, 1e-5 in float32);
-    max_backtracks: line-search halvings per iteration; constraint_passes: how many times
-    MuJoCo's constraint solver (joint limits, equalities, MuJoCo contacts) and the implicit
-    contact solve alternate in a step at most: 1 shows the constraint solver the contact
-    force at the step's start velocity only; each further pass, taken only when the contact
-    force at the solved velocity differs from the one the solver saw by more than 5 %,
-    shows it that force and solves again (stiff DANO contact on light constrained bodies,
-    e.g. fingers against their limits, diverged with 1 pass: docs/simulation.md).
-    Raises DanoError for a count below 1 (0 for max_backtracks) or not an integer."""
+class NewtonConfig:
+    """Settings of a step's implicit contact solve (the ``newton`` argument of
+    :func:`~dano.sim.step`). Raises DanoError for a count below 1 (0 for max_backtracks) or
+    not an integer."""
 
     max_iterations: int = 25
+    """Newton iterations per step, >= 1."""
     tolerance: float | None = None
+    """Relative step size below which the solve has converged; None: 1e-10 in float64, 1e-5 in float32."""
     max_backtracks: int = 12
+    """Line-search halvings per iteration, >= 0."""
     constraint_passes: int = 2
+    """How many times MuJoCo's constraint solver (joint limits, equalities, MuJoCo contacts) and the implicit
+    contact solve alternate in a step at most, >= 1: 1 shows the constraint solver the contact force at the step's
+    start velocity only; each further pass, taken only when the contact force at the solved velocity differs from
+    the one the solver saw by more than 5 %, shows it that force and solves again (stiff DANO contact on light
+    constrained bodies, e.g. fingers against their limits, diverged with 1 pass: docs/simulation.md)."""
 
     def __post_init__(self):
         for name in ("max_iterations", "max_backtracks", "constraint_passes"):
@@ -62,6 +63,9 @@ class NewtonOptions:
             least = 0 if name == "max_backtracks" else 1
             if isinstance(value, bool) or not isinstance(value, int) or value < least:
                 raise DanoError(f"NewtonOptions.{name} must be an integer >= {least}, got {value!r}")
+
+
+NewtonOptions = NewtonConfig  # old name, kept (and in its error messages)
 
 
 @jax.tree_util.register_dataclass
@@ -148,17 +152,17 @@ def _residual(models, h, pr: ImplicitProblem, v):
     return pr.Mh @ (v - pr.v0) - h * (pr.f + _contact_force(models, pr, v))
 
 
-def _tolerance(opts: NewtonOptions, dtype) -> float:
+def _tolerance(opts: NewtonConfig, dtype) -> float:
     if opts.tolerance is not None:
         return opts.tolerance
     return 1e-10 if jnp.dtype(dtype) == jnp.float64 else 1e-5
 
 
-def _newton(models, opts: NewtonOptions, h: float, pr: ImplicitProblem):
+def _newton(models, opts: NewtonConfig, h: float, pr: ImplicitProblem):
     return _on_problem(functools.partial(_newton_plain, models, opts, h), pr)
 
 
-def _newton_plain(models, opts: NewtonOptions, h: float, pr: ImplicitProblem):
+def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem):
     """Returns (v', [iterations, final residual relative to the step's impulses]).
 
     An iteration solves A·Δ = −G, evaluates the residual at v + Δ (the force only), and
@@ -227,7 +231,7 @@ def _newton_plain(models, opts: NewtonOptions, h: float, pr: ImplicitProblem):
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
-def solve_velocity(models: tuple, opts: NewtonOptions, h: float, pr: ImplicitProblem):
+def solve_velocity(models: tuple, opts: NewtonConfig, h: float, pr: ImplicitProblem):
     """The next velocity v' (nv,) with G(v') = 0, and diagnostics [Newton iterations,
     final residual relative to the step's impulses] (2,). ``models``: the contact model of
     each pair group (static); h: time step [s]. Differentiable (forward and reverse mode)

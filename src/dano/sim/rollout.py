@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import DanoError
 from ..trajectory import Trajectory
-from .implicit import NewtonOptions
+from .implicit import NewtonConfig
 from .scene import Scene, SimParams
 from .dynamics import State, as_data, overlaps, step_with_info
 
@@ -26,7 +26,7 @@ class SimulationDiverged(DanoError):
 
 
 @functools.partial(jax.jit, static_argnames=("newton",))
-def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonOptions = NewtonOptions()):
+def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig = NewtonConfig()):
     """T steps from MJX ``data`` with controls (T, nu) and applied generalized forces
     (T, nv) per step. Returns (final Data, qpos (T+1, nq), qvel (T+1, nv), psi (T+1, P),
     Newton iterations (T,)). Jitted; one compilation per scene structure and T."""
@@ -97,7 +97,7 @@ def rollout(
     qfrc=None,
     max_speed: float = 1e3,
     progress=None,
-    newton: NewtonOptions = NewtonOptions(),
+    newton: NewtonConfig = NewtonConfig(),
 ) -> Trajectory:
     """Simulate ``steps`` steps of ``scene.dt`` from ``state0`` inside ``jax.lax.scan``.
 

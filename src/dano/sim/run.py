@@ -28,6 +28,7 @@ from ..contact import CONTACT_MODELS
 from ..data import load_asset
 from ..errors import DanoError
 from ..trajectory import Trajectory, save_trajectory
+from ..viz.video import write_video
 from .rollout import rollout
 from .scene import DanoObject, Scene, SimParams
 from .scenes import BUILTIN_SCENES, Setup, load_scene, mjcf_setup
@@ -196,8 +197,6 @@ def write_outputs(run: SimulationRun, out: str | Path | None = None, video: str 
     or .gif, rendered headless with MuJoCo at the config's fps) and the resolved
     configuration ``<first output>.config.json``: all published together at the end, or none.
     Returns the paths written. Raises DanoError for a video suffix other than .mp4/.gif."""
-    from ..viz.video import write_video
-
     out, video = (None if p is None else Path(p) for p in (out, video))
     check_video_path(video)
     first = out if out is not None else video

@@ -29,6 +29,7 @@ from ..contact import PAIR_KINDS, ContactParams, Samples, contact_model
 from ..contact.surface import surface_points
 from ..errors import DanoError
 from ..fields.base import interior_density
+from ..io.exporters import add_to_spec
 
 PRIMITIVES = {
     mujoco.mjtGeom.mjGEOM_PLANE: "plane",
@@ -350,8 +351,6 @@ def _load_spec(base) -> mujoco.MjSpec:
 
 
 def _add_dano(spec: mujoco.MjSpec, obj: DanoObject) -> None:
-    from ..io.exporters import add_to_spec
-
     add_to_spec(spec, obj.asset, obj.name, pos=obj.pos, quat=obj.quat, rgba=obj.rgba)
 
 

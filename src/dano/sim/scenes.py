@@ -8,6 +8,7 @@ paper's bunny is about one unit across; we treat units as metres, gravity −9.8
 from __future__ import annotations
 
 import os
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -18,6 +19,7 @@ import numpy as np
 
 from ..data import load_builtin
 from ..errors import DanoError
+from ..pose import quat_to_matrix
 from .scene import DanoObject, Scene, SimParams, add_ground, compose
 from .dynamics import State
 
@@ -70,9 +72,7 @@ def initial_state(scene: Scene, poses: dict, velocities: dict | None = None) -> 
 
 def resting_height(asset, quat=(1, 0, 0, 0)) -> float:
     """Centre-of-mass height at which the lowest sample touches z = 0."""
-    from scipy.spatial.transform import Rotation
-
-    R = Rotation.from_quat(_normalize(quat), scalar_first=True).as_matrix()
+    R = quat_to_matrix(_normalize(quat))
     return float(-np.min((asset.points @ R.T)[:, 2]))
 
 
@@ -218,8 +218,6 @@ def stated_timestep(path: str | Path) -> float | None:
     """The time step [s] an MJCF file states in its ``<option timestep="..."/>`` (the last one
     in the file itself; included files are not read), or None (none stated, a URDF, or a file
     that does not parse: :func:`compose` reports that)."""
-    import xml.etree.ElementTree as ET
-
     try:
         options = [o for o in ET.parse(path).getroot().iter("option") if "timestep" in o.attrib]
         return float(options[-1].attrib["timestep"]) if options else None

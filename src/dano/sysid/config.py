@@ -56,7 +56,8 @@
 Relative paths are resolved against the file's folder. The file is read into typed
 dataclasses (:func:`read_config`): unknown keys, wrong types and out-of-range values are
 refused naming the key; at least one ``[[parameter]]`` is required. Everything resolved
-(defaults included) is returned so that it can be saved next to the results.
+(defaults included) is returned so that it can be saved next to the results. Every key, its
+type, default and meaning: docs/config-reference.md (generated from the field docstrings).
 """
 
 from __future__ import annotations
@@ -69,7 +70,12 @@ from pathlib import Path
 import numpy as np
 
 from .._config import read_table, typed_table
+from .._files import read_npz
+from ..asset import load
+from ..data import load_builtin
 from ..errors import DanoError, FileFormatError
+from ..sim.scene import DanoObject, compose
+from ..trajectory import load_trajectory
 from .problem import (SEGMENT_NUISANCE_PREFIXES, FitParameter, Observation, SysIdProblem, Weights,
                       identification_params)
 from .outputs import estimates_report
@@ -127,8 +133,6 @@ def _read_observation(path: Path, obj: str | None, scene, velocities: bool = Fal
                                       f"missing {', '.join(missing)}")
             vel = {obj: np.stack([data[c] for c in VELOCITY_COLUMNS], axis=1)}
         return Observation(time=np.asarray(data["t"]), poses={obj: poses}, velocities=vel, name=path.name)
-    from .._files import read_npz
-    from ..trajectory import load_trajectory
 
     arrays = read_npz(path, (), "trajectory")
     if "poses" in arrays:  # the plain layout: time (T,), poses (T, 7), optional velocities (T, 6)
@@ -173,7 +177,8 @@ class ObjectConfig:
     name: str
     """The object's name (a body of the scene; ``[[trajectory]].object`` and parameter targets name it)."""
     asset: str
-    """Its DANO: a ``.dano`` file (relative to the TOML file's folder) or ``builtin:NAME`` (e.g. ``builtin:bluesoap``)."""
+    """Its DANO: a ``.dano`` file (relative to the TOML file's folder) or ``builtin:NAME`` (e.g.
+    ``builtin:bluesoap``)."""
     pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """Initial position of its body frame (the centre of mass) [m], world frame, (3,)."""
     quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
@@ -299,13 +304,15 @@ class OptionsConfig:
         if self.substeps < 1:
             raise DanoError(f"[options].substeps: must be at least 1, got {self.substeps}")
         if self.window < 0 or self.window == 1:
-            raise DanoError(f"[options].window: must be 0 (no windows) or at least 2 frame intervals, got {self.window}")
+            raise DanoError(f"[options].window: must be 0 (no windows) or at least 2 frame intervals, "
+                            f"got {self.window}")
         for key in ("fit_velocity", "fit_angular_velocity", "fit_position", "fit_rotation"):
             if not _axes_ok(getattr(self, key)):
                 raise DanoError(f"[options].{key}: must be made of the letters x, y, z, each at most once, "
                                 f"got {getattr(self, key)!r}")
         if self.fit_tilt and not self.fit_ground:
-            raise DanoError("[options].fit_tilt: the ground's tilt is fitted with its height: set fit_ground = true too")
+            raise DanoError("[options].fit_tilt: the ground's tilt is fitted with its height: "
+                            "set fit_ground = true too")
         if self.auto_windows and self.window:
             raise DanoError("[options]: give window (a fixed length) or auto_windows = true, not both")
         if any(not 0 < h < 1 for h in self.horizons):
@@ -385,10 +392,6 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
     """Build the problem described by a TOML file; returns (problem, solver options,
     resolved configuration: every key with its value or default). Raises FileFormatError /
     DanoError naming the file."""
-    from ..asset import load
-    from ..data import load_builtin
-    from ..sim.scene import DanoObject, compose
-
     path = Path(path)
     cfg = read_config(path)
     base = path.parent

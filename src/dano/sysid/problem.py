@@ -18,11 +18,12 @@ from typing import Sequence
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..contact.params import ContactParams
 from ..errors import DanoError
+from ..pose import quat_error, quat_inverse, quat_mean, quat_multiply, rotate, rotvec_to_quat, velocity_from_poses
 from ..sim.scene import INERTIAL_PARAMETERS, Scene, SimParams
 from ..sim.rollout import rollout_arrays
 from ..sim.dynamics import State
@@ -50,7 +51,7 @@ class Observation:
     units: length unit of the poses; must be "m" (scene units);
     rest_frames: if > 1, the tracked bodies are known to be at rest during the first
     ``rest_frames`` frames: the initial pose is their mean (rotations averaged with
-    :meth:`scipy.spatial.transform.Rotation.mean`), which reduces tracking noise in the
+    :func:`dano.pose.quat_mean`), which reduces tracking noise in the
     initial state by about √rest_frames;
     settle_steps: with rest_frames > 1, simulate this many steps from that initial state
     (controls held at their first value) before the rollout is compared with the frames,
@@ -153,7 +154,6 @@ def _check_observation_values(obs: Observation, scene: Scene, k: int) -> None:
         if v.shape != (len(t), 6) or not np.all(np.isfinite(v)):
             raise DanoError(f"{tag}: velocities of {name!r} must be finite with shape ({len(t)}, 6) (vx vy vz world, "
                             f"wx wy wz body), got {v.shape}")
-    import mujoco
 
     for name, v in obs.joints.items():
         j = mujoco.mj_name2id(scene.mj_model, mujoco.mjtObj.mjOBJ_JOINT, name)
@@ -182,27 +182,14 @@ def _one_sided_difference(times: np.ndarray, x: np.ndarray) -> np.ndarray:
 def finite_difference_velocity(times: np.ndarray, poses: np.ndarray) -> np.ndarray:
     """(6,) initial velocity of a free body from its first three poses (times (≥3,) [s],
     poses (≥3, 7) x y z qw qx qy qz): linear velocity (world frame) [m/s] by a second-order
-    one-sided difference, angular velocity (body frame) [rad/s] from the relative rotations."""
-    h = times[1] - times[0]
-    v = _one_sided_difference(times, poses[:3, :3])
-    R = Rotation.from_quat(poses[:3, 3:], scalar_first=True)
-    w1 = (R[0].inv() * R[1]).as_rotvec() / h
-    w2 = (R[0].inv() * R[2]).as_rotvec() / (2 * h)
-    return np.r_[v, 2 * w1 - w2]
+    one-sided difference, angular velocity (body frame) [rad/s] from the relative rotations
+    (:func:`dano.pose.velocity_from_poses` of degree 2)."""
+    return velocity_from_poses(np.asarray(times)[:3], np.asarray(poses)[:3], degree=2)
 
 
-def quat_log_error(q_obs: jax.Array, q_sim: jax.Array) -> jax.Array:
-    """Rotation vector of q_obs⁻¹ ⊗ q_sim, (..., 3) [rad]; sign-invariant and NaN-free."""
-    w1, v1 = q_obs[..., :1], q_obs[..., 1:]
-    w2, v2 = q_sim[..., :1], q_sim[..., 1:]
-    w = w1 * w2 + jnp.sum(v1 * v2, axis=-1, keepdims=True)
-    v = w1 * v2 - w2 * v1 - jnp.cross(v1, v2)
-    v = jnp.where(w < 0, -v, v)
-    w = jnp.abs(w)
-    sq = jnp.sum(v * v, axis=-1, keepdims=True)
-    n = jnp.sqrt(jnp.where(sq > 0, sq, 1.0))
-    scale = jnp.where(sq > 1e-24, 2.0 * jnp.arctan2(n, w) / n, 2.0 / jnp.maximum(w, 1e-12))
-    return scale * v
+#: rotation vector of q_obs⁻¹ ⊗ q_sim, (..., 3) [rad]; sign-invariant and NaN-free
+#: (:func:`dano.pose.quat_error`)
+quat_log_error = quat_error
 
 
 def impact_windows(obs: Observation, threshold_g: float = 3.0, span_s: float = 0.02,
@@ -271,22 +258,16 @@ def _valid_residuals(intervals: list[int], padded: int, cols: list[int]) -> np.n
 
 def _poses_to_table(poses, height, R):
     """(F, 7) world poses (x y z, wxyz) -> the frame of a table at height ``height`` tilted by
-    R (world ← table): p ↦ R⁻¹(p − h·e_z), q ↦ R⁻¹ ⊗ q."""
-    import jaxlie
-
-    Ri = R.inverse()
-    p = jax.vmap(lambda x: Ri @ x)(poses[:, :3] - jnp.stack([0.0, 0.0, height]).astype(poses.dtype))
-    q = jax.vmap(lambda w: (Ri @ jaxlie.SO3(w)).wxyz)(poses[:, 3:])
-    return jnp.concatenate([p, q], axis=1)
+    R (world ← table, a quaternion (4,)): p ↦ R⁻¹(p − h·e_z), q ↦ R⁻¹ ⊗ q."""
+    Ri = quat_inverse(R)
+    p = rotate(Ri, poses[:, :3] - jnp.stack([0.0, 0.0, height]).astype(poses.dtype))
+    return jnp.concatenate([p, quat_multiply(Ri, poses[:, 3:])], axis=1)
 
 
 def _poses_from_table(poses, height, R):
     """The inverse of :func:`_poses_to_table`."""
-    import jaxlie
-
-    p = jax.vmap(lambda x: R @ x)(poses[:, :3]) + jnp.stack([0.0, 0.0, height]).astype(poses.dtype)
-    q = jax.vmap(lambda w: (R @ jaxlie.SO3(w)).wxyz)(poses[:, 3:])
-    return jnp.concatenate([p, q], axis=1)
+    p = rotate(R, poses[:, :3]) + jnp.stack([0.0, 0.0, height]).astype(poses.dtype)
+    return jnp.concatenate([p, quat_multiply(R, poses[:, 3:])], axis=1)
 
 
 def _to_table(qpos0, qvel0, qadr, dadr, height, R):
@@ -294,7 +275,7 @@ def _to_table(qpos0, qvel0, qadr, dadr, height, R):
     angular velocities are in the body frame and do not)."""
     for a, d in zip(qadr, dadr):
         qpos0 = qpos0.at[a : a + 7].set(_poses_to_table(qpos0[None, a : a + 7], height, R)[0])
-        qvel0 = qvel0.at[d : d + 3].set(R.inverse() @ qvel0[d : d + 3])
+        qvel0 = qvel0.at[d : d + 3].set(rotate(quat_inverse(R), qvel0[d : d + 3]))
     return qpos0, qvel0
 
 
@@ -307,8 +288,6 @@ def _with_offsets(qpos0, qvel0, block, qadr, dadr, axes):
     len(axes)), ``axes`` as :attr:`SysIdProblem.fit_axes`: 0–2 linear velocity [m/s, world],
     3–5 angular velocity [rad/s, body], 6–8 position [m, world], 9–11 a rotation vector
     [rad, world] applied to the orientation (q ← exp(r) ⊗ q)."""
-    import jaxlie
-
     rot = [k for k, a in enumerate(axes) if a >= 9]
     rot_axes = jnp.asarray([axes[k] - 9 for k in rot], dtype=jnp.int32)
     for b, (qa, da) in enumerate(zip(qadr, dadr)):
@@ -319,7 +298,7 @@ def _with_offsets(qpos0, qvel0, block, qadr, dadr, axes):
                 qpos0 = qpos0.at[qa + a - 6].add(block[b, k])
         if rot:
             r = jnp.zeros(3, dtype=block.dtype).at[rot_axes].set(block[b, jnp.asarray(rot)])
-            qpos0 = qpos0.at[qa + 3 : qa + 7].set((jaxlie.SO3.exp(r) @ jaxlie.SO3(qpos0[qa + 3 : qa + 7])).wxyz)
+            qpos0 = qpos0.at[qa + 3 : qa + 7].set(quat_multiply(rotvec_to_quat(r), qpos0[qa + 3 : qa + 7]))
     return qpos0, qvel0
 
 
@@ -327,8 +306,6 @@ def _check_ground_only(scene, observations) -> None:
     """fit_ground shifts the observed DANOs; that equals moving the ground only if the
     ground plane (at z = 0, horizontal) is the world's only collidable geometry, every
     other body is a DANO, and every observation tracks all DANOs."""
-    import mujoco
-
     m = scene.mj_model
     others = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in range(1, m.nbody)]
     others = [b for b in others if b not in scene.dano_names]
@@ -390,18 +367,16 @@ class ResidualLayout:
 
 
 def _table(theta, fit_tilt: bool):
-    """(height, rotation world ← table (jaxlie SO3)) of the ground from θ's last entries."""
-    import jaxlie
-
+    """(height, rotation world ← table (a quaternion (4,))) of the ground from θ's last entries."""
     if fit_tilt:
-        return theta[-3], jaxlie.SO3.exp(jnp.stack([theta[-2], theta[-1], jnp.zeros_like(theta[-1])]))
-    return theta[-1], jaxlie.SO3(jnp.asarray([1.0, 0.0, 0.0, 0.0], dtype=theta.dtype))
+        return theta[-3], rotvec_to_quat(jnp.stack([theta[-2], theta[-1], jnp.zeros_like(theta[-1])]))
+    return theta[-1], jnp.asarray([1.0, 0.0, 0.0, 0.0], dtype=theta.dtype)
 
 
 def _tilted_scene(scene: Scene, R) -> Scene:
     """The scene with gravity seen from the table's frame: R⁻¹·g."""
     m = scene.model
-    return scene.replace(model=m.replace(opt=m.opt.replace(gravity=R.inverse() @ m.opt.gravity)))
+    return scene.replace(model=m.replace(opt=m.opt.replace(gravity=rotate(quat_inverse(R), m.opt.gravity))))
 
 
 def _with_parameters(scene: Scene, base_params: SimParams, parameters, theta) -> SimParams:
@@ -761,8 +736,6 @@ class SysIdProblem:
 
     # -- data per segment
     def _segment_data(self, seg: Segment):
-        import mujoco
-
         o, sc = self.observations[seg.obs], self.scene
         sl = slice(seg.start, seg.start + seg.frames)
         t = np.asarray(o.time, dtype=np.float64)[sl]
@@ -776,7 +749,7 @@ class SysIdProblem:
             qpos[sc.qpos_adr[i] : sc.qpos_adr[i] + 7] = p[0]
             if seg.start == 0 and o.rest_frames > 1:
                 k = min(o.rest_frames, len(p))
-                mean_q = Rotation.from_quat(p[:k, 3:], scalar_first=True).mean().as_quat(scalar_first=True)
+                mean_q = quat_mean(p[:k, 3:])
                 qpos[sc.qpos_adr[i] : sc.qpos_adr[i] + 7] = np.r_[p[:k, :3].mean(0), mean_q]
             if seg.start > 0 or (o.qvel0 is None and o.rest_frames <= 1):
                 qvel[sc.dof_adr[i] : sc.dof_adr[i] + 6] = (

@@ -304,6 +304,80 @@ def _identify(problem: SysIdProblem, *, jacobian: str, max_iterations: int, xtol
                         ftol=ftol, gtol=gtol)
 
 
+@dataclass(frozen=True)
+class LeastSquaresFit:
+    """The answer of :func:`solve_least_squares`.
+
+    x (n,): the solution; cost: ½‖r(x)‖²; cost_history: the cost after each iteration (first:
+    ``initial_cost`` when given); residuals (m,) and jacobian (m, n) at x (the Jacobian the
+    solver last used: the given function's, or SciPy's finite differences); nfev/njev:
+    residual/Jacobian evaluations; status: SciPy's (≤ 0: stopped at the evaluation limit or
+    failed, before a convergence test was met); success/message: SciPy's; wall_time_s [s]."""
+
+    x: np.ndarray
+    cost: float
+    cost_history: list
+    residuals: np.ndarray
+    jacobian: np.ndarray
+    nfev: int
+    njev: int
+    status: int
+    success: bool
+    message: str
+    wall_time_s: float
+
+    @property
+    def converged(self) -> bool:
+        """Whether a convergence test (xtol, ftol or gtol) was met."""
+        return self.status > 0
+
+
+def solve_least_squares(residuals, x0: np.ndarray, lower: np.ndarray, upper: np.ndarray, *, jacobian=None,
+                        max_iterations: int = 50, xtol: float = 1e-8, ftol: float = 1e-8, gtol: float = 1e-8,
+                        initial_cost: float | None = None) -> LeastSquaresFit:
+    """The local solver of identification: min ½‖r(x)‖² subject to lower ≤ x ≤ upper (n,),
+    from ``x0`` (n,, inside the bounds), by :func:`scipy.optimize.least_squares`
+    (trust-region reflective, columns scaled by the Jacobian). residuals: x (n,) -> (m,)
+    NumPy float64; jacobian: x -> (m, n), or None for SciPy's 2-point finite differences;
+    max_iterations: the most residual evaluations (SciPy's ``max_nfev``); initial_cost: the
+    cost at x0 when the caller has it (the first entry of the cost history). Standard errors
+    from the answer: :func:`least_squares_standard_errors`."""
+    history = [] if initial_cost is None else [float(initial_cost)]
+
+    def callback(intermediate_result):
+        history.append(float(intermediate_result.cost))
+
+    t0 = time.perf_counter()
+    sol = least_squares(residuals, x0, jac=jacobian or "2-point", bounds=(lower, upper), method="trf",
+                        x_scale="jac", max_nfev=max_iterations, xtol=xtol,
+                        ftol=ftol, gtol=gtol, callback=callback)
+    wall = time.perf_counter() - t0
+    return LeastSquaresFit(x=np.asarray(sol.x), cost=float(sol.cost), cost_history=history,
+                           residuals=np.asarray(sol.fun), jacobian=np.asarray(sol.jac), nfev=int(sol.nfev),
+                           njev=int(sol.njev or 0), status=int(sol.status), success=bool(sol.success),
+                           message=str(sol.message), wall_time_s=wall)
+
+
+def least_squares_standard_errors(fit: LeastSquaresFit, free: np.ndarray | None = None) -> np.ndarray | None:
+    """Standard errors (n,) of a least-squares answer from σ²(JᵀJ)⁻¹, σ² = 2·cost/(m − n_free),
+    over the ``free`` parameters (a boolean mask (n,); default all; the others NaN: e.g. those
+    at a bound, the fit conditional on them); all NaN when no convergence test was met; None
+    when JᵀJ is singular."""
+    m, n = fit.residuals.shape[0], fit.x.shape[0]
+    free = np.ones(n, dtype=bool) if free is None else np.asarray(free, dtype=bool)
+    se = np.full(n, np.nan)
+    if not fit.converged:
+        return se
+    J = fit.jacobian[:, free]
+    sigma2 = 2 * fit.cost / max(m - int(free.sum()), 1)
+    try:
+        cov = sigma2 * np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return None
+    se[free] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return se
+
+
 def _local_solve(problem: SysIdProblem, x0: np.ndarray, *, jacobian: str, max_iterations: int,
                  xtol: float, ftol: float, gtol: float) -> SysIdResult:
     """Bounded least squares from ``x0`` (n,) with the problem's compiled residual and Jacobian
@@ -317,24 +391,16 @@ def _local_solve(problem: SysIdProblem, x0: np.ndarray, *, jacobian: str, max_it
     if not np.all(np.isfinite(r0)):
         raise DanoError("the simulation gives non-finite residuals at the initial guess; check the scene and data")
 
-    history = [0.5 * float(r0 @ r0)]
-
-    def callback(intermediate_result):
-        history.append(float(intermediate_result.cost))
-
-    t0 = time.perf_counter()
-    sol = least_squares(f, x0, jac=jac or "2-point", bounds=(lo, hi), method="trf",
-                        x_scale="jac", max_nfev=max_iterations, xtol=xtol,
-                        ftol=ftol, gtol=gtol, callback=callback)
-    wall = time.perf_counter() - t0
-    m = len(sol.fun)
-    se, notes = _standard_errors(problem, sol, max_iterations)
+    fit = solve_least_squares(f, x0, lo, hi, jacobian=jac, max_iterations=max_iterations, xtol=xtol, ftol=ftol,
+                              gtol=gtol, initial_cost=0.5 * float(r0 @ r0))
+    m = len(fit.residuals)
+    se, notes = _standard_errors(problem, fit, max_iterations)
     return SysIdResult(
-        labels=problem.labels, estimates=np.asarray(sol.x), standard_errors=se, initial=x0,
-        cost_history=history, final_cost=float(sol.cost), rms_residual=float(np.sqrt(2 * sol.cost / m)),
-        num_residuals=m, nfev=int(sol.nfev), njev=int(sol.njev or 0), wall_time_s=wall,
-        compile_time_s=compile_time, success=bool(sol.success), message=str(sol.message), jacobian=jacobian,
-        warnings=notes, jacobian_matrix=np.asarray(sol.jac),
+        labels=problem.labels, estimates=fit.x, standard_errors=se, initial=x0,
+        cost_history=fit.cost_history, final_cost=fit.cost, rms_residual=float(np.sqrt(2 * fit.cost / m)),
+        num_residuals=m, nfev=fit.nfev, njev=fit.njev, wall_time_s=fit.wall_time_s,
+        compile_time_s=compile_time, success=fit.success, message=fit.message, jacobian=jacobian,
+        warnings=notes, jacobian_matrix=fit.jacobian,
     )
 
 
@@ -350,28 +416,25 @@ def at_bound(problem: SysIdProblem, x: np.ndarray) -> list[tuple[int, str]]:
     return out
 
 
-def _standard_errors(problem: SysIdProblem, sol, max_iterations: int) -> tuple[np.ndarray, list[str]]:
+def _standard_errors(problem: SysIdProblem, fit: LeastSquaresFit,
+                     max_iterations: int) -> tuple[np.ndarray, list[str]]:
     """Standard errors from σ²(JᵀJ)⁻¹ (n,) and the warnings that go with them: none when the
     solver did not meet a convergence test; none for a parameter at a bound, the others from
     the Jacobian without its column (the fit conditional on the bound)."""
-    m, n = sol.fun.shape[0], sol.x.shape[0]
-    se = np.full(n, np.nan)
-    if sol.status <= 0:
-        return se, [f"the solver stopped at its evaluation limit ({max_iterations}) before a convergence test was "
-                    "met: no standard errors (not a converged minimum)"]
+    n = fit.x.shape[0]
+    if not fit.converged:
+        return np.full(n, np.nan), [f"the solver stopped at its evaluation limit ({max_iterations}) before a "
+                                    "convergence test was met: no standard errors (not a converged minimum)"]
     notes, free = [], np.ones(n, dtype=bool)
-    for i, side in at_bound(problem, sol.x):
+    for i, side in at_bound(problem, fit.x):
         free[i] = False
         p = problem.parameters[i]
-        notes.append(f"{p.label} = {sol.x[i]:.6g} sits at its {side} bound: no standard error (the cost may keep "
+        notes.append(f"{p.label} = {fit.x[i]:.6g} sits at its {side} bound: no standard error (the cost may keep "
                      "falling beyond it; widen the bound if that is physical)")
-    J = sol.jac[:, free]  # AD, or SciPy's finite differences, at the solution
-    sigma2 = 2 * sol.cost / max(m - int(free.sum()), 1)
-    try:
-        cov = sigma2 * np.linalg.inv(J.T @ J)
-        se[free] = np.sqrt(np.clip(np.diag(cov), 0, None))
-    except np.linalg.LinAlgError:
+    se = least_squares_standard_errors(fit, free)  # AD's Jacobian, or SciPy's finite differences, at the solution
+    if se is None:
         notes.append("JᵀJ is singular: the data do not determine every parameter; no standard errors")
+        se = np.full(n, np.nan)
     return se, notes
 
 

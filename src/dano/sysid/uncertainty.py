@@ -30,11 +30,11 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 from scipy.stats import t as student_t
 
 from ..errors import DanoError
+from ..pose import quat_error
 from .problem import SysIdProblem
 
 #: trajectories from which the bootstrap over trajectories is part of the default interval
@@ -87,8 +87,7 @@ def observation_noise(problem: SysIdProblem) -> dict:
         for p in o.poses.values():
             p = np.asarray(p, dtype=np.float64)
             pos.append(np.diff(p[:, :3], n=3, axis=0))
-            R = Rotation.from_quat(p[:, 3:], scalar_first=True)
-            inc = (R[:-1].inv() * R[1:]).as_rotvec()
+            inc = quat_error(p[:-1, 3:], p[1:, 3:])
             rot.append(np.diff(inc, n=2, axis=0))
         for v in o.joints.values():
             joints.append(np.diff(np.asarray(v, dtype=np.float64), n=3))

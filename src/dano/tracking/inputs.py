@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DanoError, FileFormatError
+from ..nerf.data import as_float_images
 from ..render.cameras import Cameras
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -56,8 +57,6 @@ class VideoInput:
 
 
 def _as_float(image: np.ndarray, where: str) -> np.ndarray:
-    from ..nerf.data import as_float_images
-
     try:
         return as_float_images(image, where)
     except FileFormatError:

@@ -11,7 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from .._files import atomic_write
+from ..pose import velocity_from_poses
 from ..trajectory import Trajectory, save_trajectory
+from ..viz.video import write_frames
 from .inputs import VideoInput
 from .track import TrackResult
 
@@ -20,18 +22,16 @@ def tracked_trajectory(result: TrackResult, name: str, metadata: dict | None = N
     """The tracked poses as a one-DANO :class:`~dano.trajectory.Trajectory`: qpos (T, 7) body
     pose, qvel (T, 6) by central differences (linear: world frame [m/s]; angular: body frame
     [rad/s]); frames flagged poor are listed in the metadata (``poor_frames``)."""
-    from scipy.spatial.transform import Rotation
-
-    t, q = result.time, result.poses
-    v = np.gradient(q[:, :3], t, axis=0) if len(t) > 1 else np.zeros((len(t), 3))
-    R = Rotation.from_quat(q[:, 3:], scalar_first=True)
-    w = np.zeros((len(t), 3))
-    for k in range(len(t)):
-        a, b = max(k - 1, 0), min(k + 1, len(t) - 1)
-        if b > a:  # log(R_aᵀ R_b) / Δt: the body-frame rate (in frame a's axes; frame k's to first order)
-            w[k] = (R[a].inv() * R[b]).as_rotvec() / (t[b] - t[a])
+    t, q = np.asarray(result.time, dtype=np.float64), np.asarray(result.poses, dtype=np.float64)
+    vel = np.zeros((len(t), 6))
+    if len(t) > 1:
+        # frame k from frames a, b = k ± 1 (one-sided at the ends): the difference quotient of the
+        # positions and log(q_a⁻¹ ⊗ q_b)/Δt, the body-frame rate (in frame a's axes; k's to first order)
+        k = np.arange(len(t))
+        ab = np.stack([np.maximum(k - 1, 0), np.minimum(k + 1, len(t) - 1)], axis=1)
+        vel = velocity_from_poses(t[ab], q[ab], degree=1)
     meta = {"source": "dano track", "poor_frames": np.flatnonzero(result.poor).tolist(), **(metadata or {})}
-    return Trajectory(t, q, np.concatenate([v, w], axis=1), np.zeros((len(t), 0)), (name,), (name,), (0,), (0,),
+    return Trajectory(t, q, vel, np.zeros((len(t), 0)), (name,), (name,), (0,), (0,),
                       (), meta)
 
 
@@ -61,8 +61,6 @@ def write_track_outputs(out_dir: str | Path, video: VideoInput, result: TrackRes
     """Write ``poses.npz`` (dano trajectory), ``track.csv`` (time, pose, loss, IoU, poor per
     frame), ``overlay.mp4`` and ``report.json`` into ``out_dir`` (each atomically).
     Returns the file names written."""
-    from ..viz.video import write_frames
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     save_trajectory(tracked_trajectory(result, name), out / "poses.npz")

@@ -12,7 +12,8 @@ and per pixel block of the frame's ray set: (α_k(θ) − M_k)/√N (N: blocks p
 :mod:`dano.tracking.track` summed over the video. Gauss–Newton (SciPy's trust-region
 least squares) with forward-mode Jacobians (``jax.jacfwd``, one column per unknown),
 started from the best point of a scan over the first parameter's bounds (the cost through
-contact is jagged: a local method alone stops early).
+contact is jagged: a local method alone stops early). The scan's grid and the local solve are
+identification's (:func:`dano.sysid.solve.scan_points`, :func:`dano.sysid.solve.solve_least_squares`).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from ..render.cameras import pixel_rays
 from ..render.silhouette import silhouette_rays
 from ..sim.dynamics import State
 from ..sim.rollout import rollout_arrays
+from ..sysid.solve import scan_points, solve_least_squares
 from .inputs import VideoInput
 from .track import block_average, field_pose
 
@@ -151,8 +153,6 @@ def identify_from_pixels(scene, base_params, video: VideoInput, obj, qpos0: np.n
     velocity (e.g. from the tracked poses: :func:`~dano.tracking.initial_velocity`, or a
     two-stage fit's — the cost over the initial angular velocity has local minima).
     Raises DanoError (float32 scene, no masks, frame rate mismatch, too few frames)."""
-    from scipy.optimize import least_squares
-
     if scene.dtype != jnp.float64:
         raise DanoError("identification from pixels needs a float64 scene: call dano.enable_float64() first")
     if video.num_frames < 3:
@@ -179,15 +179,15 @@ def identify_from_pixels(scene, base_params, video: VideoInput, obj, qpos0: np.n
             return np.asarray(res(jnp.asarray(x)))
 
         lower, upper = np.r_[bounds[0], np.full(9, -np.inf)], np.r_[bounds[1], np.full(9, np.inf)]
-        return least_squares(f, np.clip(x0, lower, upper), jac=lambda x: np.asarray(jac(jnp.asarray(x))),
-                             bounds=(lower, upper), method="trf", x_scale="jac", max_nfev=max_iterations,
-                             xtol=1e-10, ftol=1e-10)
+        return solve_least_squares(f, np.clip(x0, lower, upper), lower, upper,
+                                   jacobian=lambda x: np.asarray(jac(jnp.asarray(x))), max_iterations=max_iterations,
+                                   xtol=1e-10, ftol=1e-10)
 
     x = np.r_[0.5 * (bounds[0] + bounds[1]), np.zeros(3), np.asarray(qvel0, dtype=np.float64)[dof : dof + 6]]
     fn = pixel_residual_function(scene, base_params, [parameter], video, obj, qpos0, substeps, stride)
     res, jac = jax.jit(fn), jax.jit(jax.jacfwd(fn))
     values, costs = [], []
-    coarse = np.linspace(bounds[0], bounds[1], scan)
+    coarse = scan_points(np.array([bounds[0]], dtype=np.float64), np.array([bounds[1]], dtype=np.float64), scan)[:, 0]
     for level in (coarse, None):
         if level is None:  # a fine scan around the coarse minimum (one coarse spacing either side)
             best, spacing = values[int(np.argmin(costs))], coarse[1] - coarse[0]
@@ -203,6 +203,5 @@ def identify_from_pixels(scene, base_params, video: VideoInput, obj, qpos0: np.n
     values, costs = np.asarray(values), np.asarray(costs)
     sol = solve(res, jac, np.r_[values[int(np.argmin(costs))], x[1:]], "Gauss-Newton")
     labels = [parameter, "dx", "dy", "dz", "vx", "vy", "vz", "wx", "wy", "wz"]
-    return PixelFitResult(labels, sol.x, float(sol.cost), {"values": values, "costs": costs}, int(sol.nfev),
-                          int(sol.njev or 0), time.perf_counter() - t_start, compile_s, bool(sol.success),
-                          str(sol.message))
+    return PixelFitResult(labels, sol.x, sol.cost, {"values": values, "costs": costs}, sol.nfev, sol.njev,
+                          time.perf_counter() - t_start, compile_s, sol.success, sol.message)

@@ -37,14 +37,15 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import jaxlie
 import numpy as np
 import optax
 
 from ..errors import DanoError
+from ..pose import (normalize_quat, quat_error, quat_inverse, quat_multiply, quat_to_matrix, rotvec_to_quat,
+                    velocity_from_poses)
 from ..render.cameras import pixel_rays
 from ..render.silhouette import silhouette_rays
-from ..render.volume import RenderOptions, render_rays
+from ..render.volume import RenderConfig, render_rays
 from .inputs import VideoInput
 
 _BUCKET = 512
@@ -52,35 +53,44 @@ _BUCKET = 512
 
 @dataclass(frozen=True)
 class TrackConfig:
-    """iterations: Adam steps per frame; learning_rate → final_learning_rate: Adam's step,
-    decaying log-linearly over a frame (δ units: object sizes and radians); stride: pixels
-    per block along each axis (one ray per block, masks averaged over it); barycentre_weight
-    w_B; colour_weight w_C (0: silhouette only; > 0 needs a radiance field); colour_scale s
-    of the Charbonnier loss; smoothness_weight w_S (a prior toward the constant-velocity
-    prediction); samples_across: render samples across the field box's diagonal; margin:
-    ray-set dilation [fraction of object size]; poor_iou: frames with a lower silhouette IoU
-    are flagged poor; colour_rays: rays of the colour term per frame (0: every ray of the
-    ray set); colour_samples: field evaluations per colour ray on average when the radiance
-    field has an occupancy grid (the render's budget). (A Levenberg–Marquardt polish after
-    Adam was tried and dropped: on the synthetic slide 5 steps per frame took 4.3 s per frame
-    instead of 2.3 s and left the RMS error at 10.9 mm instead of 11.0.)"""
+    """Settings of :func:`track`. Raises DanoError naming the first bad setting. (A
+    Levenberg–Marquardt polish after Adam was tried and dropped: on the synthetic slide 5
+    steps per frame took 4.3 s per frame instead of 2.3 s and left the RMS error at 10.9 mm
+    instead of 11.0.)"""
 
     iterations: int = 60
+    """Adam steps per frame, >= 1."""
     learning_rate: float = 0.01
+    """Adam's initial step per frame [δ units: object sizes and radians], > 0."""
     final_learning_rate: float = 0.001
+    """Adam's step at the frame's last iteration (log-linear decay) [δ units], > 0."""
     stride: int = 2
+    """Pixels per block along each image axis (one ray per block, masks averaged over it), >= 1."""
     barycentre_weight: float = 1.0
+    """Weight w_B of the silhouette barycentre term [-], >= 0."""
     colour_weight: float = 0.0
+    """Weight w_C of the colour term [-], >= 0; 0: silhouette only; > 0 needs a radiance field."""
     colour_scale: float = 0.05
+    """Scale s of the colour residual's robust loss [colour units in 0–1], > 0."""
     smoothness_weight: float = 0.0
+    """Weight w_S of a prior toward the constant-velocity prediction [-], >= 0."""
     samples_across: int = 96
+    """Render samples across the field box's diagonal, >= 1."""
     margin: float = 0.25
+    """Ray-set dilation around the mask and the previous silhouette [fraction of the object's size], >= 0."""
     poor_iou: float = 0.8
+    """Frames whose silhouette intersection over union is below this are flagged poor, in [0, 1]."""
     colour_rays: int = 1024
+    """Rays of the colour term per frame, drawn at random from the ray set; 0: every ray of it."""
     colour_samples: int = 32
+    """Field evaluations per colour ray on average when the radiance field has an occupancy grid (the render's
+    budget), >= 1."""
 
-    def check(self) -> None:
-        """Raises DanoError naming the first bad setting."""
+    def check(self) -> "TrackConfig":
+        """Old API, kept: the settings are checked when the config is built; returns it."""
+        return self
+
+    def __post_init__(self):
         for name in ("iterations", "stride", "samples_across", "colour_samples"):
             if int(getattr(self, name)) < 1:
                 raise DanoError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -159,13 +169,13 @@ def block_average(images: np.ndarray, stride: int) -> np.ndarray:
 
 def compose_pose(position, quaternion, delta, size):
     """The body pose after a step δ = (translation / size, rotation vector [rad], body frame)."""
-    q = (jaxlie.SO3(quaternion) @ jaxlie.SO3.exp(delta[3:])).wxyz
+    q = quat_multiply(quaternion, rotvec_to_quat(delta[3:]))
     return position + size * delta[:3], q
 
 
 def field_pose(position, quaternion, center_of_mass):
     """World-from-object pose of the field for a body pose (the body origin is the CoM)."""
-    R = jaxlie.SO3(quaternion / jnp.linalg.norm(quaternion)).as_matrix()
+    R = quat_to_matrix(quaternion)  # normalises
     return position - R @ center_of_mass, quaternion
 
 
@@ -174,11 +184,9 @@ def predict(poses: list[np.ndarray], poor: list[bool]) -> np.ndarray:
     alone after a poor frame or with fewer than two)."""
     if len(poses) < 2 or poor[-1] or poor[-2]:
         return poses[-1].copy()
-    from scipy.spatial.transform import Rotation
-
     a, b = poses[-2], poses[-1]
-    ra, rb = Rotation.from_quat(a[3:], scalar_first=True), Rotation.from_quat(b[3:], scalar_first=True)
-    q = (rb * (ra.inv() * rb)).as_quat(scalar_first=True)
+    qa, qb = normalize_quat(a[3:]), normalize_quat(b[3:])
+    q = quat_multiply(qb, quat_multiply(quat_inverse(qa), qb))
     return np.concatenate([2 * b[:3] - a[:3], q])
 
 
@@ -214,7 +222,7 @@ class _Problem:
         if config.colour_weight > 0:
             rays = config.colour_rays or None
             budget = None if obj.radiance_occupancy is None or rays is None else rays * config.colour_samples
-            self.colour_options = RenderOptions.for_bounds(obj.radiance.bounds(), config.samples_across, budget)
+            self.colour_options = RenderConfig.for_bounds(obj.radiance.bounds(), config.samples_across, budget)
         self._solve = jax.jit(self._solve_frame)
         self._alpha_all = jax.jit(self._alpha)
 
@@ -334,7 +342,6 @@ def track(video: VideoInput, obj: TrackedObject, initial_pose, config: TrackConf
     initial pose, an empty frame selection, no masks and no colour term, or the colour term
     without a radiance field.
     """
-    config.check()
     pose = np.asarray(initial_pose, dtype=np.float64).reshape(-1)
     if pose.shape != (7,) or not np.all(np.isfinite(pose)) or np.linalg.norm(pose[3:]) < 1e-9:
         raise DanoError(f"initial pose must be 7 finite numbers (x, y, z, qw, qx, qy, qz) with a non-zero "
@@ -375,9 +382,7 @@ def track(video: VideoInput, obj: TrackedObject, initial_pose, config: TrackConf
 def pose_errors(poses: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-frame translation error [m] and rotation error [deg] of (T, 7) poses against (T, 7)."""
     dp = np.linalg.norm(poses[:, :3] - truth[:, :3], axis=1)
-    dots = np.abs(np.sum(poses[:, 3:] * truth[:, 3:], axis=1)) / (
-        np.linalg.norm(poses[:, 3:], axis=1) * np.linalg.norm(truth[:, 3:], axis=1))
-    return dp, np.degrees(2 * np.arccos(np.clip(dots, 0.0, 1.0)))
+    return dp, np.degrees(np.linalg.norm(quat_error(truth[:, 3:], poses[:, 3:]), axis=1))
 
 
 def initial_velocity(time: np.ndarray, poses: np.ndarray, frames: int = 3) -> np.ndarray:
@@ -387,14 +392,6 @@ def initial_velocity(time: np.ndarray, poses: np.ndarray, frames: int = 3) -> np
     log(R₀ᵀR_k). Steadier than differences of two tracked poses; few frames, so that a
     contact soon after the first frame does not bias it (on the synthetic slide, which lands
     after 3 frames: ω from 3 frames (2.16, −0.90, 5.69) rad/s, from 5 (1.36, 0.39, 5.25); the
-    truth (2, −1, 6))."""
-    from scipy.spatial.transform import Rotation
-
+    truth (2, −1, 6)); :func:`dano.pose.velocity_from_poses` of degree 1."""
     n = int(min(max(frames, 2), len(time)))
-    t = np.asarray(time[:n], dtype=np.float64) - time[0]
-    p = np.asarray(poses[:n], dtype=np.float64)
-    v = np.polyfit(t, p[:, :3], 1)[0]
-    R = Rotation.from_quat(p[:, 3:], scalar_first=True)
-    rotvec = (R[0].inv() * R).as_rotvec()
-    w = (t @ rotvec) / max(t @ t, 1e-12)
-    return np.r_[v, w]
+    return velocity_from_poses(np.asarray(time)[:n], np.asarray(poses)[:n], degree=1)

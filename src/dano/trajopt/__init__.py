@@ -5,9 +5,9 @@
 ``receding_horizon`` re-plans from measured states; ``tasks`` holds the paper's push.
 """
 
-from .ilqr import LOG_KEYS, Multipliers, Options, Solution, rollout, solve
+from .ilqr import LOG_KEYS, ILQRConfig, Multipliers, Options, Solution, rollout, solve
 from .mpc import RecedingHorizonResult, receding_horizon
 from .problem import Problem, mjx_dynamics, quadratic, quadratic_problem
 
-__all__ = ["LOG_KEYS", "Multipliers", "Options", "Problem", "RecedingHorizonResult", "Solution", "mjx_dynamics",
+__all__ = ["ILQRConfig", "LOG_KEYS", "Multipliers", "Options", "Problem", "RecedingHorizonResult", "Solution", "mjx_dynamics",
            "quadratic", "quadratic_problem", "receding_horizon", "rollout", "solve"]

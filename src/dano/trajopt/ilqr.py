@@ -37,38 +37,43 @@ from .problem import Problem
 
 
 @dataclass(frozen=True)
-class Options:
-    """Solver settings.
-
-    max_iterations: iLQR iterations in all (every backward + forward pass counts);
-    inner_iterations: at most this many per penalty value; cost_tolerance: the inner loop
-    stops when an accepted step decreases the merit by less than this (relative), once the
-    constraints are met; cost_tolerance_intermediate: the same while they are not (a loose
-    inner solve before each multiplier update, as ALTRO does); gradient_tolerance: or when
-    the feed-forward step max|k|/(|u| + 1), averaged over the horizon, is below this;
-    constraint_tolerance: largest allowed violation (constraint units);
-    penalty_initial, penalty_scaling, penalty_max: μ₀, φ and the largest μ (reaching it
-    with the constraints still violated means the problem is reported infeasible);
-    penalty_keep: after an inner solve that cut the violation to below this fraction of
-    the previous one, only the multipliers are updated, μ is kept (Nocedal & Wright,
-    Numerical Optimization, Framework 17.3); else μ ← φμ too;
-    regularization_initial/min/max: ρ; line_search: step sizes tried, largest first.
-    """
+class ILQRConfig:
+    """Solver settings of :func:`solve`. Raises DanoError for iteration counts below 1, a
+    penalty schedule that does not grow, or step sizes outside (0, 1]."""
 
     max_iterations: int = 300
+    """iLQR iterations in all (every backward + forward pass counts), >= 1."""
     inner_iterations: int = 50
+    """At most this many iLQR iterations per penalty value, >= 1."""
     cost_tolerance: float = 1e-4
+    """The inner loop stops when an accepted step decreases the merit by less than this (relative), once the
+    constraints are met."""
     cost_tolerance_intermediate: float = 1e-3
+    """The same while the constraints are not met (a loose inner solve before each multiplier update, as ALTRO
+    does)."""
     gradient_tolerance: float = 1e-5
+    """... or when the feed-forward step max|k|/(|u| + 1), averaged over the horizon, is below this."""
     constraint_tolerance: float = 1e-4
+    """Largest allowed constraint violation (the constraints' units)."""
     penalty_initial: float = 1.0
+    """Initial augmented-Lagrangian penalty μ₀, > 0."""
     penalty_scaling: float = 10.0
+    """Penalty growth φ (μ ← φμ), > 1."""
     penalty_max: float = 1e8
+    """Largest μ, >= μ₀ (reaching it with the constraints still violated means the problem is reported
+    infeasible)."""
     penalty_keep: float = 0.25
+    """After an inner solve that cut the violation to below this fraction of the previous one, only the
+    multipliers are updated, μ is kept (Nocedal & Wright, Numerical Optimization, Framework 17.3); else μ ← φμ
+    too."""
     regularization_initial: float = 0.0
+    """Initial state regularisation ρ of the backward pass."""
     regularization_min: float = 1e-8
+    """Smallest ρ once raised."""
     regularization_max: float = 1e10
+    """Largest ρ (the backward pass fails beyond it)."""
     line_search: tuple[float, ...] = tuple(0.5**i for i in range(11))
+    """Step sizes tried by the forward pass, largest first, each in (0, 1]."""
 
     def __post_init__(self):
         if self.max_iterations < 1 or self.inner_iterations < 1:
@@ -77,6 +82,9 @@ class Options:
             raise DanoError("need penalty_initial > 0, penalty_scaling > 1 and penalty_max >= penalty_initial")
         if not self.line_search or any(not 0 < a <= 1 for a in self.line_search):
             raise DanoError("line_search step sizes must lie in (0, 1]")
+
+
+Options = ILQRConfig  # old name, kept
 
 
 @jax.tree_util.register_dataclass
@@ -276,7 +284,7 @@ def _check_inputs(problem: Problem, x0, U0):
     return x0, problem.clip(U0)
 
 
-def solve(problem: Problem, x0, U0, params=None, options: Options = Options(),
+def solve(problem: Problem, x0, U0, params=None, options: ILQRConfig = ILQRConfig(),
           multipliers: Multipliers | None = None, penalty: float | None = None,
           callback: Callable[[dict], None] | None = None) -> Solution:
     """Solve ``problem`` from state x0 (nx,) with initial controls U0 (T, nu) (clipped to
@@ -395,4 +403,4 @@ def rollout(problem: Problem, x0, U, params=None) -> jax.Array:
     return fns.evaluate(x0, U, lam, jnp.asarray(1.0, x0.dtype), params)[0]
 
 
-__all__ = ["LOG_KEYS", "Multipliers", "Options", "Solution", "rollout", "solve"]
+__all__ = ["ILQRConfig", "LOG_KEYS", "Multipliers", "Options", "Solution", "rollout", "solve"]

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import DanoError
-from .ilqr import Multipliers, Options, Solution, solve
+from .ilqr import ILQRConfig, Multipliers, Solution, solve
 from .problem import Problem
 
 
@@ -71,7 +71,7 @@ class RecedingHorizonResult:
 
 
 def receding_horizon(problem: Problem, x0, world: Callable, U0, params=None, *, every: int = 5,
-                     options: Options = Options(max_iterations=30), first: Solution | None = None,
+                     options: ILQRConfig = ILQRConfig(max_iterations=30), first: Solution | None = None,
                      callback: Callable[[int, Solution], None] | None = None) -> RecedingHorizonResult:
     """Run ``problem`` closed-loop in a world that may differ from its model.
 

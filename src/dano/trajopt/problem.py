@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import DanoError
+from ..sim import NewtonConfig, make_data, step
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,10 +125,8 @@ def mjx_dynamics(scene, apply: str = "ctrl", dofs=None, newton=None) -> Callable
     apply: "ctrl" (u (nu,) is ``data.ctrl``, the model's actuators) or "qfrc" (u is a
     generalised force on the dofs ``dofs`` (indices into qvel), e.g. a free body's force
     (world frame [N]) and torque (body frame [N m]))."""
-    from ..sim import NewtonOptions, make_data, step
-
     nq = scene.nq
-    opts = newton or NewtonOptions()
+    opts = newton or NewtonConfig()
     if apply not in ("ctrl", "qfrc"):
         raise DanoError(f"apply must be 'ctrl' or 'qfrc', got {apply!r}")
     idx = None if dofs is None else np.asarray(dofs, dtype=np.int32)
