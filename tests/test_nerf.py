@@ -276,11 +276,11 @@ def test_train_field_cli_bad_input_leaves_nothing(tmp_path, capsys):
 
 
 def test_command_line_defaults_are_the_library_defaults():
-    import inspect
+    import dataclasses
 
-    from dano.cli import train_field
+    from dano.nerf.train import TrainFieldConfig
 
-    defaults = {k: p.default for k, p in inspect.signature(train_field).parameters.items()}
+    defaults = {f.name: f.default for f in dataclasses.fields(TrainFieldConfig)}
     config = TrainConfig()
     for name in ("minutes", "steps", "holdout", "background", "mask_weight", "rays_per_step", "seed"):
         assert defaults[name] == getattr(config, name), name

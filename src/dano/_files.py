@@ -93,3 +93,23 @@ def read_npz(path: str | Path, required=(), what: str = "") -> dict:
     if missing:
         raise FileFormatError(f"{path}: missing arrays {missing}; expected {', '.join(required)}")
     return arrays
+
+
+def json_safe(obj, where: str = "") -> tuple[Any, list[str]]:
+    """(a copy of ``obj`` with non-finite floats as None, the keys where that happened):
+    NaN is not JSON, and a NaN standard error must not pass silently."""
+    import math
+
+    found: list[str] = []
+
+    def clean(x, key):
+        if isinstance(x, float) and not math.isfinite(x):
+            found.append(key)
+            return None
+        if isinstance(x, dict):
+            return {k: clean(v, f"{key}.{k}" if key else str(k)) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v, f"{key}[{i}]") for i, v in enumerate(x)]
+        return x
+
+    return clean(obj, where), found

@@ -755,3 +755,18 @@ def load(path: str | Path) -> DanoAsset:
         )
     except (DanoError, KeyError, ValueError, TypeError) as exc:
         raise FileFormatError(f"{path}: {exc}") from exc
+
+
+#: mean densities [kg/m³] outside this range are not plausible for a solid object in metres and kilograms
+PLAUSIBLE_DENSITY = (10.0, 25_000.0)
+
+
+def density_warning(summary: dict) -> str | None:
+    """A one-line warning when the mean density of an asset's :meth:`DanoAsset.summary` lies
+    outside :data:`PLAUSIBLE_DENSITY` (a mesh in millimetres, or a mass in grams), else None."""
+    rho = summary["mean_density"]
+    if rho is None or PLAUSIBLE_DENSITY[0] <= rho <= PLAUSIBLE_DENSITY[1]:
+        return None
+    return (f"mean density {rho:.3g} kg/m³ (mass {summary['mass']:.3g} kg, extents "
+            + " x ".join(f"{e:.3g}" for e in summary["extents"]) + " m) is outside "
+            f"{PLAUSIBLE_DENSITY[0]:g}-{PLAUSIBLE_DENSITY[1]:g} kg/m³: is the object in metres and its mass in kg?")

@@ -4,6 +4,7 @@ compiling run reported separately). Machines are noisy: compare ratios measured 
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 import os
 import platform
 import statistics
@@ -12,14 +13,16 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Annotated, Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import tyro
 
 from ._jax_setup import enable_float64
 from ._version import __version__
+from .errors import DanoError
 from .asset import build
 from .experiments.energy import energy_check
 from .experiments.nerf_loop import ground_truth_loop
@@ -422,3 +425,64 @@ def run(suites: list[str] | None = None, repeats: int = 3, options: dict | None 
     names = suites or list(SUITES)
     options = options or {}
     return {"environment": environment(), **{n: SUITES[n](repeats=repeats, **options.get(n, {})) for n in names}}
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """Run the benchmarks (wall times; medians of repeats, first compiling call separate)."""
+
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False
+    """print one JSON object."""
+    suite: tuple[str, ...] = ()
+    """suites to run (default all): build, sim, sysid, batched, trajopt, energy, nerf (fields from images;
+    needs the shared data, see benchmarks/README.md)."""
+    repeats: int = 3
+    """timed repeats after the first call."""
+    drops: int = 1000
+    """random bunny drops of the energy suite."""
+    seed: int = 0
+    """random seed of the energy suite's drops."""
+    contact_model: str = "centroid"
+    """contact model of the energy suite (centroid or per_sample)."""
+    nerf_minutes: float = 3.0
+    """training time of the nerf suite's lego run (PSNR also at 1 minute)."""
+    nerf_loop_minutes: float = 3.0
+    """training time per mesh of the nerf suite's ground-truth loop (0: skip it)."""
+    tracking_colour_minutes: float = 0.0
+    """tracking suite: also train a radiance field of the slide's bunny this long and track 15 frames
+    photometrically with colour weights 0, 0.02, 0.1 and 1 (0: skip it)."""
+    cube_data: Path | None = None
+    """sysid suite: also time the contactnets-cube identification on this ContactNets .npz (not shipped with
+    dano)."""
+    cube_tosses: int = 10
+    """sysid suite: tosses of that run."""
+    out: Annotated[Path | None, tyro.conf.arg(aliases=("-o",))] = None
+    """also write the JSON here."""
+
+    def __post_init__(self):
+        from .contact import CONTACT_MODELS
+
+        unknown = set(self.suite) - set(SUITES)
+        if unknown:
+            raise DanoError(f"unknown benchmark suite(s) {sorted(unknown)}; available: {', '.join(SUITES)}")
+        if not 1 <= self.drops <= 1_000_000:
+            raise DanoError(f"--drops must be 1 to 1000000, got {self.drops}")
+        if not 1 <= self.repeats <= 1000:
+            raise DanoError(f"--repeats must be 1 to 1000, got {self.repeats}")
+        if self.contact_model not in CONTACT_MODELS:
+            raise DanoError(f"unknown --contact-model {self.contact_model!r}; available: {', '.join(CONTACT_MODELS)}")
+        if self.cube_data is not None and not Path(self.cube_data).is_file():
+            raise DanoError(f"--cube-data {self.cube_data}: no such file")
+        if not 2 <= self.cube_tosses <= 200:
+            raise DanoError(f"--cube-tosses must be 2 to 200, got {self.cube_tosses}")
+
+
+def bench_command(config: BenchConfig) -> dict:
+    """``dano bench``: :func:`run` with ``config``'s suites and options."""
+    return run(list(config.suite) or None, repeats=config.repeats,
+               options={"energy": {"drops": config.drops, "seed": config.seed, "contact_model": config.contact_model},
+                        "sysid": {"cube_data": None if config.cube_data is None else str(config.cube_data),
+                                  "cube_tosses": config.cube_tosses},
+                        "nerf": {"minutes": config.nerf_minutes, "loop_minutes": config.nerf_loop_minutes,
+                                 "eval_at": tuple(m for m in (1.0, 3.0) if m < config.nerf_minutes)},
+                        "tracking": {"colour_minutes": config.tracking_colour_minutes}})

@@ -11,27 +11,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
+import tyro
 
 from ._files import atomic_write
-from .asset import DanoAsset
+from .asset import DanoAsset, save
 from .asset import build as build_asset
 from .errors import DanoError
 from .fields import VoxelField, mesh_field
+from .fields.mesh import load_mesh
+from .fields.base import MAX_RESOLUTION, check_resolution  # noqa: F401  (re-exported)
 from .io import load_paper_collider, source_kind
 
-#: largest accepted grid resolution (nodes along the longest axis) and sample count
-MAX_RESOLUTION = 512  # 1.3e8 nodes: about 5 GB while a signed-distance or marching-cubes grid is built
+#: largest accepted sample count
 MAX_SAMPLES = 10_000_000
-
-
-def check_resolution(resolution: int) -> None:
-    """Raises DanoError unless 8 ≤ ``resolution`` ≤ :data:`MAX_RESOLUTION` (with the memory a
-    grid of that size would take)."""
-    if not 8 <= resolution <= MAX_RESOLUTION:
-        raise DanoError(f"--resolution {resolution}: must be 8 to {MAX_RESOLUTION} (a grid of about resolution^3 "
-                        f"nodes at ~40 bytes each: {40 * float(resolution) ** 3 / 1e9:.3g} GB)")
 
 
 @dataclass(frozen=True)
@@ -51,7 +46,8 @@ def build_from_source(source: str | Path, *, mass: float | None = None, alpha: f
                       resolution: int = 96, edge_width: float | None = None, normals_mesh: str | Path | None = None,
                       visual_mesh: str | Path | None = None, density_rule: str = "solid",
                       surface_opacity: float = 0.5, calibrate_surface: bool = True, field_scale: float = 1.0,
-                      voxels: str | Path | None = None, progress=None) -> BuildResult:
+                      voxels: str | Path | None = None, scale: float | None = None, size: float | None = None,
+                      progress=None) -> BuildResult:
     """Build a DANO from ``source`` (the options of ``dano build``, same names and units).
 
     source: a mesh (.obj/.stl/.ply/.off/.glb/.gltf, units m), a voxel grid (.npz/.npy), a
@@ -62,13 +58,21 @@ def build_from_source(source: str | Path, *, mass: float | None = None, alpha: f
     calibrate_surface, field_scale [m per field unit]: trained fields only
     (docs/fields-from-images.md). voxels: trained fields only: also write the density grid
     there as a voxel ``.npz`` (``density`` (nx, ny, nz), ``bounds`` (2, 3) [m]), loadable
-    anywhere, written atomically. progress: optional callback ``(done, total, label)``.
+    anywhere, written atomically. scale: multiply the source's lengths by this (e.g. 0.001 for
+    a mesh in millimetres); size: scale the source so that its longest bounding-box extent is
+    this [m] (meshes: the mesh's box; grids: the box of the nodes at half the peak density);
+    at most one of the two, for meshes, voxel grids and trained fields. progress: optional callback ``(done, total, label)``.
     The asset's name is the source's file stem. Raises DanoError naming the option for an
     option that does not apply to the source or is out of range, FileFormatError for an
     unreadable source, FileNotFoundError for a missing file.
     """
     source = Path(source)
     kind = source_kind(source)
+    if scale is not None and size is not None:
+        raise DanoError("give either --scale or --size, not both")
+    for opt, v in (("scale", scale), ("size", size)):
+        if v is not None and not 0 < v < np.inf:
+            raise DanoError(f"--{opt} must be a finite positive number, got {v}")
     if not source.is_file() and kind != "field":
         raise FileNotFoundError(f"{source}: no such file")
     if kind != "field" and (voxels is not None or density_rule != "solid" or field_scale != 1.0 or surface_opacity != 0.5
@@ -79,8 +83,9 @@ def build_from_source(source: str | Path, *, mass: float | None = None, alpha: f
     if not 1 <= samples <= MAX_SAMPLES:
         raise DanoError(f"--samples {samples}: must be 1 to {MAX_SAMPLES}")
     if kind == "jld2":
-        if band is not None or edge_width is not None:
-            raise DanoError("--band and --edge-width do not apply to a .jld2 collider (its samples are fixed)")
+        if band is not None or edge_width is not None or scale is not None or size is not None:
+            raise DanoError("--band, --edge-width, --scale and --size do not apply to a .jld2 collider (its samples "
+                            "are fixed)")
         if alpha is not None and mass is not None:
             raise DanoError("give either --mass or --alpha, not both")
         asset = load_paper_collider(source, normals_mesh=normals_mesh, visual_mesh=visual_mesh)
@@ -89,6 +94,7 @@ def build_from_source(source: str | Path, *, mass: float | None = None, alpha: f
         return BuildResult(asset, None)
     calibration: dict = {}
     if kind == "field":
+        # the NeRF stage (optax, the renderer) loads only for a trained field, not for a mesh build
         from .nerf import load_field
         from .nerf.density import density_grid
 
@@ -98,12 +104,98 @@ def build_from_source(source: str | Path, *, mass: float | None = None, alpha: f
                                          surface_opacity=surface_opacity, occupancy=occupancy,
                                          calibrate=calibrate_surface, details=True)
     elif kind == "mesh":
-        dens = mesh_field(source, resolution=resolution, edge_width=edge_width,
+        mesh = load_mesh(source)
+        if scale is not None or size is not None:
+            mesh.apply_scale(scale if scale is not None else size / float(np.max(mesh.extents)))
+        dens = mesh_field(mesh, resolution=resolution, edge_width=edge_width,
                           progress=(lambda d, t: progress(d, t, "signed distance")) if progress else None)
     else:
         dens = VoxelField.load(source)
+    if kind != "mesh" and (scale is not None or size is not None):
+        factor = scale if scale is not None else size / occupied_extent(dens)
+        dens = VoxelField.create(np.asarray(dens.values), np.stack([np.asarray(dens.lower), np.asarray(dens.upper)])
+                                 * factor)
     asset = build_asset(dens, alpha=alpha, mass=mass, num_samples=samples, band=band, seed=seed,
                         name=source.stem, source=str(source.name), progress=progress)
     if voxels is not None:
         atomic_write(Path(voxels), lambda f: np.savez(f, density=np.asarray(dens.values), bounds=dens.node_bounds))
     return BuildResult(asset, dens, calibration or {})
+
+
+@dataclass(frozen=True)
+class BuildConfig:
+    """Build a DANO asset (.dano) from a density source."""
+
+    source: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="SOURCE")]
+    """a watertight mesh (.obj/.stl/.ply/.off, read as uniform density, units m), a voxel grid (.npz with
+    arrays 'density' (nx, ny, nz) and 'bounds' (2, 3) [m]) or a paper collider (.jld2)."""
+    out: Annotated[Path, tyro.conf.arg(aliases=("-o",))]
+    """the .dano file to write (written atomically)."""
+    mass: float | None = None
+    """total mass [kg]; sets the mass scale alpha. Not with --alpha."""
+    alpha: float | None = None
+    """the mass scale alpha (mass = alpha * integral of density). Default 1."""
+    samples: int = 5000
+    """number of boundary samples N."""
+    band: tuple[float, float] | None = None
+    """density band LO HI of the boundary samples; default [0.05, 0.95] x 99th-percentile density."""
+    seed: int = 0
+    """random seed (samples and quasi-Monte Carlo integration are deterministic given it)."""
+    resolution: int = 96
+    """mesh sources: signed-distance grid nodes along the longest axis."""
+    edge_width: float | None = None
+    """mesh sources: width of the smooth surface edge [m] (default a quarter grid cell)."""
+    normals_mesh: Path | None = None
+    """.jld2 sources: level-set mesh to recompute degenerate (zero) normals from."""
+    visual_mesh: Path | None = None
+    """.jld2 sources: mesh (collider frame) stored for rendering."""
+    density_rule: str = "solid"
+    """field folders: how sigma becomes density: solid (the seen surface filled, uniform inside), occupancy (1
+    - exp(-sigma*step)) or sigma (the paper's); see docs/fields-from-images.md."""
+    surface_opacity: float = 0.5
+    """field folders, solid rule: the surface is where the opacity accumulated from outside reaches this (0.5:
+    a render's median depth)."""
+    calibrate_surface: bool = True
+    """field folders, solid rule: then move that surface along its normal so that the solid's silhouettes cover
+    as many pixels as the field's own renders from 12 views around it (a soft field's median-depth surface
+    lies inside the object)."""
+    field_scale: float = 1.0
+    """field folders: metres per field unit (1 for fields trained on `dano render-dataset` views)."""
+    voxels: Path | None = None
+    """field folders: also write the density grid as a voxel .npz (density, bounds), loadable anywhere."""
+    scale: float | None = None
+    """multiply the source's lengths by this (meshes, voxel grids, trained fields), e.g. 0.001 for a mesh in
+    millimetres. Not with --size."""
+    size: float | None = None
+    """scale the source so that its longest extent is this [m] (meshes: the mesh's bounding box; grids: the
+    box of the nodes at half the peak density). Not with --scale."""
+    quiet: bool = False
+    """no progress bar."""
+
+    def __post_init__(self):
+        check_resolution(self.resolution)
+        if not 1 <= self.samples <= MAX_SAMPLES:
+            raise DanoError(f"--samples {self.samples}: must be 1 to {MAX_SAMPLES}")
+
+
+def build_file(config: BuildConfig, progress=None) -> BuildResult:
+    """``dano build``: :func:`build_from_source` with ``config``'s options, the asset saved to
+    ``config.out`` (atomically; and the voxel grid to ``config.voxels`` for a trained field)."""
+    options = {f: getattr(config, f) for f in ("mass", "alpha", "samples", "band", "seed", "resolution", "edge_width",
+                                               "normals_mesh", "visual_mesh", "density_rule", "surface_opacity",
+                                               "calibrate_surface", "field_scale", "voxels", "scale", "size")}
+    result = build_from_source(config.source, **options, progress=progress)
+    save(result.asset, config.out)
+    return result
+
+
+def occupied_extent(field: VoxelField) -> float:
+    """The longest extent [m] of the box holding the grid nodes whose density is at least half
+    the peak (the object, without the grid's empty margin). Raises DanoError for an empty grid."""
+    values = np.asarray(field.values)
+    peak = float(values.max())
+    if not peak > 0:
+        raise DanoError("the density grid is empty (all zero): it has no size")
+    idx = np.argwhere(values >= 0.5 * peak)
+    cell = (np.asarray(field.upper) - np.asarray(field.lower)) / np.maximum(np.array(values.shape) - 1, 1)
+    return float(np.max((idx.max(0) - idx.min(0)) * cell))

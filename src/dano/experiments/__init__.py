@@ -21,9 +21,14 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import Callable
+from pathlib import Path
+from typing import Annotated, Callable
 
-from ..errors import DanoError
+import tyro
+
+from .._config import read_table
+from .._files import json_safe
+from ..errors import DanoError, FileFormatError
 
 
 @dataclass(frozen=True)
@@ -108,4 +113,103 @@ def run_sysid(name: str, **options):
     return exp.run(exp.config_class(**options))
 
 
-__all__ = ["EXPERIMENTS", "Experiment", "get", "is_experiment", "names", "run_sysid"]
+@dataclass(frozen=True)
+class SysIdCommandConfig:
+    """Identify friction and mass scale from observed trajectories (Gauss-Newton/LM with AD Jacobians)."""
+
+    config: Annotated[str | None, tyro.conf.Positional, tyro.conf.arg(metavar="CONFIG")] = None
+    """a TOML problem file, or a built-in example: soap (the paper's real soap video), bunny-pushes (the
+    paper's bunny pushed 10 times by a sphere), bunny-dynamics (the same pushes with the bunny's centre of
+    mass and inertia unknown as well), contactnets-cube (real cube tosses: friction, impact spring and
+    damper and the table height on half the tosses, the other half predicted; needs --data)."""
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False
+    """print one JSON object (estimates as top-level keys, e.g. sliding_friction, with <name>_std, wall_time_s,
+    compile_time_s, cost_history, ...)."""
+    out_dir: Annotated[Path | None, tyro.conf.arg(name="out", aliases=("-o", "--out-dir"))] = None
+    """write result.json, config.json (the resolved configuration) and fit.png here (default: sysid-<name>/)."""
+    jacobian: str | None = None
+    """ad (forward-mode AD, default) or fd (finite differences, for comparison)."""
+    no_noise: bool = False
+    """bunny-pushes, bunny-dynamics: observations without the 1 mm / 0.5 deg pose noise."""
+    data: Path | None = None
+    """contactnets-cube: the ContactNets tosses (.npz of toss_<n> arrays, (T, 13) each; not shipped with dano,
+    e.g. shared/data/real/contactnets_cube/tosses_100_299.npz)."""
+    tosses: int = 10
+    """contactnets-cube: use the first this many tosses (even ones fitted, odd ones held out)."""
+    start: float = 0.3
+    """contactnets-cube: initial guess of the sliding friction."""
+    contact_model: str = "centroid"
+    """contactnets-cube: centroid (the paper's) or per_sample."""
+    template: Annotated[tuple[str, ...], tyro.conf.arg(metavar="[SCENE.xml] OBJECT.dano")] = ()
+    """instead of identifying: print a commented TOML problem for your MJCF scene (optional) and objects (e.g.
+    `dano sysid --template scene.xml spot.dano > problem.toml`), then fill in the trajectory files."""
+    bootstrap: int = 0
+    """contactnets-cube: also refit this many resamples of the fitted tosses (with replacement) for a 95 %
+    interval, key "bootstrap" of the JSON (TOML problems: [options] bootstrap)."""
+
+    def __post_init__(self):
+        if self.config is None and not self.template:
+            raise DanoError("give a CONFIG (a TOML problem, a saved config.json or a built-in example) or --template")
+
+    def resolved(self) -> SysIdCommandConfig:
+        """The configuration to run: a saved ``config.json`` of a built-in example becomes that
+        example with its saved settings (options given explicitly are kept)."""
+        import dataclasses
+
+        path = Path(str(self.config))
+        if not (str(self.config).lower().endswith(".json") and path.is_file()):
+            return self
+        saved = read_table(path)
+        if saved.get("example") == "contactnets-cube":  # rerun what a contactnets-cube run saved
+            return dataclasses.replace(
+                self, config="contactnets-cube", data=self.data or Path(str(saved.get("data", ""))),
+                tosses=int(saved.get("tosses", self.tosses)), start=float(saved.get("start", self.start)),
+                contact_model=str(saved.get("contact_model", self.contact_model)),
+                bootstrap=int(saved.get("bootstrap", self.bootstrap)))
+        if "example" in saved:  # the config.json of a built-in example reruns it
+            if not is_experiment("sysid", saved["example"]):
+                raise FileFormatError(f"{path}: unknown example {saved['example']!r}; one of "
+                                      f"{', '.join(names('sysid'))}")
+            noise_saved = saved.get("noise", {})
+            no_noise = self.no_noise or (isinstance(noise_saved, dict) and noise_saved.get("position_m") == 0)
+            return dataclasses.replace(self, config=saved["example"], no_noise=no_noise)
+        return self
+
+
+def sysid_command(config: SysIdCommandConfig):
+    """``dano sysid``: a built-in example (:func:`run_sysid`), a TOML problem or a saved
+    ``config.json`` (:func:`dano.sysid.config.run`), its outputs written to ``out_dir``
+    (default ``sysid-<name>/``: :func:`dano.sysid.outputs.write_outputs`). Returns
+    (problem, result, report, out_dir): the report as written, non-finite values as null
+    and listed in its ``warnings``. Raises DanoError for an unknown name or a bad file."""
+    from ..sysid.config import run
+    from ..sysid.outputs import write_outputs
+
+    c = config.resolved()
+    if c.config == "contactnets-cube":
+        if c.data is None:
+            raise DanoError("contactnets-cube needs --data: the ContactNets tosses .npz (arrays toss_<n>, not "
+                            "shipped with dano)")
+        problem, result, out = run_sysid(c.config, data=c.data, tosses=c.tosses, start=c.start,
+                                         contact_model=c.contact_model, bootstrap=c.bootstrap)
+    elif is_experiment("sysid", c.config):
+        problem, result, out = run_sysid(c.config, jacobian=c.jacobian, noise=not c.no_noise)
+    else:
+        if Path(c.config).suffix.lower() not in (".toml", ".json") and not Path(c.config).exists():
+            raise DanoError(f"unknown identification {c.config!r}: give a TOML file, a saved config.json or one of "
+                            f"{', '.join(names('sysid'))}")
+        problem, result, out = run(c.config, jacobian=c.jacobian)
+    report, nonfinite = json_safe(out["report"])
+    notes = list(report.get("warnings", result.warnings))
+    if nonfinite:
+        notes.append(f"not finite (written as null): {', '.join(nonfinite)}; the data do not determine these (check "
+                     "that positions are in metres and that the motion excites the parameters)")
+    report["warnings"] = notes
+    name = c.config if c.config == "contactnets-cube" else config.config
+    out_dir = c.out_dir or Path(f"sysid-{Path(name).stem}")
+    write_outputs(out_dir, report, out["config"], problem, result)
+    return problem, result, report, out_dir
+
+
+__all__ = ["EXPERIMENTS", "Experiment", "SysIdCommandConfig", "get", "is_experiment", "names", "run_sysid",
+           "sysid_command"]

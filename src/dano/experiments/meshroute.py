@@ -35,11 +35,13 @@ friction).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from pathlib import Path
+from typing import Annotated, Callable, Literal, Sequence
 
 import mujoco
 import numpy as np
 import trimesh
+import tyro
 
 from .._files import atomic_path
 from ..asset import visual_mesh
@@ -392,3 +394,100 @@ def render_rest_figure(asset, report: dict, path, width: int = 320, height: int 
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120)
+
+
+@dataclass(frozen=True)
+class CompareMeshConfig:
+    """Level-set meshes of a density field as MuJoCo colliders (convex hull, CoACD decomposition) against the
+    DANO: mesh pieces, mass-property errors, rest height and tilt, slide divergence (docs/mesh-route.md)."""
+
+    source: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="SOURCE")]
+    """a .dano file (or builtin:NAME, e.g. builtin:bluesoap for the paper's real soap)."""
+    levels: tuple[float, ...] = ()
+    """densities whose level sets are extracted from the stored field (marching cubes). With --mesh, both are
+    compared."""
+    mesh: Annotated[tuple[str, ...], tyro.conf.UseAppendAction, tyro.conf.arg(metavar="[LABEL=]FILE")] = ()
+    """a level-set mesh file in the object frame, FILE or LABEL=FILE (e.g. the paper's bluesoap_level_70.stl);
+    repeat the option for several. Default, when neither --levels nor --mesh is given: 0.1, 0.5 and 0.9 of
+    the field's interior density, or the asset's visual mesh if it has no field."""
+    quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    """orientation w x y z of the drop (object axes in the world)."""
+    collision: tuple[Literal["hull", "decomposition"], ...] = ("hull", "decomposition")
+    """collider kinds to build."""
+    friction: float = 0.2
+    """sliding friction in both engines (Coulomb only)."""
+    slide_speed: float = 1.0
+    """initial speed of the slide [m/s]."""
+    rest_time: float = 3.0
+    """settling time of the drop [s]."""
+    slide_time: float = 2.0
+    """duration of the slide [s]."""
+    resolution: int = 96
+    """marching-cubes nodes along the longest axis."""
+    threshold: float = 0.1
+    """CoACD concavity threshold."""
+    max_pieces: int = -1
+    """CoACD: merge down to at most this many pieces (-1: no limit)."""
+    contact_model: str = "centroid"
+    """dano's contact model for the DANO."""
+    figure: Path | None = None
+    """write renders of every collider at rest (like the paper's Fig. 8) to this image."""
+    out: Annotated[Path | None, tyro.conf.arg(aliases=("-o",))] = None
+    """also write the JSON report to this file."""
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False
+    """print the report as one JSON object instead of a table."""
+    quiet: bool = False
+    """no progress bar."""
+
+    def __post_init__(self):
+        from ..contact import CONTACT_MODELS
+        from ..fields.base import check_resolution
+
+        if self.contact_model not in CONTACT_MODELS:
+            raise DanoError(f"unknown --contact-model {self.contact_model!r}; available: {', '.join(CONTACT_MODELS)}")
+        check_resolution(self.resolution)
+        if not 0 < self.threshold < float("inf"):
+            raise DanoError(f"--threshold must be a finite positive number, got {self.threshold}")
+        self.scenario()  # its own ranges
+
+    def scenario(self) -> ScenarioConfig:
+        """The rest-and-slide scenario of these options."""
+        return ScenarioConfig(quat=self.quat, friction=self.friction, rest_time=self.rest_time,
+                              slide_time=self.slide_time, slide_speed=self.slide_speed)
+
+
+def level_meshes(paths) -> list[Level]:
+    """``[LABEL=]FILE`` mesh files (object frame; open, noisy level sets allowed) -> :class:`Level` list."""
+    from ..io import load_mesh
+
+    levels = []
+    for p in paths:
+        label, eq, file = str(p).rpartition("=")
+        path = Path(file)
+        levels.append(Level(label if eq else path.stem, load_mesh(path, require_watertight=False), file=path.name))
+    return levels
+
+
+def compare_mesh_command(config: CompareMeshConfig, progress=None) -> tuple[dict, list[Path]]:
+    """``dano compare-mesh``: the levels (``--mesh`` files, ``--levels`` extracted from the
+    field, else :func:`default_levels`) compared with the DANO (:func:`compare_mesh`); the
+    rest figure and the JSON report written (both or neither). Returns (report, paths)."""
+    import json
+    from contextlib import ExitStack
+
+    from ..data import load_asset
+
+    asset = load_asset(config.source)
+    lv = level_meshes(config.mesh) + (extract_levels(asset, config.levels, config.resolution) if config.levels else [])
+    lv = lv or default_levels(asset, config.resolution)
+    report = compare_mesh(asset, lv, collisions=config.collision, scenario=config.scenario(),
+                          contact_model=config.contact_model,
+                          decomposition=Decomposition(threshold=config.threshold, max_pieces=config.max_pieces),
+                          progress=progress)
+    with ExitStack() as stack:  # the figure and the report: both or neither
+        if config.figure is not None:
+            render_rest_figure(asset, report, stack.enter_context(atomic_path(config.figure)), levels=lv)
+        report.pop("_models")
+        if config.out is not None:
+            stack.enter_context(atomic_path(config.out)).write_text(json.dumps(report, indent=1))
+    return report, [p for p in (config.figure, config.out) if p is not None]

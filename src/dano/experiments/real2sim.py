@@ -10,11 +10,14 @@ subtraction. Tracking starts from the first frame's true pose perturbed by ``sta
 from __future__ import annotations
 
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
+import tyro
 
+from ..errors import DanoError
 from ..pose import normalize_quat, quat_multiply, rotvec_to_quat
 from ..sysid import FitParameter, Observation, SysIdProblem, Weights, identify
 from ..trajectory import load_trajectory
@@ -143,3 +146,30 @@ def synthetic_slide_real2sim(out_dir: str | Path, friction: float = SLIDE_FRICTI
     write_track_outputs(out / "track", video, result, scene.dano_names[0], report, float(1 / np.diff(video.time)[0]),
                         video_file)
     return report
+
+
+@dataclass(frozen=True)
+class Real2SimConfig:
+    """From video to physics on a video with a known answer: poses -> friction and pixels -> friction."""
+
+    task: Annotated[Literal["synthetic-slide"], tyro.conf.Positional, tyro.conf.arg(metavar="TASK")]
+    """synthetic-slide: the low-poly bunny slides and tumbles (MuJoCo renders the video from its mesh)."""
+    out: Annotated[Path, tyro.conf.arg(aliases=("-o",))] = Path("dano-real2sim")
+    """folder to write video/ (frames, masks, background, camera.json, truth.npz) and track/ (poses.npz,
+    track.csv, overlay.mp4, report.json)."""
+    friction: float = 0.35
+    """the true sliding friction of the video."""
+    no_video: bool = False
+    """skip overlay.mp4."""
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False
+    """print one JSON object (mu_true, mu_two_stage, mu_pixels, track_rms_mm, track_rms_deg, wall_time_s, ...)."""
+    quiet: bool = False
+    """no progress bar."""
+
+    def __post_init__(self):
+        out = Path(self.out)
+        if out.exists() and (not out.is_dir() or any(out.iterdir())):
+            raise DanoError(f"{out}: exists and is not an empty folder; choose a new output folder")
+        if not 0 < self.friction <= 1.5:
+            raise DanoError(f"--friction must be in (0, 1.5], got {self.friction}")
+

@@ -4,11 +4,14 @@ write every output (all or none)."""
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 import json
 from contextlib import ExitStack
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
+import tyro
 
 from .._config import read_table, typed_table
 from .._files import atomic_path
@@ -201,3 +204,54 @@ def _write_grasp(task, run, rep: dict, out_dir: Path, video: bool, progress) -> 
         if video:
             _replay_video(task.scene, task.params, X, U, paths["grasp-panda.mp4"], progress)
     return [out_dir / n for n in names]
+
+
+@dataclass(frozen=True)
+class TrajoptCommandConfig:
+    """Optimise a robot motion through contact (constrained iLQR with an augmented Lagrangian)."""
+
+    task: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="TASK|CONFIG")]
+    """a built-in task (push-sphere: the paper's sphere pushing the bunny 1.0 sideways of a plain push; push-
+    panda: the Menagerie Panda's joint torques pushing a 15 cm bunny 10 cm, needs MENAGERIE_ROOT; grasp-
+    panda: the Panda's hand grasps, lifts and holds the 15 cm bunny, needs MENAGERIE_ROOT) or a TOML/JSON
+    configuration (key task and the task's settings, e.g. the config.json a run saved)."""
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False
+    """print one JSON object (bunny_final_error, pusher_final_error, max_constraint_violation, iterations,
+    converged, status, wall_time_s, compile_time_s, ...; model_error with --model-error; grasp-panda:
+    lift_height, slip_mm, slip_deg, grip_force, converged, wall_time_s, contact_models, ...)."""
+    out_dir: Annotated[Path | None, tyro.conf.arg(name="out", aliases=("-o", "--out-dir"))] = None
+    """write report.json, config.json, solution.npz, log.csv, convergence.png and the video here (default:
+    trajopt-<task>/)."""
+    model_error: float | None = None
+    """also run the plan in a world with (1 + this) times the sliding friction: open loop and with receding
+    horizon (e.g. 0.3)."""
+    max_iterations: int | None = None
+    """iLQR iterations in all (default 300)."""
+    contact_model: str | None = None
+    """DANO contact model: centroid (the paper's, default) or per_sample."""
+    no_video: bool = False
+    """skip the video."""
+    quiet: bool = False
+    """no progress bars."""
+
+    def __post_init__(self):
+        from ..contact import CONTACT_MODELS
+
+        if self.contact_model is not None and self.contact_model not in CONTACT_MODELS:
+            raise DanoError(f"unknown --contact-model {self.contact_model!r}; available: {', '.join(CONTACT_MODELS)}")
+
+
+def trajopt_command(config: TrajoptCommandConfig, progress=None) -> tuple[dict, list]:
+    """``dano trajopt``: solve the task (:func:`run`), its report made JSON-safe (non-finite
+    values as null, listed in ``warnings``), every output written to ``out_dir`` (default
+    ``trajopt-<task>/``, :func:`write_outputs`). Returns (report, paths written)."""
+    from .._files import json_safe
+
+    task, solution, me, rep = run(config.task, progress=progress, model_error=config.model_error,
+                                  max_iterations=config.max_iterations, contact_model=config.contact_model)
+    rep, nonfinite = json_safe(rep)
+    if nonfinite:
+        rep["warnings"] = [f"not finite (written as null): {', '.join(nonfinite)}"]
+    out_dir = config.out_dir or Path(f"trajopt-{task.config.task}")
+    paths = write_outputs(task, solution, me, rep, out_dir, video=not config.no_video, progress=progress)
+    return rep, paths

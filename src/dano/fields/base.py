@@ -125,3 +125,15 @@ def interior_density(field) -> float:
     if not np.isfinite(rho) or rho <= 0:
         raise DanoError(f"the {type(field).__name__}'s interior density must be positive and finite, got {rho}")
     return rho
+
+
+#: largest accepted grid resolution (nodes along the longest axis of a signed-distance or marching-cubes grid)
+MAX_RESOLUTION = 512  # 1.3e8 nodes: about 5 GB while a signed-distance or marching-cubes grid is built
+
+
+def check_resolution(resolution: int) -> None:
+    """Raises DanoError unless 8 ≤ ``resolution`` ≤ :data:`MAX_RESOLUTION` (with the memory a
+    grid of that size would take)."""
+    if not 8 <= resolution <= MAX_RESOLUTION:
+        raise DanoError(f"--resolution {resolution}: must be 8 to {MAX_RESOLUTION} (a grid of about resolution^3 "
+                        f"nodes at ~40 bytes each: {40 * float(resolution) ** 3 / 1e9:.3g} GB)")

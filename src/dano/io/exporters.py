@@ -25,10 +25,11 @@ import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Annotated, Literal, Sequence
 
 import numpy as np
 import trimesh
+import tyro
 
 from .._files import atomic_path
 from ..asset import visual_mesh
@@ -128,6 +129,10 @@ def body_meshes(asset, collision: str = "hull", *, level: float | None = None, m
     visual = trimesh.Trimesh(asset.mesh_vertices, asset.mesh_faces, process=False) if len(asset.mesh_faces) else None
     if collision == "none":
         return BodyMeshes(visual, (), "none")
+    if collision == "hull" and visual is None and level is None and mesh is None:
+        # no mesh stored (e.g. a paper .jld2 collider): the hull of the boundary samples (body frame)
+        hull = trimesh.convex.convex_hull(np.asarray(asset.points, dtype=np.float64))
+        return BodyMeshes(hull, (hull,), "convex hull of the boundary samples")
     src = level_mesh(asset, level, resolution, mesh)
     if visual is None:
         visual = src
@@ -221,7 +226,63 @@ def _mesh_files(meshes: BodyMeshes) -> dict[str, trimesh.Trimesh]:
     return files
 
 
-def _mjcf(asset, name: str, meshes: dict, free: bool) -> ET.ElementTree:
+#: identified contact parameters that MuJoCo's geom ``friction`` (slide, torsion, roll) carries
+FRICTION_KEYS = ("sliding_friction", "torsional_friction", "rolling_friction")
+MUJOCO_DEFAULT_FRICTION = (1.0, 0.005, 0.0001)
+
+
+def read_contact_params(path: str | Path) -> dict[str, float]:
+    """The contact parameters in a JSON file: ``dano sysid``'s ``result.json`` (estimates as
+    top-level keys; a pair-prefixed key such as ``soap/ground:sliding_friction`` counts when
+    it is the only one of its name) or any JSON table of names to numbers. Returns the
+    finite numbers among :data:`dano.contact.ContactParams` names. Raises FileFormatError
+    when the file cannot be read or holds none."""
+    import dataclasses
+    import json
+
+    from ..contact.params import ContactParams
+    from ..errors import FileFormatError
+
+    path = Path(path)
+    try:
+        table = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise FileFormatError(f"{path}: cannot read the parameters ({exc})") from exc
+    if not isinstance(table, dict):
+        raise FileFormatError(f"{path}: expected a JSON table of parameter names to values")
+
+    def number(v) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
+
+    params = {}
+    for base in (f.name for f in dataclasses.fields(ContactParams)):
+        if base in table and number(table[base]):
+            params[base] = float(table[base])
+            continue
+        keys = [k for k, v in table.items() if str(k).endswith(":" + base) and number(v)]
+        if len(keys) > 1:
+            raise FileFormatError(f"{path}: {base} is given for several pairs ({', '.join(keys)}); an export "
+                                  "carries one value: give a JSON table with the one to use")
+        if keys:
+            params[base] = float(table[keys[0]])
+    if not params:
+        raise FileFormatError(f"{path}: no contact parameter found (keys such as {', '.join(FRICTION_KEYS)})")
+    return params
+
+
+def _friction_note(contact: dict[str, float]) -> tuple[str, str]:
+    """(MuJoCo's geom friction "slide torsion roll", the XML comment on what was carried)."""
+    values = [contact.get(k, d) for k, d in zip(FRICTION_KEYS, MUJOCO_DEFAULT_FRICTION)]
+    carried = [k for k in FRICTION_KEYS if k in contact]
+    left = sorted(set(contact) - set(FRICTION_KEYS))
+    note = (f" dano: friction = {', '.join(carried)} identified by dano"
+            f"{'' if len(carried) == 3 else ' (the rest: MuJoCo defaults)'}. "
+            + (f"Not carried: {', '.join(left)} (dano's force law acts on the density overlap psi; MuJoCo's "
+               "soft contact has no such term, so solref/solimp keep MuJoCo's defaults). " if left else ""))
+    return _nums(values), note
+
+
+def _mjcf(asset, name: str, meshes: dict, free: bool, contact: dict | None = None) -> ET.ElementTree:
     root = ET.Element("mujoco", model=name)
     ET.SubElement(root, "compiler", angle="radian")
     assets = ET.SubElement(root, "asset")
@@ -240,12 +301,19 @@ def _mjcf(asset, name: str, meshes: dict, free: bool) -> ET.ElementTree:
             attrs.update(contype="0", conaffinity="0", group="1", rgba=_nums(VISUAL_RGBA))
         else:
             attrs.update(group="3", rgba=_nums(COLLISION_RGBA))
+            if contact:
+                attrs["friction"] = _friction_note(contact)[0]
         ET.SubElement(body, "geom", attrs)
+    if contact:
+        body.insert(0, ET.Comment(_friction_note(contact)[1]))
     return ET.ElementTree(root)
 
 
-def _urdf(asset, name: str, meshdir: str, files: dict) -> ET.ElementTree:
+def _urdf(asset, name: str, meshdir: str, files: dict, contact: dict | None = None) -> ET.ElementTree:
     root = ET.Element("robot", name=name)
+    if contact:  # URDF has no friction element; MuJoCo's URDF reader takes geom defaults from none
+        root.append(ET.Comment(_friction_note(contact)[1] + f"URDF cannot state friction: set geom friction "
+                               f"{_friction_note(contact)[0]!r} on this link's collision geoms when loading it. "))
     # MuJoCo's URDF reader: keep visuals, keep the jointless root body (do not fuse it into
     # the world), use the stated inertia as given, resolve mesh paths relative to this file
     mj = ET.SubElement(root, "mujoco")
@@ -281,7 +349,7 @@ def _compiles(path: Path, shown: Path) -> None:
 
 
 def export(asset, path: str | Path, *, meshes: BodyMeshes | None = None, collision: str = "hull",
-           name: str | None = None, free: bool = True, **mesh_options) -> Path:
+           name: str | None = None, free: bool = True, contact: dict | None = None, **mesh_options) -> Path:
     """Write ``asset`` as MJCF (``.xml``) or URDF (``.urdf``); returns ``path``.
 
     MJCF: one self-contained file, meshes inline. URDF: the file plus a folder
@@ -290,7 +358,11 @@ def export(asset, path: str | Path, *, meshes: BodyMeshes | None = None, collisi
     meshes: from :func:`body_meshes`; otherwise made with ``collision`` and ``mesh_options``
     (``level``, ``mesh``, ``resolution``, ``decomposition``). free: MJCF only, give the
     body a free joint (a URDF root link has no joint; add one when loading, e.g.
-    ``spec.body(name).add_freejoint()``). MuJoCo compiles the result from a temporary
+    ``spec.body(name).add_freejoint()``). contact: identified contact parameters
+    (:func:`read_contact_params`): MJCF collision geoms get ``friction`` = sliding, torsional,
+    rolling friction (MuJoCo's defaults for any not given), and a comment says what is not
+    carried (the spring, damper and drags); URDF gets the comment only (it has no friction
+    element). MuJoCo compiles the result from a temporary
     location before it is published.
     Raises DanoError for an unknown suffix or mode, or if MuJoCo cannot compile the result
     (nothing is written then).
@@ -303,14 +375,14 @@ def export(asset, path: str | Path, *, meshes: BodyMeshes | None = None, collisi
     name = _safe_name(name or asset.name)
     files = _mesh_files(meshes)
     if suffix == ".xml":
-        tree = _mjcf(asset, name, files, free)
+        tree = _mjcf(asset, name, files, free, contact)
         ET.indent(tree)
         with atomic_path(path) as tmp:
             tree.write(tmp, encoding="unicode")
             _compiles(tmp, path)
         return path
     meshdir = f"{path.stem}_meshes"
-    tree = _urdf(asset, name, meshdir, files)
+    tree = _urdf(asset, name, meshdir, files, contact)
     ET.indent(tree)
     path.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{path.stem}.", dir=path.parent))
@@ -328,3 +400,67 @@ def export(asset, path: str | Path, *, meshes: BodyMeshes | None = None, collisi
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return path
+
+
+@dataclass(frozen=True)
+class ExportConfig:
+    """Export a DANO as a MuJoCo MJCF (.xml) or URDF (.urdf) body: its mass, centre of mass and full inertia,
+    its visual mesh and collision geometry."""
+
+    file: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="FILE.dano")]
+    """the .dano file (or builtin:NAME)."""
+    out: Annotated[Path, tyro.conf.arg(aliases=("-o",))]
+    """OUT.xml (MJCF, one file, meshes inline) or OUT.urdf (plus OUT_meshes/ with OBJ files). The body frame is
+    the DANO's (object axes, origin at the centre of mass)."""
+    collision: Literal["hull", "decomposition", "none"] = "hull"
+    """'hull' (convex hull of a level set), 'decomposition' (CoACD approximate convex decomposition of it) or
+    'none'."""
+    level: float | None = None
+    """density of the level set to make collision geometry from (needs a stored field); default the asset's
+    visual mesh."""
+    mesh: Path | None = None
+    """a level-set mesh (object frame) to use instead, e.g. the paper's bluesoap_level_70.stl."""
+    resolution: int = 96
+    """marching-cubes nodes along the longest axis for --level."""
+    threshold: float = 0.1
+    """CoACD concavity threshold (smaller: more, tighter pieces; slower)."""
+    max_pieces: int = -1
+    """CoACD: merge down to at most this many pieces (-1: no limit)."""
+    name: str | None = None
+    """body/link name (default the asset's)."""
+    params: Path | None = None
+    """identified contact parameters to carry: a `dano sysid` result.json (or a JSON table of names to
+    values); MJCF collision geoms get friction = sliding, torsional, rolling friction, and a comment says what
+    MuJoCo cannot carry (spring, damper, drags)."""
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False
+    """print a JSON summary (path, collision, pieces, mass, inertia) to stdout."""
+
+    def __post_init__(self):
+        from ..fields.base import check_resolution
+
+        if Path(self.out).suffix.lower() not in EXPORT_SUFFIXES:  # before any (possibly long) decomposition
+            raise DanoError(f"-o {self.out}: unknown export format {Path(self.out).suffix!r}; use .xml (MJCF) or "
+                            ".urdf (URDF)")
+        if not 0 < self.threshold < float("inf"):
+            raise DanoError(f"--threshold must be a positive number, got {self.threshold}")
+        check_resolution(self.resolution)
+        if self.mesh is not None and self.level is not None:
+            raise DanoError("give either --level or --mesh, not both")
+
+
+def export_command(config: ExportConfig) -> dict:
+    """``dano export``: the asset's body with its collision meshes (:func:`body_meshes`)
+    written as MJCF or URDF (:func:`export`). Returns the summary: ``path``, ``format``,
+    ``collision``, ``collision_source``, ``pieces``, ``mass`` [kg], ``inertia`` (3, 3) [kg m²]."""
+    from ..data import load_asset
+    from ..fields.mesh import load_mesh
+
+    asset = load_asset(config.file)
+    given = load_mesh(config.mesh, require_watertight=False) if config.mesh is not None else None
+    meshes = body_meshes(asset, config.collision, level=config.level, mesh=given, resolution=config.resolution,
+                         decomposition=Decomposition(threshold=config.threshold, max_pieces=config.max_pieces))
+    contact = read_contact_params(config.params) if config.params is not None else None
+    export(asset, config.out, meshes=meshes, name=config.name, contact=contact)
+    return {"friction": None if contact is None else [float(x) for x in _friction_note(contact)[0].split()],"path": str(config.out), "format": "mjcf" if Path(config.out).suffix.lower() == ".xml" else "urdf",
+            "collision": config.collision, "collision_source": meshes.source, "pieces": len(meshes.collision),
+            "mass": asset.mass, "inertia": asset.inertia.tolist()}

@@ -12,9 +12,12 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
+import tyro
 
 from .._files import atomic_dir
 from ..errors import DanoError
@@ -166,3 +169,24 @@ def render_dataset(mesh_path: str | Path, out_dir: str | Path, views: int = 100,
                 "frames": frames}
         (tmp / "transforms.json").write_text(json.dumps(meta, indent=1) + "\n")
     return out_dir
+
+
+@dataclass(frozen=True)
+class RenderDatasetConfig:
+    """Render RGBA views of a mesh at known cameras with MuJoCo's renderer (headless) as a
+    transforms.json image set: training data with exact ground truth."""
+
+    mesh: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="MESH")]
+    """a mesh file (.obj/.stl/.ply/...; its frame and units, taken as metres)."""
+    out: Annotated[Path, tyro.conf.arg(aliases=("-o",))]
+    """the folder to write (transforms.json, images/r_NNN.png); must not exist or be empty."""
+    views: int = 100
+    """number of views (cameras on a Fibonacci sphere around the mesh)."""
+    size: int = 100
+    """image width and height [px]."""
+    quiet: bool = False
+    """no progress bar."""
+
+    def __post_init__(self):
+        if not 1 <= self.views <= 10_000 or not 8 <= self.size <= 4096:
+            raise DanoError(f"--views must be 1 to 10000 and --size 8 to 4096, got {self.views} and {self.size}")

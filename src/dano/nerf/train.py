@@ -19,12 +19,13 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Annotated, Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+import tyro
 
 from .._files import atomic_write
 from ..errors import DanoError
@@ -355,3 +356,65 @@ def write_outputs(out_dir: str | Path, result: TrainResult, config: TrainConfig,
         titles.append(f"{heldout.names[k]}\n{psnr(np.clip(image, 0.0, 1.0), ref):.2f} dB")
     plot_heldout(result.heldout_renders, references, titles, out_dir / "heldout.png")
     return report
+
+
+@dataclass(frozen=True)
+class TrainFieldConfig:
+    """Train a density (radiance) field from posed images; `dano build DIR` makes it a DANO."""
+
+    data: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="DATA")]
+    """a transforms.json (Blender/nerfstudio; or its folder) or an .npz image set (images, poses, focal)."""
+    out: Annotated[Path, tyro.conf.arg(aliases=("-o",))]
+    """the field directory to write (field.json, field.npz, optimizer.npz, config.json, report.json, log.csv,
+    heldout.png). Checkpoints are written every 2 minutes of training; an interrupted run keeps its last
+    checkpoint (continue it with --resume)."""
+    minutes: float = 3.0
+    """training time (compilation included, evaluation excluded)."""
+    steps: int = 0
+    """also stop after this many steps (0: only the clock stops)."""
+    holdout: int = 10
+    """views held out for the PSNR (evenly spread over the set)."""
+    bounds: tuple[float, float, float, float, float, float] | None = None
+    """the object box XLO YLO ZLO XHI YHI ZHI [data units] (default: the data's, else +-1.5)."""
+    background: str = "white"
+    """white, black or random (random needs RGBA images)."""
+    mask_weight: float = 0.0
+    """weight of an alpha (mask) loss; needs RGBA images."""
+    rays_per_step: int = 4096
+    """rays per Adam step."""
+    eval_at: tuple[float, ...] = ()
+    """also measure held-out PSNR when training passes these minutes (e.g. 1 3)."""
+    seed: int = 0
+    """random seed."""
+    resume: bool = False
+    """continue the run checkpointed in OUT."""
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False
+    """print one JSON object (psnr_heldout, wall_time_s, rays_per_s, steps, psnr_at_minutes, ...)."""
+    quiet: bool = False
+    """no progress bar."""
+
+    def __post_init__(self):
+        out = Path(self.out)
+        if out.exists() and not self.resume and (not out.is_dir() or any(out.iterdir())):
+            hint = " (a field directory: --resume continues it)" if (out / "field.json").exists() else ""
+            raise DanoError(f"{out}: exists and is not empty{hint}; choose a new output folder")
+        if self.resume and not (out / "field.json").exists():
+            raise DanoError(f"{out}: --resume needs a field directory written by `dano train-field`")
+
+
+def train_field(config: TrainFieldConfig, progress: Callable[[dict], None] | None = None) -> tuple[dict, TrainResult]:
+    """``dano train-field``: read the images (:func:`~dano.nerf.load_dataset`), hold out
+    ``holdout`` views, train (:func:`train`, checkpointing into ``out``) and write the report,
+    configuration, log and held-out figure (:func:`write_outputs`). Returns (report, result).
+    Raises DanoError for bad options or data."""
+    from .data import load_dataset
+
+    box = None if config.bounds is None else np.asarray(config.bounds, dtype=np.float64).reshape(2, 3)
+    dataset = load_dataset(config.data, bounds=box)
+    train_config = TrainConfig(minutes=config.minutes, steps=config.steps, holdout=config.holdout,
+                               background=config.background, mask_weight=config.mask_weight,
+                               rays_per_step=config.rays_per_step, eval_at_minutes=tuple(config.eval_at),
+                               seed=config.seed).check_data(dataset)
+    train_set, held = dataset.split(config.holdout)
+    result = train(train_set, train_config, heldout=held, out_dir=config.out, resume=config.resume, progress=progress)
+    return write_outputs(config.out, result, train_config, dataset, train_set, held, config.data), result

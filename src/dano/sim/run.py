@@ -19,8 +19,11 @@ import time
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
+import jax.numpy as jnp
 import numpy as np
+import tyro
 
 from .._config import read_table, typed_table
 from .._files import atomic_path
@@ -28,8 +31,9 @@ from ..contact import CONTACT_MODELS
 from ..data import load_asset
 from ..errors import DanoError
 from ..trajectory import Trajectory, save_trajectory
-from ..viz.video import write_video
+from ..viz.video import camera_id, write_video
 from .rollout import rollout
+from .dynamics import State
 from .scene import DanoObject, Scene, SimParams
 from .scenes import BUILTIN_SCENES, Setup, load_scene, mjcf_setup
 
@@ -61,8 +65,16 @@ class SimulateConfig:
     """DANO contact model of every pair: centroid (the paper's) or per_sample."""
     max_steps: int = 2_000_000
     """Refuse a run of more steps than this (duration / dt) up front."""
+    qvel: tuple[str, ...] = ()
+    """Initial velocities of DANOs, ``NAME=vx,vy,vz`` or ``NAME=vx,vy,vz,wx,wy,wz``: linear
+    velocity, world frame [m/s], then angular velocity, body frame [rad/s] (MuJoCo's free-joint
+    qvel); NAME is the DANO's name (its file stem, or the asset's name); others start at rest."""
+    camera: str | None = None
+    """Video: the name of a camera in the scene's MJCF; None: a free camera following the DANOs."""
 
     def __post_init__(self):
+        for item in self.qvel:
+            parse_velocity(item)
         if self.contact_model not in CONTACT_MODELS:
             raise DanoError(f"unknown --contact-model {self.contact_model!r}; available: {', '.join(CONTACT_MODELS)}")
         for opt, v in (("duration", self.duration), ("dt", self.dt), ("fps", self.fps)):
@@ -121,6 +133,34 @@ def parse_object(text: str) -> DanoObject:
     return DanoObject(asset.name or Path(src).stem, asset, pos, quat)
 
 
+def parse_velocity(text: str) -> tuple[str, np.ndarray]:
+    """'NAME=vx,vy,vz[,wx,wy,wz]' -> (NAME, (6,) qvel of its free joint: linear world [m/s],
+    angular body frame [rad/s]). Raises DanoError for a malformed value."""
+    name, eq, values = text.partition("=")
+    try:
+        v = np.array([float(x) for x in values.split(",")]) if eq else np.array([])
+        ok = bool(name) and len(v) in (3, 6) and bool(np.all(np.isfinite(v)))
+    except ValueError:
+        ok = False
+    if not ok:
+        raise DanoError(f"--qvel {text!r}: expected NAME=vx,vy,vz or NAME=vx,vy,vz,wx,wy,wz (finite numbers: m/s, "
+                        "world frame; rad/s, body frame)")
+    return name, np.concatenate([v, np.zeros(6 - len(v))])
+
+
+def with_velocities(scene: Scene, state: State, assignments) -> State:
+    """``state`` with each DANO's free-joint velocity set from ``assignments``
+    (:func:`parse_velocity` strings). Raises DanoError for an unknown DANO (naming the scene's)."""
+    qvel = np.array(state.qvel, dtype=np.float64)
+    for item in assignments:
+        name, v = parse_velocity(item)
+        if name not in scene.dano_names:
+            raise DanoError(f"--qvel {item!r}: no DANO named {name!r}; the scene's DANOs: {', '.join(scene.dano_names)}")
+        a = scene.dof_adr[scene.dano_names.index(name)]
+        qvel[a : a + 6] = v
+    return dataclasses.replace(state, qvel=jnp.asarray(qvel, dtype=state.qvel.dtype))
+
+
 def apply_params(scene: Scene, params: SimParams, assignments) -> SimParams:
     """``params`` with each ``name=value`` / ``PAIR:name=value`` of ``assignments`` set
     (:meth:`Scene.set_param`). Raises DanoError for a malformed assignment."""
@@ -171,6 +211,9 @@ def simulate(config: SimulateConfig, progress=None) -> SimulationRun:
     the state leaves the finite range (nothing returned)."""
     setup = setup_for(config)
     params = apply_params(setup.scene, setup.params, config.param)
+    state0 = with_velocities(setup.scene, setup.state0, config.qvel)
+    if config.camera is not None:
+        camera_id(setup.scene.mj_model, config.camera)  # before the run: an unknown name is refused now
     dt = setup.scene.dt
     T = int(round((config.duration if config.duration is not None else setup.duration) / dt))
     if T < 1:
@@ -180,7 +223,7 @@ def simulate(config: SimulateConfig, progress=None) -> SimulationRun:
                         f"(the trajectory alone would take {T * (setup.scene.nq + setup.scene.nv) * 8 / 1e9:.2g} GB)")
     controls = setup.controls(np.arange(T) * dt) if setup.controls else None
     t0 = time.perf_counter()
-    traj = rollout(setup.scene, setup.state0, controls, params, T, progress=progress)
+    traj = rollout(setup.scene, state0, controls, params, T, progress=progress)
     resolved = dataclasses.replace(config.absolute(), duration=T * dt, dt=dt)
     return SimulationRun(setup, params, traj, time.perf_counter() - t0, resolved)
 
@@ -189,6 +232,63 @@ def check_video_path(video: str | Path | None) -> None:
     """Raises DanoError unless ``video`` is None or ends in .mp4 or .gif (checked before a run)."""
     if video is not None and Path(video).suffix.lower() not in (".mp4", ".gif"):
         raise DanoError(f"--video {video}: must be .mp4 or .gif")
+
+
+@dataclass(frozen=True)
+class SimulateCommandConfig:
+    """Simulate a built-in scene or an MJCF file with DANOs and write the trajectory and a video."""
+
+    scene: Annotated[str | None, tyro.conf.Positional, tyro.conf.arg(metavar="SCENE")] = None
+    """built-in name (bunny-drop, bunny-slide, sphere-hits-bunny, two-bunnies-sphere, panda-push-bunny) or an
+    MJCF path (optional with --config)."""
+    config: Path | None = None
+    """a configuration (TOML or JSON, e.g. the <out>.config.json a run saved) whose values are used for every
+    option not given on the command line; the run then repeats that one."""
+    duration: float | None = None
+    """simulated time [s] (default: the scene's)."""
+    dt: float | None = None
+    """time step [s] (default: the scene's; for an MJCF, its <option timestep>, else 0.01)."""
+    param: Annotated[tuple[str, ...], tyro.conf.arg(metavar="NAME=VALUE")] = ()
+    """contact parameters name=value for all pairs, or PAIR:name=value for one pair (e.g. sliding_friction=0.3,
+    bunny/ground:impact_spring=5e4, alpha=0.2)."""
+    object: Annotated[tuple[str, ...], tyro.conf.arg(metavar="FILE@X,Y,Z")] = ()
+    """MJCF scenes: DANOs to add, FILE.dano or builtin:NAME, optionally @x,y,z or @x,y,z,qw,qx,qy,qz (position
+    [m] and orientation, world frame) (default: builtin:bunny@0,0,1)."""
+    out: Annotated[Path | None, tyro.conf.arg(aliases=("-o",))] = None
+    """trajectory .npz (time, qpos, qvel, psi, names)."""
+    video: Path | None = None
+    """.mp4 (or .gif) video, rendered headless with MuJoCo."""
+    fps: float | None = None
+    """video frame rate (default 30)."""
+    contact_model: str | None = None
+    """DANO contact model of every pair: centroid (the paper's, default) or per_sample."""
+    max_steps: int | None = None
+    """refuse a run of more steps than this (duration / dt) up front (default 2000000)."""
+    qvel: Annotated[tuple[str, ...], tyro.conf.arg(metavar="NAME=VX,VY,VZ[,WX,WY,WZ]")] = ()
+    """initial velocities of DANOs: linear, world frame [m/s], then angular, body frame [rad/s]
+    (e.g. bunny=1,0,0 or bunny=1,0,0,0,0,5); other bodies start at rest."""
+    camera: str | None = None
+    """video: a camera of the MJCF, by name (default: a free camera following the DANOs)."""
+    quiet: bool = False
+    """no progress bars."""
+
+    def __post_init__(self):
+        check_video_path(self.video)
+        if self.scene is None and self.config is None:
+            raise DanoError("give a SCENE (or --config)")
+
+    def resolved(self) -> SimulateConfig:
+        """The :class:`SimulateConfig` to run: the options given, the rest from ``config``
+        (if any) or the defaults. Raises DanoError for a value out of range."""
+        given = {"duration": self.duration, "dt": self.dt, "param": self.param, "object": self.object,
+                 "fps": self.fps, "contact_model": self.contact_model, "max_steps": self.max_steps,
+                 "qvel": self.qvel, "camera": self.camera}
+        given = {k: v for k, v in given.items() if v not in (None, ())}
+        if self.config is not None:
+            saved = SimulateConfig.read(self.config)
+            return dataclasses.replace(saved, scene=self.scene or saved.scene, **given)
+        return SimulateConfig(self.scene, **given)
+
 
 
 def write_outputs(run: SimulationRun, out: str | Path | None = None, video: str | Path | None = None,
@@ -206,7 +306,7 @@ def write_outputs(run: SimulationRun, out: str | Path | None = None, video: str 
             stack.enter_context(atomic_path(saved)).write_text(json.dumps(dataclasses.asdict(run.config), indent=2))
         if video is not None:
             write_video(run.setup.scene, run.trajectory, stack.enter_context(atomic_path(video)), fps=run.config.fps,
-                        progress=progress)
+                        progress=progress, camera=run.config.camera)
         if out is not None:
             save_trajectory(run.trajectory, stack.enter_context(atomic_path(out)))
     return [p for p in (out, video, saved) if p is not None]

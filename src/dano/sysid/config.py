@@ -453,3 +453,56 @@ def run(config: str | Path, *, jacobian: str | None = None) -> tuple[SysIdProble
     resolved["options"]["jacobian"] = solver["jacobian"]
     result = identify(problem, **solver_options(solver))
     return problem, result, {"report": estimates_report(result), "config": resolved}
+
+
+def template(files) -> str:
+    """A commented TOML problem for one's own scene and objects, for ``dano sysid --template``:
+    ``files`` are an optional MJCF scene (``.xml``, first) and one or more ``.dano`` assets (or
+    ``builtin:NAME``). The scene's time step is the one its MJCF states (else 0.01 s); each
+    object is named after its file's stem. The ``[[trajectory]]`` entries point at
+    ``<name>_1.csv`` placeholders whose columns and units the comments give. Raises DanoError
+    when no object is given or a file is missing."""
+    from ..sim.scenes import DEFAULT_DT, stated_timestep
+
+    files = [str(f) for f in files]
+    scene = files[0] if files and files[0].lower().endswith(".xml") else None
+    objects = files[1:] if scene else files
+    if not objects:
+        raise DanoError("--template: give the scene's MJCF (optional) and at least one .dano object, e.g. "
+                        "--template scene.xml spot.dano")
+    for f in ([scene] if scene else []) + [o for o in objects if not o.startswith("builtin:")]:
+        if not Path(f).exists():
+            raise DanoError(f"--template: {f}: no such file")
+    names = [o.split(":", 1)[1] if o.startswith("builtin:") else Path(o).stem for o in objects]
+    dt = (stated_timestep(scene) if scene else None) or DEFAULT_DT
+    lines = ["# dano sysid problem (format: docs/sysid.md, every key: docs/config-reference.md).",
+             "# Relative paths are read from this file's folder. Run: dano sysid THIS.toml", "", "[scene]"]
+    lines += [f'mjcf = "{scene}"                 # your MuJoCo scene (its ground, table, robot)'] if scene else [
+        "# mjcf = \"scene.xml\"           # left out: an empty world with a ground plane at z = 0"]
+    lines += [f"dt = {dt:g}                      # simulation step [s] = frame interval / substeps",
+              'contact_model = "centroid"      # or "per_sample" (a force per boundary sample)']
+    for name, obj in zip(names, objects):
+        lines += ["", "[[scene.object]]", f'name = "{name}"', f'asset = "{obj}"',
+                  "pos = [0.0, 0.0, 0.0]           # world [m]; each trajectory's first pose places it",
+                  "quat = [1.0, 0.0, 0.0, 0.0]     # w, x, y, z"]
+    lines += ["", "[contact]                        # fixed contact parameters (all pairs); the rest: the paper's",
+              "# sliding_drag = 0.0              # held at 0 anyway while sliding_friction is identified"]
+    for name in names:
+        lines += ["", "[[trajectory]]",
+                  f'file = "{name}_1.csv"          # CSV: header t,x,y,z,qw,qx,qy,qz; one row per frame; time [s],',
+                  "                                 # centre of mass [m], world frame; orientation quaternion (w first).",
+                  "                                 # Or a .npz with time (T,) and poses (T, 7), or a dano trajectory",
+                  f'object = "{name}"',
+                  "velocities = false              # true: start from measured velocities (CSV columns vx,vy,vz",
+                  "                                 # world [m/s], wx,wy,wz body [rad/s])",
+                  "# add one [[trajectory]] per recording"]
+    lines += ["", "[[parameter]]", 'name = "sliding_friction"       # or alpha (mass scale), impact_spring, impact_damper,',
+              "                                 # torsional_friction, rolling_friction, com_offset_x|y|z, ...",
+              "initial = 0.5", "lower = 0.0", "upper = 2.0",
+              "", "[options]                        # all optional; the defaults shown",
+              "# substeps = 1", '# fit_velocity = "xy"              # nuisance: each start\'s velocity along these axes',
+              '# fit_position = ""                # nuisance: each start\'s position axes, e.g. "xy" for noisy starts',
+              "# scan = 15                         # a global scan first (left out: automatic; 0: off)",
+              "# profile_points = 32               # verify the estimate and give its interval (0: off)",
+              "# level = 0.95                      # the interval's level"]
+    return "\n".join(lines) + "\n"

@@ -6,16 +6,20 @@ from __future__ import annotations
 import csv
 import io
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
+import tyro
 
 from .._files import atomic_write
+from ..errors import DanoError
 from ..pose import velocity_from_poses
 from ..trajectory import Trajectory, save_trajectory
 from ..viz.video import write_frames
 from .inputs import VideoInput
-from .track import TrackResult
+from .track import TrackConfig, TrackResult
 
 
 def tracked_trajectory(result: TrackResult, name: str, metadata: dict | None = None) -> Trajectory:
@@ -77,3 +81,84 @@ def write_track_outputs(out_dir: str | Path, video: VideoInput, result: TrackRes
         files.append("overlay.mp4")
     atomic_write(out / "report.json", lambda f: f.write((json.dumps(report, indent=2) + "\n").encode()))
     return files + ["report.json"]
+
+
+@dataclass(frozen=True)
+class TrackCommandConfig:
+    """Track a DANO's pose through a video by fitting rendered silhouettes to masks (and colours)."""
+
+    video: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="VIDEO")]
+    """a video folder (camera.json, frames/, optional masks/ and background.png), a folder of frames or a video
+    file (then give --camera)."""
+    object: Annotated[str, tyro.conf.arg(metavar="FILE.dano|builtin:NAME")]
+    """the DANO tracked (a .dano file that stores its field, or builtin:NAME)."""
+    pose: Annotated[tuple[float, float, float, float, float, float, float], tyro.conf.arg(metavar="X Y Z QW QX QY QZ")]
+    """its body pose in the first frame (centre of mass [m], wxyz quaternion; world frame)."""
+    out: Annotated[Path, tyro.conf.arg(aliases=("-o",))]
+    """folder to write poses.npz (a dano trajectory, ready for `dano sysid`), track.csv, overlay.mp4,
+    report.json."""
+    camera: Path | None = None
+    """camera.json (intrinsics, transform_matrix camera-to-world, convention, fps)."""
+    masks: Path | None = None
+    """folder of mask images (one per frame; white = object)."""
+    background: Path | None = None
+    """the background frame (no object) for background subtraction."""
+    subtract_background: bool = False
+    """make masks from the background even where mask images exist."""
+    threshold: float = 0.08
+    """background subtraction's colour difference (0-1)."""
+    fps: float | None = None
+    """frames per second (default: camera.json's)."""
+    field: Path | None = None
+    """a trained field directory (dano train-field) in the DANO's object frame, for the colour term."""
+    colour_weight: float = 0.0
+    """weight of the colour (photometric) term; needs --field."""
+    colour_rays: int = 1024
+    """rays of the colour term per frame, drawn at random among those rendered (0: all)."""
+    iterations: int = 60
+    """Adam steps per frame."""
+    stride: int = 2
+    """pixels per ray along each axis."""
+    smoothness_weight: float = 0.0
+    """weight of a prior toward the constant-velocity prediction."""
+    no_video: bool = False
+    """skip overlay.mp4."""
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False
+    """print one JSON object (frames, poor_frames, mean_iou, time_per_frame_s, ...)."""
+    quiet: bool = False
+    """no progress bar."""
+
+    def __post_init__(self):
+        out = Path(self.out)
+        if out.exists() and (not out.is_dir() or any(out.iterdir())):
+            raise DanoError(f"{out}: exists and is not an empty folder; choose a new output folder")
+
+    def track_config(self) -> TrackConfig:
+        """The per-frame fit's :class:`~dano.tracking.TrackConfig` of these options."""
+        return TrackConfig(iterations=self.iterations, stride=self.stride, colour_weight=self.colour_weight,
+                           smoothness_weight=self.smoothness_weight, colour_rays=self.colour_rays)
+
+
+def track_command(config: TrackCommandConfig, progress=None) -> tuple[dict, list[str]]:
+    """``dano track``: read the video (:func:`~dano.tracking.load_video`), track the object
+    from ``pose`` (:func:`~dano.tracking.track`, with the field's colours if ``field``) and
+    write the outputs (:func:`write_track_outputs`). Returns (report, file names written)."""
+    from ..data import load_asset
+    from .inputs import load_video
+    from .track import TrackedObject, track
+
+    fit = config.track_config()
+    radiance = radiance_occupancy = None
+    if config.field is not None:
+        from ..nerf import load_field
+
+        radiance, radiance_occupancy, _ = load_field(config.field)
+    obj = TrackedObject.from_asset(load_asset(config.object), radiance, radiance_occupancy)
+    data = load_video(config.video, camera=config.camera, masks=config.masks, background=config.background,
+                      fps=config.fps, threshold=config.threshold, subtract_background=config.subtract_background)
+    result = track(data, obj, config.pose, fit, progress=progress)
+    report = {**result.summary(), "video": str(config.video), "object": config.object,
+              "initial_pose": list(config.pose)}
+    rate = 1.0 / float(data.time[1] - data.time[0]) if data.num_frames > 1 else 1.0
+    files = write_track_outputs(config.out, data, result, obj.name, report, rate, video_file=not config.no_video)
+    return report, files

@@ -12,15 +12,33 @@ from .._files import atomic_path
 from ..errors import DanoError
 
 
-def render_frames(scene, traj, fps: float = 30.0, width: int = 640, height: int = 480, progress=None):
-    """Yield RGB frames (height, width, 3) uint8 of ``traj`` at ``fps``, camera following
-    the DANOs' mean position. ``progress(done, total, description)`` is called per frame.
+def camera_id(model, name: str) -> int:
+    """The id of the camera ``name`` of a ``mujoco.MjModel``. Raises DanoError naming the
+    model's cameras when there is none of that name."""
+    import mujoco
 
-    Raises DanoError if no OpenGL context can be created (set MUJOCO_GL=egl or osmesa).
+    cam = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, name)
+    if cam < 0:
+        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, i) for i in range(model.ncam)]
+        raise DanoError(f"--camera {name!r}: the scene has no such camera; its cameras: "
+                        f"{', '.join(n for n in names if n) or 'none (leave --camera out: a free camera follows)'}")
+    return cam
+
+
+def render_frames(scene, traj, fps: float = 30.0, width: int = 640, height: int = 480, progress=None,
+                  camera: str | None = None):
+    """Yield RGB frames (height, width, 3) uint8 of ``traj`` (a :class:`~dano.Trajectory` of
+    ``scene``) at ``fps``. camera: the name of a camera of the scene's MJCF; None: a free
+    camera following the DANOs' mean position. ``progress(done, total, description)`` is
+    called per frame.
+
+    Raises DanoError for an unknown camera name (listing the scene's) or if no OpenGL context
+    can be created (set MUJOCO_GL=egl or osmesa).
     """
     import mujoco
 
     m = scene.mj_model
+    fixed = None if camera is None else camera_id(m, camera)
     d = mujoco.MjData(m)
     try:
         renderer = mujoco.Renderer(m, height, width)
@@ -43,7 +61,7 @@ def render_frames(scene, traj, fps: float = 30.0, width: int = 640, height: int 
             # smooth camera: follow a moving average of the centre
             lo, hi = max(0, t - 25), min(len(centres), t + 25)
             cam.lookat[:] = centres[lo:hi].mean(0)
-            renderer.update_scene(d, cam, opt)
+            renderer.update_scene(d, cam if fixed is None else fixed, opt)
             yield renderer.render().copy()
             if progress is not None:
                 progress(k + 1, n_frames, "rendering")
@@ -52,14 +70,16 @@ def render_frames(scene, traj, fps: float = 30.0, width: int = 640, height: int 
 
 
 def write_video(scene, traj, path: str | Path, fps: float = 30.0, width: int = 640, height: int = 480,
-                progress=None) -> Path:
-    """Render ``traj`` of ``scene`` to an H.264 ``.mp4`` (or ``.gif``) file.
+                progress=None, camera: str | None = None) -> Path:
+    """Render ``traj`` of ``scene`` to an H.264 ``.mp4`` (or ``.gif``) file at ``fps``, from the
+    MJCF's camera named ``camera`` or (None) a free camera following the DANOs
+    (:func:`render_frames`), ``width`` × ``height`` pixels.
 
     Written atomically: frames go to a temporary file in the same folder, renamed at the
     end; on any error nothing is left. Raises DanoError for an unsupported suffix or
     when rendering is impossible.
     """
-    return write_frames(render_frames(scene, traj, fps, width, height, progress), path, fps)
+    return write_frames(render_frames(scene, traj, fps, width, height, progress, camera), path, fps)
 
 
 def write_frames(frames, path: str | Path, fps: float = 30.0) -> Path:

@@ -1,0 +1,57 @@
+"""`dano export` keeps what was identified (--params result.json → MuJoCo geom friction) and
+exports a DANO without a mesh (the paper's .jld2 colliders) with the boundary samples' hull."""
+
+import json
+import xml.etree.ElementTree as ET
+
+import mujoco
+import numpy as np
+import pytest
+
+from dano.cli import main
+from dano.data import load_builtin
+from dano.errors import FileFormatError
+from dano.io.exporters import export, read_contact_params
+
+
+def test_identified_friction_reaches_mujoco(tmp_path, capsys):
+    result = tmp_path / "result.json"
+    result.write_text(json.dumps({"bunny/ground:sliding_friction": 0.42, "rolling_friction": 0.003,
+                                  "impact_spring": 3e4, "rms_residual": 1e-3}))
+    out = tmp_path / "bunny.xml"
+    assert main(["export", "builtin:bunny_lowpoly", "-o", str(out), "--params", str(result), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["friction"] == [0.42, 0.005, 0.003]
+    m = mujoco.MjModel.from_xml_path(str(out))
+    collision = [g for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g]]
+    assert collision and all(np.allclose(m.geom_friction[g], [0.42, 0.005, 0.003]) for g in collision)
+    text = out.read_text()
+    assert "Not carried: impact_spring" in text  # said, not silently dropped
+
+
+def test_ambiguous_or_missing_parameters_refused(tmp_path):
+    two = tmp_path / "two.json"
+    two.write_text(json.dumps({"a/ground:sliding_friction": 0.3, "b/ground:sliding_friction": 0.5}))
+    with pytest.raises(FileFormatError, match="several pairs"):
+        read_contact_params(two)
+    none = tmp_path / "none.json"
+    none.write_text(json.dumps({"rms_residual": 0.1}))
+    with pytest.raises(FileFormatError, match="no contact parameter"):
+        read_contact_params(none)
+
+
+def test_paper_collider_exports_with_the_samples_hull(tmp_path):
+    asset = load_builtin("bunny")
+    stripped = asset.__class__(**{**{k: getattr(asset, k) for k in asset.__dataclass_fields__},
+                                  "mesh_vertices": np.zeros((0, 3)), "mesh_faces": np.zeros((0, 3), dtype=np.int64)})
+    path = export(stripped, tmp_path / "bunny.xml")  # default collision: hull
+    m = mujoco.MjModel.from_xml_path(str(path))  # compiles
+    assert m.body_mass[1] == pytest.approx(asset.mass)
+    meshes = ET.parse(path).getroot().find("asset").findall("mesh")
+    collision = [e for e in meshes if "collision" in e.get("name")]
+    assert len(collision) == 1
+    verts = np.array(collision[0].get("vertex").split(), dtype=float).reshape(-1, 3)
+    # every vertex of the hull is a boundary sample (body frame), and the extreme samples are on it
+    dist = np.min(np.linalg.norm(verts[:, None] - asset.points[None], axis=-1), axis=1)
+    assert len(verts) >= 4 and np.max(dist) < 1e-8
+    assert np.allclose(verts.max(0), asset.points.max(0)) and np.allclose(verts.min(0), asset.points.min(0))
