@@ -1,8 +1,7 @@
 """docs/own-object.md, run as written: its ```bash and ```python blocks in order, in an empty
 folder holding the user's mesh (here the low-poly bunny of ../shared), with the installed
 `dano` on PATH. The journey ends in plain MuJoCo loading the identified friction; the
-identified value is checked against MuJoCo's own (0.5) within the interval dano reports,
-widened by the model difference measured on this data (hull vs density contact)."""
+identified value is checked against MuJoCo's own (0.5): inside the interval dano reports."""
 
 import json
 import os
@@ -40,6 +39,8 @@ def test_own_object_walkthrough(tmp_path, shared):
         assert res.returncode == 0, f"{kind} block failed:\n{code}\n--- stderr ---\n{res.stderr[-3000:]}"
     report = json.loads((tmp_path / "sysid.json").read_text())
     mu, lo, hi = report["sliding_friction"], report["sliding_friction_lower"], report["sliding_friction_upper"]
-    assert lo <= mu <= hi
-    assert abs(mu - 0.5) < 0.1, report  # MuJoCo's hull contact is not dano's density contact: close, not equal
+    # MuJoCo's hull contact is not dano's density contact: the estimate is close, not equal (measured 0.451
+    # [0.379, 0.534] with a misfit warning), and the interval dano reports holds MuJoCo's 0.5
+    assert lo <= mu <= hi and lo <= 0.5 <= hi, report
+    assert abs(mu - 0.5) < 0.1, report
     assert (tmp_path / "toy.mp4").stat().st_size > 1000 and (tmp_path / "sysid-toy" / "fit.png").exists()
