@@ -105,8 +105,10 @@ def test_level_set_from_the_field(tmp_path):
     assert low.volume > high.volume  # a lower density level lies further out
     with pytest.raises(DanoError, match="density field"):
         body_meshes(dano.load_builtin("bluesoap"), "hull", level=50.0)
-    with pytest.raises(DanoError, match="no visual mesh"):
-        body_meshes(dano.load_builtin("bluesoap"), "hull")
+    with pytest.raises(DanoError, match="no visual mesh"):  # a decomposition needs a surface
+        body_meshes(dano.load_builtin("bluesoap"), "decomposition")
+    # without a mesh the hull is the boundary samples' (issue 30: a .jld2 collider exports by default)
+    assert body_meshes(dano.load_builtin("bluesoap"), "hull").source == "convex hull of the boundary samples"
 
 
 def test_export_errors_leave_nothing(tmp_path):
@@ -116,7 +118,7 @@ def test_export_errors_leave_nothing(tmp_path):
     with pytest.raises(DanoError, match="unknown collision mode"):
         export(asset, tmp_path / "bunny.xml", collision="sphere")
     assert list(tmp_path.iterdir()) == []
-    code = main(["export", "builtin:bluesoap", "-o", str(tmp_path / "soap.urdf")])
+    code = main(["export", "builtin:bluesoap", "-o", str(tmp_path / "soap.urdf"), "--collision", "decomposition"])
     assert code == 1 and list(tmp_path.iterdir()) == []
 
 

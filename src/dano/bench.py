@@ -24,6 +24,7 @@ from ._jax_setup import enable_float64
 from ._version import __version__
 from .errors import DanoError
 from .asset import build
+from .contact import CONTACT_MODELS
 from .experiments.energy import energy_check
 from .experiments.nerf_loop import ground_truth_loop
 from .experiments.push import PushPandaConfig, PushSphereConfig, push_panda_task, push_sphere_task, solve_task
@@ -460,8 +461,6 @@ class BenchConfig:
     """also write the JSON here."""
 
     def __post_init__(self):
-        from .contact import CONTACT_MODELS
-
         unknown = set(self.suite) - set(SUITES)
         if unknown:
             raise DanoError(f"unknown benchmark suite(s) {sorted(unknown)}; available: {', '.join(SUITES)}")

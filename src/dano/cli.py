@@ -33,7 +33,7 @@ VERBS = {
     "build": ("dano.sources:BuildConfig", "_build", "source"),
     "simulate": ("dano.sim.run:SimulateCommandConfig", "_simulate", "scene"),
     "sysid": ("dano.experiments:SysIdCommandConfig", "_sysid", "config"),
-    "export": ("dano.io.exporters:ExportConfig", "_export", "file"),
+    "export": ("dano.io.command:ExportConfig", "_export", "file"),
     "compare-mesh": ("dano.experiments.meshroute:CompareMeshConfig", "_compare_mesh", "source"),
     "trajopt": ("dano.experiments.trajopt_run:TrajoptCommandConfig", "_trajopt", "task"),
     "train-field": ("dano.nerf.train:TrainFieldConfig", "_train_field", "data"),
@@ -292,7 +292,7 @@ def _real2sim(c) -> None:
 
 
 def _export(c) -> None:
-    from .io.exporters import export_command
+    from .io.command import export_command
 
     summary = export_command(c)
     if c.json_:

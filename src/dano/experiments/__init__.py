@@ -182,6 +182,7 @@ def sysid_command(config: SysIdCommandConfig):
     (default ``sysid-<name>/``: :func:`dano.sysid.outputs.write_outputs`). Returns
     (problem, result, report, out_dir): the report as written, non-finite values as null
     and listed in its ``warnings``. Raises DanoError for an unknown name or a bad file."""
+    # the registry stays light (no MuJoCo, no JAX) until an identification runs
     from ..sysid.config import run
     from ..sysid.outputs import write_outputs
 

@@ -45,8 +45,11 @@ import tyro
 
 from .._files import atomic_path
 from ..asset import visual_mesh
+from ..contact import CONTACT_MODELS
+from ..data import load_asset
 from ..errors import DanoError
-from ..fields.base import interior_density
+from ..fields.base import check_resolution, interior_density
+from ..fields.mesh import load_mesh
 from ..io.exporters import BodyMeshes, Decomposition, add_collision_geoms, add_to_spec, body_meshes
 from ..pose import normalize_quat, quat_error, quat_inverse, quat_to_matrix, rotate
 from ..sim import DanoObject, compose, rollout
@@ -440,9 +443,6 @@ class CompareMeshConfig:
     """no progress bar."""
 
     def __post_init__(self):
-        from ..contact import CONTACT_MODELS
-        from ..fields.base import check_resolution
-
         if self.contact_model not in CONTACT_MODELS:
             raise DanoError(f"unknown --contact-model {self.contact_model!r}; available: {', '.join(CONTACT_MODELS)}")
         check_resolution(self.resolution)
@@ -458,8 +458,6 @@ class CompareMeshConfig:
 
 def level_meshes(paths) -> list[Level]:
     """``[LABEL=]FILE`` mesh files (object frame; open, noisy level sets allowed) -> :class:`Level` list."""
-    from ..io import load_mesh
-
     levels = []
     for p in paths:
         label, eq, file = str(p).rpartition("=")
@@ -474,8 +472,6 @@ def compare_mesh_command(config: CompareMeshConfig, progress=None) -> tuple[dict
     rest figure and the JSON report written (both or neither). Returns (report, paths)."""
     import json
     from contextlib import ExitStack
-
-    from ..data import load_asset
 
     asset = load_asset(config.source)
     lv = level_meshes(config.mesh) + (extract_levels(asset, config.levels, config.resolution) if config.levels else [])

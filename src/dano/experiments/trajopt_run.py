@@ -14,6 +14,8 @@ import numpy as np
 import tyro
 
 from .._config import read_table, typed_table
+from .._files import json_safe
+from ..contact import CONTACT_MODELS
 from .._files import atomic_path
 from ..errors import DanoError
 from ..sim import State, rollout
@@ -235,8 +237,6 @@ class TrajoptCommandConfig:
     """no progress bars."""
 
     def __post_init__(self):
-        from ..contact import CONTACT_MODELS
-
         if self.contact_model is not None and self.contact_model not in CONTACT_MODELS:
             raise DanoError(f"unknown --contact-model {self.contact_model!r}; available: {', '.join(CONTACT_MODELS)}")
 
@@ -245,8 +245,6 @@ def trajopt_command(config: TrajoptCommandConfig, progress=None) -> tuple[dict, 
     """``dano trajopt``: solve the task (:func:`run`), its report made JSON-safe (non-finite
     values as null, listed in ``warnings``), every output written to ``out_dir`` (default
     ``trajopt-<task>/``, :func:`write_outputs`). Returns (report, paths written)."""
-    from .._files import json_safe
-
     task, solution, me, rep = run(config.task, progress=progress, model_error=config.model_error,
                                   max_iterations=config.max_iterations, contact_model=config.contact_model)
     rep, nonfinite = json_safe(rep)

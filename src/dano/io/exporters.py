@@ -25,15 +25,14 @@ import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Literal, Sequence
+from typing import Sequence
 
 import numpy as np
 import trimesh
-import tyro
 
 from .._files import atomic_path
 from ..asset import visual_mesh
-from ..errors import DanoError
+from ..errors import DanoError, FileFormatError
 
 COLLISION_MODES = ("hull", "decomposition", "none")
 VISUAL_RGBA = (0.85, 0.65, 0.45, 1.0)
@@ -240,8 +239,7 @@ def read_contact_params(path: str | Path) -> dict[str, float]:
     import dataclasses
     import json
 
-    from ..contact.params import ContactParams
-    from ..errors import FileFormatError
+    from ..contact.params import ContactParams  # not at the top: `import dano` loads io, not contact
 
     path = Path(path)
     try:
@@ -270,7 +268,7 @@ def read_contact_params(path: str | Path) -> dict[str, float]:
     return params
 
 
-def _friction_note(contact: dict[str, float]) -> tuple[str, str]:
+def friction_note(contact: dict[str, float]) -> tuple[str, str]:
     """(MuJoCo's geom friction "slide torsion roll", the XML comment on what was carried)."""
     values = [contact.get(k, d) for k, d in zip(FRICTION_KEYS, MUJOCO_DEFAULT_FRICTION)]
     carried = [k for k in FRICTION_KEYS if k in contact]
@@ -302,18 +300,18 @@ def _mjcf(asset, name: str, meshes: dict, free: bool, contact: dict | None = Non
         else:
             attrs.update(group="3", rgba=_nums(COLLISION_RGBA))
             if contact:
-                attrs["friction"] = _friction_note(contact)[0]
+                attrs["friction"] = friction_note(contact)[0]
         ET.SubElement(body, "geom", attrs)
     if contact:
-        body.insert(0, ET.Comment(_friction_note(contact)[1]))
+        body.insert(0, ET.Comment(friction_note(contact)[1]))
     return ET.ElementTree(root)
 
 
 def _urdf(asset, name: str, meshdir: str, files: dict, contact: dict | None = None) -> ET.ElementTree:
     root = ET.Element("robot", name=name)
     if contact:  # URDF has no friction element; MuJoCo's URDF reader takes geom defaults from none
-        root.append(ET.Comment(_friction_note(contact)[1] + f"URDF cannot state friction: set geom friction "
-                               f"{_friction_note(contact)[0]!r} on this link's collision geoms when loading it. "))
+        root.append(ET.Comment(friction_note(contact)[1] + f"URDF cannot state friction: set geom friction "
+                               f"{friction_note(contact)[0]!r} on this link's collision geoms when loading it. "))
     # MuJoCo's URDF reader: keep visuals, keep the jointless root body (do not fuse it into
     # the world), use the stated inertia as given, resolve mesh paths relative to this file
     mj = ET.SubElement(root, "mujoco")
@@ -400,67 +398,3 @@ def export(asset, path: str | Path, *, meshes: BodyMeshes | None = None, collisi
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return path
-
-
-@dataclass(frozen=True)
-class ExportConfig:
-    """Export a DANO as a MuJoCo MJCF (.xml) or URDF (.urdf) body: its mass, centre of mass and full inertia,
-    its visual mesh and collision geometry."""
-
-    file: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="FILE.dano")]
-    """the .dano file (or builtin:NAME)."""
-    out: Annotated[Path, tyro.conf.arg(aliases=("-o",))]
-    """OUT.xml (MJCF, one file, meshes inline) or OUT.urdf (plus OUT_meshes/ with OBJ files). The body frame is
-    the DANO's (object axes, origin at the centre of mass)."""
-    collision: Literal["hull", "decomposition", "none"] = "hull"
-    """'hull' (convex hull of a level set), 'decomposition' (CoACD approximate convex decomposition of it) or
-    'none'."""
-    level: float | None = None
-    """density of the level set to make collision geometry from (needs a stored field); default the asset's
-    visual mesh."""
-    mesh: Path | None = None
-    """a level-set mesh (object frame) to use instead, e.g. the paper's bluesoap_level_70.stl."""
-    resolution: int = 96
-    """marching-cubes nodes along the longest axis for --level."""
-    threshold: float = 0.1
-    """CoACD concavity threshold (smaller: more, tighter pieces; slower)."""
-    max_pieces: int = -1
-    """CoACD: merge down to at most this many pieces (-1: no limit)."""
-    name: str | None = None
-    """body/link name (default the asset's)."""
-    params: Path | None = None
-    """identified contact parameters to carry: a `dano sysid` result.json (or a JSON table of names to
-    values); MJCF collision geoms get friction = sliding, torsional, rolling friction, and a comment says what
-    MuJoCo cannot carry (spring, damper, drags)."""
-    json_: Annotated[bool, tyro.conf.arg(name="json")] = False
-    """print a JSON summary (path, collision, pieces, mass, inertia) to stdout."""
-
-    def __post_init__(self):
-        from ..fields.base import check_resolution
-
-        if Path(self.out).suffix.lower() not in EXPORT_SUFFIXES:  # before any (possibly long) decomposition
-            raise DanoError(f"-o {self.out}: unknown export format {Path(self.out).suffix!r}; use .xml (MJCF) or "
-                            ".urdf (URDF)")
-        if not 0 < self.threshold < float("inf"):
-            raise DanoError(f"--threshold must be a positive number, got {self.threshold}")
-        check_resolution(self.resolution)
-        if self.mesh is not None and self.level is not None:
-            raise DanoError("give either --level or --mesh, not both")
-
-
-def export_command(config: ExportConfig) -> dict:
-    """``dano export``: the asset's body with its collision meshes (:func:`body_meshes`)
-    written as MJCF or URDF (:func:`export`). Returns the summary: ``path``, ``format``,
-    ``collision``, ``collision_source``, ``pieces``, ``mass`` [kg], ``inertia`` (3, 3) [kg m²]."""
-    from ..data import load_asset
-    from ..fields.mesh import load_mesh
-
-    asset = load_asset(config.file)
-    given = load_mesh(config.mesh, require_watertight=False) if config.mesh is not None else None
-    meshes = body_meshes(asset, config.collision, level=config.level, mesh=given, resolution=config.resolution,
-                         decomposition=Decomposition(threshold=config.threshold, max_pieces=config.max_pieces))
-    contact = read_contact_params(config.params) if config.params is not None else None
-    export(asset, config.out, meshes=meshes, name=config.name, contact=contact)
-    return {"friction": None if contact is None else [float(x) for x in _friction_note(contact)[0].split()],"path": str(config.out), "format": "mjcf" if Path(config.out).suffix.lower() == ".xml" else "urdf",
-            "collision": config.collision, "collision_source": meshes.source, "pieces": len(meshes.collision),
-            "mass": asset.mass, "inertia": asset.inertia.tolist()}

@@ -32,7 +32,7 @@ from ..errors import DanoError
 from ..render.cameras import pixel_rays
 from ..render.volume import OccupancyGrid, RenderConfig, psnr, render_image, render_rays, update_occupancy
 from .checkpoint import load_field, load_optimizer_state, save_field
-from .data import Dataset
+from .data import Dataset, load_dataset
 from .field import FieldConfig, HashGridField
 from ..viz.plot import plot_heldout
 
@@ -407,8 +407,6 @@ def train_field(config: TrainFieldConfig, progress: Callable[[dict], None] | Non
     ``holdout`` views, train (:func:`train`, checkpointing into ``out``) and write the report,
     configuration, log and held-out figure (:func:`write_outputs`). Returns (report, result).
     Raises DanoError for bad options or data."""
-    from .data import load_dataset
-
     box = None if config.bounds is None else np.asarray(config.bounds, dtype=np.float64).reshape(2, 3)
     dataset = load_dataset(config.data, bounds=box)
     train_config = TrainConfig(minutes=config.minutes, steps=config.steps, holdout=config.holdout,

@@ -74,9 +74,10 @@ from .._files import read_npz
 from ..asset import load
 from ..data import load_builtin
 from ..errors import DanoError, FileFormatError
+from ..sim.scenes import DEFAULT_DT, stated_timestep
 from ..sim.scene import DanoObject, compose
 from ..trajectory import load_trajectory
-from .problem import (SEGMENT_NUISANCE_PREFIXES, FitParameter, Observation, SysIdProblem, Weights,
+from .problem import (FitParameter, Observation, SysIdProblem, Weights,
                       identification_params)
 from .outputs import estimates_report
 from .solve import identify
@@ -462,8 +463,6 @@ def template(files) -> str:
     object is named after its file's stem. The ``[[trajectory]]`` entries point at
     ``<name>_1.csv`` placeholders whose columns and units the comments give. Raises DanoError
     when no object is given or a file is missing."""
-    from ..sim.scenes import DEFAULT_DT, stated_timestep
-
     files = [str(f) for f in files]
     scene = files[0] if files and files[0].lower().endswith(".xml") else None
     objects = files[1:] if scene else files

@@ -14,12 +14,14 @@ import numpy as np
 import tyro
 
 from .._files import atomic_write
+from ..data import load_asset
+from ..nerf import load_field
 from ..errors import DanoError
 from ..pose import velocity_from_poses
 from ..trajectory import Trajectory, save_trajectory
 from ..viz.video import write_frames
-from .inputs import VideoInput
-from .track import TrackConfig, TrackResult
+from .inputs import VideoInput, load_video
+from .track import TrackConfig, TrackedObject, TrackResult, track
 
 
 def tracked_trajectory(result: TrackResult, name: str, metadata: dict | None = None) -> Trajectory:
@@ -143,15 +145,10 @@ def track_command(config: TrackCommandConfig, progress=None) -> tuple[dict, list
     """``dano track``: read the video (:func:`~dano.tracking.load_video`), track the object
     from ``pose`` (:func:`~dano.tracking.track`, with the field's colours if ``field``) and
     write the outputs (:func:`write_track_outputs`). Returns (report, file names written)."""
-    from ..data import load_asset
-    from .inputs import load_video
-    from .track import TrackedObject, track
 
     fit = config.track_config()
     radiance = radiance_occupancy = None
     if config.field is not None:
-        from ..nerf import load_field
-
         radiance, radiance_occupancy, _ = load_field(config.field)
     obj = TrackedObject.from_asset(load_asset(config.object), radiance, radiance_occupancy)
     data = load_video(config.video, camera=config.camera, masks=config.masks, background=config.background,
