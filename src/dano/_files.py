@@ -113,3 +113,11 @@ def json_safe(obj, where: str = "") -> tuple[Any, list[str]]:
         return x
 
     return clean(obj, where), found
+
+
+def check_new_folder(path: str | Path) -> None:
+    """Raises DanoError unless ``path`` does not exist or is an empty folder (an output folder
+    a command will fill: nothing of the user's is overwritten or mixed in)."""
+    out = Path(path)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise DanoError(f"{out}: exists and is not an empty folder; choose a new output folder")

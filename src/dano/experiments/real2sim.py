@@ -17,6 +17,7 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
+from .._files import check_new_folder
 from ..errors import DanoError
 from ..pose import normalize_quat, quat_multiply, rotvec_to_quat
 from ..sysid import FitParameter, Observation, SysIdProblem, Weights, identify
@@ -167,9 +168,7 @@ class Real2SimConfig:
     """no progress bar."""
 
     def __post_init__(self):
-        out = Path(self.out)
-        if out.exists() and (not out.is_dir() or any(out.iterdir())):
-            raise DanoError(f"{out}: exists and is not an empty folder; choose a new output folder")
+        check_new_folder(self.out)
         if not 0 < self.friction <= 1.5:
             raise DanoError(f"--friction must be in (0, 1.5], got {self.friction}")
 

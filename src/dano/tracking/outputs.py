@@ -13,10 +13,9 @@ from typing import Annotated
 import numpy as np
 import tyro
 
-from .._files import atomic_write
+from .._files import atomic_write, check_new_folder
 from ..data import load_asset
 from ..nerf import load_field
-from ..errors import DanoError
 from ..pose import velocity_from_poses
 from ..trajectory import Trajectory, save_trajectory
 from ..viz.video import write_frames
@@ -131,9 +130,7 @@ class TrackCommandConfig:
     """no progress bar."""
 
     def __post_init__(self):
-        out = Path(self.out)
-        if out.exists() and (not out.is_dir() or any(out.iterdir())):
-            raise DanoError(f"{out}: exists and is not an empty folder; choose a new output folder")
+        check_new_folder(self.out)
 
     def track_config(self) -> TrackConfig:
         """The per-frame fit's :class:`~dano.tracking.TrackConfig` of these options."""
