@@ -44,17 +44,59 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: kB
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _free_compiled_functions(request):
-    """After each test file, drop what JAX keeps in memory for it (compiled executables and
-    traces of every jitted function, ~0.1-1 GB per file of MJX scenes; the persistent
-    compilation cache on disk stays), so that an xdist worker does not accumulate every
-    file's compilations. Its own module fixtures are finalised before this one."""
-    before = _peak_rss_mb()
-    yield
+def _malloc_trim() -> None:
+    """Give the C heap's free pages back to the system (glibc; elsewhere nothing)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
+def _rss_mb() -> float:
+    """This process's resident set now [MB] (Linux; elsewhere 0)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):
+        return 0.0
+
+
+def _free_memory() -> None:
+    """Drop what JAX keeps in memory: the compiled executables and traces of every jitted
+    function (JAX keys them on the scene, and a scene compares by identity, so every test's
+    new scenes add their own; 0.1-3 GB per file, and thousands of memory mappings: without
+    this one process running the whole suite grew past 10 GB and crashed in a compilation
+    at 81 %). The persistent compilation cache on disk stays: a later compilation of the
+    same function loads it (tracing it again is what this costs)."""
+    if os.environ.get("DANO_TEST_KEEP_CACHES"):  # to measure the difference (DANO_TEST_MEMORY=1)
+        return
     jax.clear_caches()
     gc.collect()
+    _malloc_trim()
+
+
+# within a file, caches are dropped after a test that leaves more than this resident [MB]
+RSS_LIMIT_MB = float(os.environ.get("DANO_TEST_RSS_LIMIT_MB", 2000))
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _free_memory_after_each_file(request):
+    """After each test file (its own module fixtures are finalised before this one)."""
+    before = _peak_rss_mb()
+    yield
+    _free_memory()
     _MEMORY[request.node.nodeid] = _peak_rss_mb() - before
+
+
+@pytest.fixture(autouse=True)
+def _bound_memory_within_a_file():
+    """After a test that leaves the process above RSS_LIMIT_MB (the files that build many
+    scenes: test_sysid.py grew to 3.4 GB), so that a worker stays within about 3 GB."""
+    yield
+    if _rss_mb() > RSS_LIMIT_MB:
+        _free_memory()
 
 
 def pytest_sessionfinish(session):
@@ -110,15 +152,27 @@ def sphere_voxels(path: Path, radius: float = 0.3, n: int = 33, value: float = 1
     return path
 
 
-# the longest files (minutes of compilation and optimisation each), longest first
-LONGEST_FILES = ("test_trajopt_panda.py", "test_trajopt.py", "test_sysid.py")
+# the longest files, longest first (seconds on one worker of the 2-core machine, cold
+# compilation cache: sysid 306, trajopt_panda 228, grasp 226, trajopt 144, step_api 116,
+# sysid_defaults 100, nerf 92, contact_properties 92, sysid_uncertainty 87, sim_gradients
+# 84, scenes 80, contact_physics 75; the other files under 60 each)
+LONGEST_FILES = ("test_sysid.py", "test_trajopt_panda.py", "test_grasp.py", "test_trajopt.py", "test_step_api.py",
+                 "test_sysid_defaults.py", "test_nerf.py", "test_contact_properties.py", "test_sysid_uncertainty.py",
+                 "test_sim_gradients.py", "test_scenes.py", "test_contact_physics.py")
+
+
+def pytest_configure(config):
+    # pytest-xdist (>= 3.6) hands out --dist loadfile's files sorted by their number of tests
+    # (--loadscope-reorder, on by default), which would undo the order below: keep ours
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
 
 
 def pytest_collection_modifyitems(config, items):
     """The longest files first, then the other files with slow tests, then the rest (stable
-    otherwise): pytest-xdist's --dist loadfile hands files to its workers in collection
-    order, so the long files start at once on both workers instead of ending the run on
-    one of them while the other idles."""
+    otherwise): pytest-xdist's --dist loadfile hands files to its workers in this order
+    (see pytest_configure), so the long files start at once on both workers instead of
+    ending the run on one of them while the other idles."""
     slow_files = {item.path for item in items if item.get_closest_marker("slow")}
 
     def rank(item):

@@ -63,7 +63,8 @@ def test_per_sample_torsion_emerges_from_sliding_friction():
         # settle on the ground first, then spin
         settle = rollout(scene, State(jnp.asarray([0, 0, 0.0255, 1, 0, 0, 0.0]), jnp.zeros(6)), None, params, 200)
         q0 = settle.qpos[-1]
-        traj = rollout(scene, State(jnp.asarray(q0), jnp.asarray([0, 0, 0, 0, 0, w0])), None, params, 100)
+        # as many steps as the settling (one compilation); it stops after about 150
+        traj = rollout(scene, State(jnp.asarray(q0), jnp.asarray([0, 0, 0, 0, 0, w0])), None, params, 200)
         w = traj.qvel[:, 5]
         fast = (w < 0.9 * w0) & (w > 0.4 * w0)  # well above the smoothed-friction speed scale
         rates[model] = -np.polyfit(traj.time[fast], w[fast], 1)[0] if fast.sum() > 5 else 0.0
@@ -140,11 +141,16 @@ def test_per_sample_block_search_gives_the_all_samples_wrench():
 
     setup = load_scene("bunny-drop", contact_model="per_sample")
     scene, params = setup.scene, setup.params
-    rest = rollout(scene, setup.state0, None, params, 300)
-    m = model_with_params(scene, params)
-    d = mjx.fwd_position(m, make_data(scene, rest.qpos[-1], rest.qvel[-1]))
-    geos, _ = contact_geometry(scene, params, m, d)
-    g = jax.tree_util.tree_map(lambda x: x[0], geos[0])
+    rest = rollout(scene, setup.state0, None, params, 500)  # at rest: the golden drop's 500 steps (its compilation)
+
+    @jax.jit  # one compilation (run op by op, MJX's kinematics compile hundreds of small ones)
+    def pair_geometry(qpos, qvel):
+        m = model_with_params(scene, params)
+        d = mjx.fwd_position(m, make_data(scene, qpos, qvel))
+        geos, _ = contact_geometry(scene, params, m, d)
+        return jax.tree_util.tree_map(lambda x: x[0], geos[0])
+
+    g = pair_geometry(rest.qpos[-1], rest.qvel[-1])
     p = jax.tree_util.tree_map(lambda x: x[0], _group_params(params, scene.groups[0], 1))
     reach = int(np.sum(np.asarray(g.depth) > -1.0))
     assert 30 < reach <= PerSample().max_active  # (104 samples within reach, in 28 blocks of 8)
@@ -156,7 +162,7 @@ def test_per_sample_block_search_gives_the_all_samples_wrench():
 
     for model, overflows in ((PerSample(), False), (PerSample(blocks_searched=4), True),
                              (PerSample(max_active=16), True)):
-        st = model.prepare(g, 0.01)
+        st = jax.jit(lambda g: model.prepare(g, 0.01))(g)  # noqa: B023  (called at once)
         assert bool(st.overflow) == overflows
         assert int(np.sum(np.asarray(st.active.weight) > 0)) == min(reach, model.max_active) or overflows
         for u in (jnp.zeros(6), jnp.asarray([0.2, -0.1, -0.3, 0.5, 1.0, -2.0])):

@@ -122,6 +122,7 @@ def test_inertial_parametrisation_is_physical_and_differentiable(box):
     np.testing.assert_allclose(J, fd, atol=1e-6 * np.abs(fd).max())
 
 
+@pytest.mark.slow
 def test_centre_of_mass_is_identified_from_spinning_slides(box):
     """Two slides with spin of a box whose centre of mass is 1.5 cm and −1 cm off the field's
     estimate (truth simulated); from zero offset the fit recovers it within 0.5 % of the box's

@@ -70,10 +70,10 @@ def test_panda_without_menagerie_is_a_clear_error(monkeypatch):
 
 
 def test_trajectory_file_round_trip(tmp_path):
-    s, traj = run("bunny-drop", 30)
+    s, traj = run("bunny-drop", 50)  # as many steps as the video test: one compilation
     path = save_trajectory(traj, tmp_path / "t.npz")
     z = np.load(path)
-    assert z["time"].shape == (31,) and z["qpos"].shape == (31, 7) and z["qvel"].shape == (31, 6)
+    assert z["time"].shape == (51,) and z["qpos"].shape == (51, 7) and z["qvel"].shape == (51, 6)
     assert "bunny" in z["body_names"].tolist()
     back = load_trajectory(path)
     np.testing.assert_array_equal(back.qpos, traj.qpos)

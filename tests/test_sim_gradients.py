@@ -28,7 +28,10 @@ def alpha_of(scene):
     return float(scene.assets[0].alpha)
 
 
-def outputs(scene, q0, v0, theta, steps=40):
+STEPS = 40  # every rollout of the sliding box: its compiled scan is shared by the tests
+
+
+def outputs(scene, q0, v0, theta, steps=STEPS):
     mu, alpha, vx = theta
     base = scene.default_params()
     params = SimParams(dataclasses.replace(base.contact, sliding_friction=jnp.full((1,), mu)), alpha[None])
@@ -69,7 +72,7 @@ def test_no_nan_at_rest_at_onset_and_without_contact(sliding_box):
         def f(theta):
             p = SimParams(dataclasses.replace(params.contact, sliding_friction=theta[:1], impact_spring=theta[1:2]),
                           theta[2:3])
-            qpos, qvel, psi = rollout_arrays(scene, State(q, v * theta[3]), None, p, 20)
+            qpos, qvel, psi = rollout_arrays(scene, State(q, v * theta[3]), None, p, STEPS)
             return jnp.concatenate([qpos.ravel(), qvel.ravel(), psi.ravel()])
 
         theta = jnp.asarray([0.3, 3e4, alpha_of(scene), 1.0])
@@ -106,7 +109,7 @@ def test_vmapped_rollouts_match_single_ones(sliding_box):
     scene, q0, v0 = sliding_box
     params = scene.default_params()
     vs = jnp.stack([v0, v0 * 0.5, v0.at[1].set(-0.4)])
-    batched = jax.vmap(lambda v: rollout_arrays(scene, State(q0, v), None, params, 30)[0])(vs)
+    batched = jax.vmap(lambda v: rollout_arrays(scene, State(q0, v), None, params, STEPS)[0])(vs)
     for k in range(3):
-        single = rollout_arrays(scene, State(q0, vs[k]), None, params, 30)[0]
+        single = rollout_arrays(scene, State(q0, vs[k]), None, params, STEPS)[0]
         np.testing.assert_allclose(np.asarray(batched[k]), np.asarray(single), rtol=1e-10, atol=1e-12)

@@ -75,12 +75,13 @@ def test_rollout_in_chunks_continues_act_time_and_ctrl(box_scene):
     np.testing.assert_allclose(second.qpos[-1], whole.qpos[-1], atol=1e-12)
     np.testing.assert_allclose(np.asarray(second.final_data.act), np.asarray(whole.final_data.act), atol=1e-14)
     assert float(second.final_data.time) == pytest.approx(40 * scene.dt)
-    # progress reporting runs in chunks too, each continuing from the last one's Data; 41
-    # steps do not divide into 20 equal chunks: no extra steps, the right final time
-    chunked = rollout(scene, data, None, params, 41, progress=lambda *a: None)
+    # progress reporting runs in chunks too, each continuing from the last one's Data; 390
+    # steps do not divide into 20 equal chunks (19 of 20 steps, the compilation of `first`,
+    # and one of 10): no extra steps, the right final time
+    chunked = rollout(scene, data, None, params, 390, progress=lambda *a: None)
     np.testing.assert_allclose(chunked.qpos[:41], whole.qpos, atol=1e-12)
-    assert chunked.qpos.shape[0] == 42
-    assert float(chunked.final_data.time) == pytest.approx(41 * scene.dt)
+    assert chunked.qpos.shape[0] == 391
+    assert float(chunked.final_data.time) == pytest.approx(390 * scene.dt)
 
 
 def test_step_vmaps_over_data_and_params(box_scene):
@@ -107,9 +108,8 @@ def test_jacfwd_of_step_matches_central_differences(box_scene):
     def after(theta):  # three steps, as a function of (sliding friction, mass scale)
         p = params.replace(contact=params.contact.replace(sliding_friction=jnp.full((len(scene.pairs),), theta[0])),
                            alpha=theta[1:])
-        d = data
-        for _ in range(3):
-            d = step(scene, p, d)
+        # a loop of 3 (not 3 copies of the step unrolled: a third of the compilation)
+        d = jax.lax.fori_loop(0, 3, lambda _, d: step(scene, p, d), data)
         return jnp.concatenate([d.qpos, d.qvel])
 
     # start in contact: settle first

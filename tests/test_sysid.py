@@ -59,6 +59,7 @@ def test_friction_of_a_sliding_box_matches_the_analytic_answer(box_setup):
     assert res.standard_errors[0] > 0 and np.isfinite(res.standard_errors[0])
 
 
+@pytest.mark.slow
 def test_windows_and_fd_jacobians(box_setup):
     """Multiple shooting on data from the simulator itself (a box thrown along x and y):
     every window restarts from the observed pose with finite-difference velocities, so it
@@ -187,6 +188,7 @@ def test_real_soap_video():
     assert sens["0.9"] < sens["1.0"] < sens["1.1"]  # friction grows with the assumed length scale
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("noise, tolerance", [(False, 0.005), (True, 0.015)])
 def test_bunny_pushes_recover_mass_scale_and_friction(noise, tolerance):
     from dano.experiments.sysid_examples import PUSH_TRUTH, push_problem
