@@ -169,10 +169,6 @@ class _Compiled:
                                     jnp.abs(hT), jnp.zeros((1,), X.dtype)])
             return cost, cost + al, jnp.max(viol)
 
-        def evaluate(x0, U, lam, mu, p):
-            X = rollout(x0, U, p)
-            return (X,) + merit(X, U, lam, mu, p)
-
         def forward(x0, X, U, K, k, alpha, lam, mu, p):
             def body(x, inp):
                 t, xr, ur, Kt, kt = inp
@@ -253,11 +249,21 @@ class _Compiled:
             return Multipliers(jnp.maximum(lam.inequality + mu * gi, 0), lam.equality + mu * ge,
                                jnp.maximum(lam.terminal_inequality + mu * gT, 0), lam.terminal_equality + mu * hT)
 
-        def sizes(x0, U, p):
-            return tuple(a.shape for a in constraint_values(rollout(x0, U, p), U, p))
+        def sizes(x0, U, p):  # shapes only: traced, never compiled
+            return tuple(a.shape for a in jax.eval_shape(lambda: constraint_values(rollout(x0, U, p), U, p)))
 
-        self.evaluate = jax.jit(evaluate)
         self.forward = jax.jit(forward)
+
+        def evaluate(x0, U, lam, mu, p):
+            """(X, cost, merit, violation) of the open-loop rollout: the forward pass with no
+            feedback and no step (u = U exactly), so it shares that pass's compilation."""
+            X0 = jnp.zeros((U.shape[0] + 1, x0.shape[0]), x0.dtype)
+            K0 = jnp.zeros((U.shape[0], U.shape[1], x0.shape[0]), x0.dtype)
+            X, _, cost, merit_, viol = self.forward(x0, X0, U, K0, jnp.zeros_like(U), 0.0, lam, mu, p)
+            return X, cost, merit_, viol
+
+        evaluate._cache_size = self.forward._cache_size  # (solve counts compilations by it)
+        self.evaluate = evaluate
         self.expand = jax.jit(expand)
         self.backward = jax.jit(backward)
         self.duals = jax.jit(duals)
