@@ -182,3 +182,69 @@ def test_inspect_shows_size_volume_and_warns_on_implausible_density(tmp_path, sp
     cap = capsys.readouterr()
     assert json.loads(cap.out)["extents"] == pytest.approx(size["extents"])
     assert "mean density 0.001 kg/m³" in cap.err and "metres" in cap.err and len(cap.err.strip().splitlines()) == 1
+
+
+def _field(spec, **arrays):
+    """Replace the stored field by ``spec`` and ``arrays`` (names under field/)."""
+    def change(a):
+        for k in [k for k in a if k.startswith("field/")]:
+            del a[k]
+        a["field/spec"] = np.asarray(json.dumps(spec))
+        a.update({"field/" + k: v for k, v in arrays.items()})
+    return change
+
+
+_GRID = np.ones((4, 4, 4))
+_BOX = np.array([[-0.3, -0.3, -0.3], [0.3, 0.3, 0.3]])
+_SPHERE = {"kind": "sphere", "radius": 0.2, "edge_width": 0.01, "density_scale": 1.0, "center": [0, 0, 0]}
+_STORED_FIELDS = {
+    "voxel with NaN": (_field({"kind": "voxel"}, values=_at(_GRID.copy(), (1, 2, 3), np.nan), bounds=_BOX),
+                       "voxel densities contains 1 NaN"),
+    "complex voxel grid": (_field({"kind": "voxel"}, values=_GRID + 1j, bounds=_BOX), "must be real numbers"),
+    "voxel of wrong shape": (_field({"kind": "voxel"}, values=np.ones((4, 4)), bounds=_BOX), "3-D array"),
+    "voxel bounds reversed": (_field({"kind": "voxel"}, values=_GRID, bounds=_BOX[::-1].copy()),
+                              "lower < upper"),
+    "sdf grid with infinity": (_field({"kind": "sdf_grid", "edge_width": 0.01, "density_scale": 1.0},
+                                      sdf=_at(_GRID.copy(), (0, 0, 0), np.inf), bounds=_BOX),
+                               "signed distances contains 1 NaN or infinite"),
+    "sdf grid of wrong shape": (_field({"kind": "sdf_grid", "edge_width": 0.01, "density_scale": 1.0},
+                                       sdf=np.ones(5), bounds=_BOX), "3-D array"),
+    "sdf grid without bounds": (_field({"kind": "sdf_grid", "edge_width": 0.01, "density_scale": 1.0},
+                                       sdf=_GRID), "lacks 'field/bounds'"),
+    "sdf edge width zero": (_field({"kind": "sdf_grid", "edge_width": 0.0, "density_scale": 1.0},
+                                   sdf=_GRID, bounds=_BOX), "edge_width must be a finite positive"),
+    "negative sphere radius": (_field({**_SPHERE, "radius": -0.2}), "radius must be a finite positive"),
+    "transform not a rotation": (_field({"kind": "transformed", "scale": 1.0, "rotation": (2 * np.eye(3)).tolist(),
+                                         "offset": [0, 0, 0], "base": _SPHERE}), "rotation matrix"),
+    "transform scale NaN": (_field({"kind": "transformed", "scale": float("nan"), "rotation": np.eye(3).tolist(),
+                                    "offset": [0, 0, 0], "base": _SPHERE}), "scale must be a finite positive"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(_STORED_FIELDS))
+def test_bad_stored_fields_are_refused(case, tmp_path, sphere_asset, capsys):
+    """A .dano whose stored density field holds NaN, a wrong shape, bad bounds or bad
+    parameters is refused when read, naming the file (inspect and simulate exit 1)."""
+    from dano.cli import main
+
+    change, message = _STORED_FIELDS[case]
+    bad = _rewrite(save(sphere_asset, tmp_path / "a.dano"), tmp_path / "bad.dano", change)
+    with pytest.raises(FileFormatError, match=message) as info:
+        load(bad)
+    assert str(info.value).startswith(str(bad))
+    assert main(["inspect", str(bad)]) == 1
+    capsys.readouterr()
+    floor = tmp_path / "floor.xml"
+    floor.write_text('<mujoco><worldbody><geom type="plane" size="1 1 0.1"/></worldbody></mujoco>')
+    out = tmp_path / "out.npz"
+    assert main(["simulate", str(floor), "--object", f"{bad}@0,0,0.5", "--duration", "0.05", "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "bad.dano" in err and "Traceback" not in err and not out.exists()
+
+
+def test_a_complex_voxel_grid_is_not_built(tmp_path):
+    from dano.cli import main
+
+    np.savez(tmp_path / "grid.npz", density=np.ones((8, 8, 8)) * (1 + 0.5j), bounds=_BOX)
+    assert main(["build", str(tmp_path / "grid.npz"), "-o", str(tmp_path / "g.dano")]) == 1
+    assert not (tmp_path / "g.dano").exists()

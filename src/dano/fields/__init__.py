@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 
-import jax.numpy as jnp
 import numpy as np
 
 from ..errors import FileFormatError
@@ -98,13 +97,11 @@ def _build(spec, arrays, prefix):
         if kind == "voxel":
             return VoxelField.create(arrays[prefix + "values"], arrays[prefix + "bounds"])
         if kind == "sdf_grid":
-            b = np.asarray(arrays[prefix + "bounds"])
-            return SdfGridField(jnp.asarray(arrays[prefix + "sdf"]), jnp.asarray(b[0]), jnp.asarray(b[1]),
-                                float(spec["edge_width"]), float(spec["density_scale"]))
+            return SdfGridField.create(arrays[prefix + "sdf"], arrays[prefix + "bounds"], spec["edge_width"],
+                                       spec["density_scale"])
         if kind == "transformed":
             base = _build(spec["base"], arrays, prefix + "base/")
-            return TransformedField(base, float(spec["scale"]), jnp.asarray(spec["rotation"]),
-                                    jnp.asarray(spec["offset"]))
+            return TransformedField.from_matrix(base, spec["scale"], spec["rotation"], spec["offset"])
     except KeyError as exc:
         raise FileFormatError(f"stored field of kind {kind!r} lacks {exc}") from exc
     raise FileFormatError(f"unknown stored field kind {kind!r}")

@@ -27,7 +27,10 @@ def _grid_coords(points: jax.Array, lower: jax.Array, upper: jax.Array, shape) -
 
 
 def _check_grid(values: np.ndarray, what: str) -> np.ndarray:
-    v = np.asarray(values, dtype=np.float64)
+    raw = np.asarray(values)
+    if raw.dtype.kind not in "biuf":  # complex, text, objects: no density (numpy would drop an imaginary part)
+        raise DanoError(f"{what} must be real numbers, got an array of dtype {raw.dtype}")
+    v = raw.astype(np.float64)
     if v.ndim != 3 or min(v.shape) < 2:
         raise DanoError(f"{what} must be a 3-D array with at least 2 nodes per axis, got shape {v.shape}")
     if not np.all(np.isfinite(v)):
@@ -128,6 +131,18 @@ class SdfGridField:
     upper: jax.Array
     edge_width: float
     density_scale: float = 1.0
+
+    @classmethod
+    def create(cls, sdf, bounds, edge_width: float, density_scale: float = 1.0) -> "SdfGridField":
+        """sdf: (nx, ny, nz) [m] at the nodes; bounds: (2, 3) positions of the first and last
+        node [m]. Raises DanoError on bad shapes, non-finite distances or bounds, or a
+        non-positive edge width or density scale."""
+        d = _check_grid(sdf, "signed distances")
+        b = check_bounds(bounds, "signed-distance grid bounds")
+        for name, value in (("edge_width", edge_width), ("density_scale", density_scale)):
+            if not (isinstance(value, (int, float, np.number)) and np.isfinite(value) and value > 0):
+                raise DanoError(f"{name} must be a finite positive number, got {value!r}")
+        return cls(jnp.asarray(d), jnp.asarray(b[0]), jnp.asarray(b[1]), float(edge_width), float(density_scale))
 
     def signed_distance(self, points: jax.Array) -> jax.Array:
         """Trilinearly interpolated signed distance [m], (N,)."""

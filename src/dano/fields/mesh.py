@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 import trimesh
 
@@ -123,10 +122,4 @@ def mesh_field(
         )[0]
         if progress is not None:
             progress(min(start + chunk, len(pts)), len(pts))
-    return SdfGridField(
-        sdf=jnp.asarray(sdf.reshape(shape)),
-        lower=jnp.asarray(lo),
-        upper=jnp.asarray(hi),
-        edge_width=w,
-        density_scale=float(density_scale),
-    )
+    return SdfGridField.create(sdf.reshape(shape), np.stack([lo, hi]), float(w), float(density_scale))

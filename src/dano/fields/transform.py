@@ -47,6 +47,23 @@ class TransformedField:
         R = quat_to_matrix(q)  # normalises
         return cls(base, scale, jnp.asarray(R), jnp.asarray(t))
 
+    @classmethod
+    def from_matrix(cls, base, scale: float, rotation, offset) -> "TransformedField":
+        """The same from a (3, 3) rotation matrix (as stored in a ``.dano`` file). Raises
+        DanoError for a non-positive scale, a matrix that is not a rotation (to 1e-6) or a
+        bad offset."""
+        scale = float(scale)
+        if not np.isfinite(scale) or scale <= 0:
+            raise DanoError(f"scale must be a finite positive number, got {scale}")
+        R = np.asarray(rotation, dtype=np.float64)
+        if (R.shape != (3, 3) or not np.all(np.isfinite(R)) or not np.allclose(R.T @ R, np.eye(3), atol=1e-6)
+                or np.linalg.det(R) < 0):
+            raise DanoError(f"rotation must be a (3, 3) rotation matrix, got {R.tolist()}")
+        t = np.asarray(offset, dtype=np.float64)
+        if t.shape != (3,) or not np.all(np.isfinite(t)):
+            raise DanoError(f"offset must be 3 finite numbers, got {t.tolist()}")
+        return cls(base, scale, jnp.asarray(R), jnp.asarray(t))
+
     def density(self, points: jax.Array) -> jax.Array:
         p = as_points(points)
         local = ((p - self.offset) @ self.rotation) / self.scale
