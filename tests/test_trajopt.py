@@ -80,6 +80,20 @@ def test_infeasible_constraints_are_reported_not_looped_on():
     assert sol.iterations < 100 and sol.max_violation > 1.0
 
 
+def test_warm_start_from_a_converged_solution_reports_converged():
+    """Re-solving from a converged plan: with its multipliers and penalty it is done in one
+    iteration; from its controls alone the augmented Lagrangian first leaves the constraints
+    (zero multipliers) and comes back, steadily (×7 less violation per round): converged
+    (this was reported "infeasible", the rounds being compared with the feasible start)."""
+    pr = _swing_up(5.0, 100)
+    sol = solve(pr, np.zeros(2), np.zeros((100, 1)))
+    again = solve(pr, np.zeros(2), sol.controls, multipliers=sol.multipliers, penalty=sol.penalty)
+    assert again.status == "converged" and again.iterations <= 2 and again.cost == pytest.approx(sol.cost, rel=1e-3)
+    controls_only = solve(pr, np.zeros(2), sol.controls)
+    assert controls_only.status == "converged" and controls_only.max_violation <= 1e-4, controls_only.log
+    assert controls_only.cost == pytest.approx(sol.cost, rel=1e-2)
+
+
 def test_receding_horizon_recovers_from_model_error():
     pr = _swing_up(8.0, 60)
     plan = solve(pr, np.zeros(2), np.zeros((60, 1)), 9.81)

@@ -130,6 +130,9 @@ class Solution:
     compile_time_s: float = dataclasses.field(default=0.0, metadata=dict(static=True))
 
 
+#: stages linearised at once in the expansion (jax.lax.map's batch_size)
+STAGE_BATCH = 16
+
 LOG_KEYS = ("iteration", "outer", "cost", "merit", "max_violation", "step", "penalty", "regularization", "gradient")
 
 
@@ -200,7 +203,10 @@ class _Compiled:
                 lzz = lzz + Jg.T @ (Ig[:, None] * Jg) + mu * Jh.T @ Jh
                 return F, lz, lzz
 
-            F, lz, lzz = jax.vmap(stage)(X[:-1], U, ts, lam.inequality, lam.equality)
+            # stages in batches (lax.map): the batched linearisation's intermediates, not the
+            # whole horizon's at once, bound the memory (a vmap over T stages held them all)
+            F, lz, lzz = jax.lax.map(lambda a: stage(*a), (X[:-1], U, ts, lam.inequality, lam.equality),
+                                     batch_size=min(T, STAGE_BATCH))
             xT = X[-1]
 
             def fT(x):
@@ -329,7 +335,10 @@ def solve(problem: Problem, x0, U0, params=None, options: ILQRConfig = ILQRConfi
     log = {k: [] for k in LOG_KEYS}
     K = jnp.zeros((problem.horizon, problem.nu, problem.nx), x0.dtype)
     status, outer, inner, it = "max_iterations", 0, 0, 0
-    violations = [float(viol)]
+    # the violation after each inner solve (not the start's: a warm start may begin feasible
+    # and leave the constraints while its multipliers are rebuilt), for the stagnation test
+    violations: list[float] = []
+    last_violation = float(viol)
     expansion = None
     while it < options.max_iterations:
         if expansion is None:  # the expansion changes only when the trajectory, λ or μ do
@@ -380,9 +389,10 @@ def solve(problem: Problem, x0, U0, params=None, options: ILQRConfig = ILQRConfi
             status = "infeasible"
             break
         lam = timed(fns.duals, X, U, lam, mu, params)
-        if float(viol) > options.penalty_keep * violations[-1]:  # too slow: stiffen the penalty
+        if float(viol) > options.penalty_keep * last_violation:  # too slow: stiffen the penalty
             mu = jnp.minimum(mu * options.penalty_scaling, options.penalty_max)
         violations.append(float(viol))
+        last_violation = float(viol)
         outer += 1
         inner = 0
         rho = options.regularization_initial
