@@ -67,13 +67,13 @@ def render() -> str:
     """The whole document."""
     from dano._config import schema_markdown
     from dano.experiments.grasp import GraspPandaConfig
-    from dano.experiments.push import PushPandaConfig, PushSphereConfig
+    from dano.experiments.push import PushObjectConfig, PushPandaConfig, PushSphereConfig
     from dano.sysid.config import SysIdConfig
 
     parts = [HEADER,
              schema_markdown(SysIdConfig, "System identification: `dano sysid`", intro=SYSID_INTRO),
              f"## Trajectory optimisation: `dano trajopt`\n\n{TRAJOPT_INTRO}"]
-    for cls in (PushSphereConfig, PushPandaConfig, GraspPandaConfig):
+    for cls in (PushObjectConfig, PushSphereConfig, PushPandaConfig, GraspPandaConfig):
         task = cls.__dataclass_fields__["task"].default
         parts.append(schema_markdown(cls, f"`task = \"{task}\"`", level=3,
                                      intro=f"`{cls.__module__}.{cls.__name__}`: {' '.join(cls.__doc__.split())}"))

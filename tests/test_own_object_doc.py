@@ -2,7 +2,8 @@
 folder holding the user's mesh (here the low-poly bunny of ../shared), with the installed
 `dano` on PATH. The journey ends in plain MuJoCo loading the identified friction; the
 identified value is checked against MuJoCo's own (0.5): inside the interval dano reports; and
-the exported object, pushed in plain MuJoCo, slides within 10 % of the recorded distance."""
+the exported object, pushed in plain MuJoCo, slides within 10 % of the recorded distance; the
+push planned for the toy reaches its goal."""
 
 import json
 import os
@@ -12,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "own-object.md"
@@ -48,4 +50,10 @@ def test_own_object_walkthrough(tmp_path, shared):
     # (measured: 0.200 m against 0.190 m, +5 %: MuJoCo's friction 0.5 vs the identified 0.451)
     slides = json.loads((tmp_path / "slides.json").read_text())
     assert abs(slides["exported"] / slides["recorded"] - 1) < 0.10, slides
+    # the push planned for the toy: at its goal within the constraint tolerance, the sphere sized to it
+    push = json.loads((tmp_path / "push.json").read_text())
+    assert push["converged"] and push["object_final_error"] < 1e-3 and push["object_goal"] == [0.0, 0.3], push
+    x0 = np.load(tmp_path / "push-toy" / "solution.npz")["states"][0]
+    assert x0[:3] == pytest.approx([0.0, -0.8 * 0.2, 0.25 * 0.2], rel=0.02)  # 0.8 L behind, at its radius L/4
+    assert (tmp_path / "push-toy" / "push.mp4").stat().st_size > 1000
     assert (tmp_path / "toy.mp4").stat().st_size > 1000 and (tmp_path / "sysid-toy" / "fit.png").exists()

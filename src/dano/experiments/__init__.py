@@ -74,6 +74,8 @@ _ALL = (
                "trajopt_run:run", "push:PushSphereConfig"),
     Experiment("push-panda", "trajopt", "the Panda's joint torques push the bunny to a goal",
                "trajopt_run:run", "push:PushPandaConfig"),
+    Experiment("push", "trajopt", "a floating sphere, sized to the object, pushes any DANO to a goal",
+               "trajopt_run:run", "push:PushObjectConfig"),
     Experiment("grasp-panda", "trajopt", "the Panda's hand grasps, lifts and holds the bunny",
                "trajopt_run:run", "grasp:GraspPandaConfig"),
     Experiment("synthetic-slide", "real2sim", "a rendered slide video -> poses -> friction, and pixels -> friction",

@@ -35,7 +35,7 @@ import mujoco
 import numpy as np
 
 from .._config import check_ranges
-from ..data import load_builtin
+from ..data import load_asset, load_builtin
 from ..errors import DanoError
 from ..sim import DanoObject, compose
 from ..sim.scene import add_ground
@@ -146,6 +146,31 @@ class PushPandaConfig(PushConfig):
                                     ("goal_angle", np.isfinite(self.goal_angle))]
 
 
+@dataclass(frozen=True)
+class PushObjectConfig(PushConfig):
+    """Settings of ``push``: a floating sphere pushes any DANO (``object``) resting on the
+    ground at the origin so that its centre of mass ends at ``goal``. The pusher is sized
+    to the object as the paper's sphere is to its bunny (L: the object's longest extent,
+    m: its mass): radius L/4, mass 3.1 m, starting 0.8 L behind the object (opposite the
+    goal), a plain push of 25 m·L N along the goal direction, then braking, as the first
+    guess. The other settings are push-sphere's."""
+
+    task: str = "push"
+    """The task's name: ``push``."""
+    object: str = "builtin:bunny"
+    """The DANO to push: ``FILE.dano`` or ``builtin:NAME``."""
+    goal: tuple[float, float] | None = None
+    """Where its centre of mass should end, x y, world frame [m] (it starts at 0 0); None: one
+    longest extent L along +x and L/2 along +y."""
+    pusher: str = "sphere"
+    """The pusher: ``sphere`` (a floating, fully actuated sphere; the arm pushes only the built-in
+    15 cm bunny for now: the push-panda task)."""
+
+    def _checks(self) -> list:
+        goal_ok = self.goal is None or (len(self.goal) == 2 and bool(np.all(np.isfinite(self.goal))))
+        return super()._checks() + [("goal", goal_ok), ("pusher", self.pusher == "sphere")]
+
+
 SPHERE_MASS, SPHERE_RADIUS = 10.0, 0.25
 SPHERE_START = (-0.8, 0.0, 0.25)
 PLAIN_FORCE = 80.0  # N
@@ -188,45 +213,83 @@ def _params(scene, config: PushConfig):
                                 impact_damper=config.impact_damper)
 
 
-def push_sphere_task(config: PushSphereConfig = PushSphereConfig()) -> PushTask:
-    """Build the push-sphere task: the scene, the plain push and the constrained problem."""
-    bunny = load_builtin("bunny")
-    z = resting_height(bunny) + 0.001
+def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mass: float, start, force,
+                        goal_of) -> PushTask:
+    """A floating sphere (``radius`` [m], ``mass`` [kg], gravity compensated, touching only
+    the DANO) at ``start`` (3,) [m] behind the DANO ``name`` resting at the origin; the plain
+    push: ``force`` (3,) [N] for 25 of every 60 steps, then the same braking. ``goal_of(X_plain,
+    object_q, pusher_q)`` gives (object goal (2,), pusher goal (3,) or None)."""
+    z = resting_height(asset) + 0.001
     spec = mujoco.MjSpec()
     add_ground(spec)
-    body = spec.worldbody.add_body(name="pusher", pos=list(SPHERE_START), gravcomp=1.0)
+    body = spec.worldbody.add_body(name="pusher", pos=list(start), gravcomp=1.0)
     body.add_freejoint(name="pusher_free")
-    # contype 2: no MuJoCo contact with the ground (conaffinity 1); DANO contact with the bunny
-    body.add_geom(name="pusher", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[SPHERE_RADIUS, 0, 0], mass=SPHERE_MASS,
+    # contype 2: no MuJoCo contact with the ground (conaffinity 1); DANO contact with the object
+    body.add_geom(name="pusher", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[radius, 0, 0], mass=mass,
                   contype=2, conaffinity=2, rgba=[0.3, 0.5, 0.9, 1])
-    scene = compose([DanoObject("bunny", bunny, (0, 0, z))], spec, dt=config.dt, name="push-sphere",
+    scene = compose([DanoObject(name, asset, (0, 0, z))], spec, dt=config.dt, name=config.task,
                     contact_model=config.contact_model)
     params = _params(scene, config)
-    s0 = initial_state(scene, {"bunny": ((0, 0, z), (1, 0, 0, 0)), "pusher": (SPHERE_START, (1, 0, 0, 0))})
+    s0 = initial_state(scene, {name: ((0, 0, z), (1, 0, 0, 0)), "pusher": (tuple(start), (1, 0, 0, 0))})
     x0 = np.r_[np.asarray(s0.qpos), np.asarray(s0.qvel)]
     T = config.horizon
     pa, ba = scene.mj_model.jnt_qposadr[0], scene.qpos_adr[0]
-    pusher, bunny_q = slice(pa, pa + 3), slice(ba, ba + 3)
+    pusher, object_q = slice(pa, pa + 3), slice(ba, ba + 3)
     dofs = np.arange(scene.mj_model.jnt_dofadr[0], scene.mj_model.jnt_dofadr[0] + 6)
     dynamics = mjx_dynamics(scene, "qfrc", dofs=dofs)
-    u_ref = np.array([SPHERE_MASS * G] * 3 + [SPHERE_MASS * G * SPHERE_RADIUS] * 3)
+    u_ref = np.array([mass * G] * 3 + [mass * G * radius] * 3)
     half = T * 25 // 60  # 25 of 60 steps: 0.5 s at the paper's h
     U_plain = np.zeros((T, 6))
-    U_plain[:half, 0] = PLAIN_FORCE
-    U_plain[half:2 * half, 0] = -PLAIN_FORCE
+    U_plain[:half, :3] = force
+    U_plain[half:2 * half, :3] = -np.asarray(force)
     stage_cost = _stage_cost(config, scene.nq, u_ref)
     plain = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6)
     X_plain = np.asarray(rollout(plain, x0, U_plain, params))
-    bunny_goal = X_plain[-1, bunny_q][:2] + np.array([0.0, config.sideways])
-    pusher_goal = np.r_[X_plain[-1, pusher][:2] + np.array([0.0, config.sideways]), SPHERE_START[2]]
-    bg, pg = jnp.asarray(bunny_goal), jnp.asarray(pusher_goal)
+    object_goal, pusher_goal = goal_of(X_plain, object_q, pusher)
+    og = jnp.asarray(object_goal)
+    if pusher_goal is None:
+        def terminal(x, p):
+            return x[object_q][:2] - og
+    else:
+        pg = jnp.asarray(pusher_goal)
 
-    def terminal(x, p):
-        return jnp.concatenate([x[bunny_q][:2] - bg, x[pusher] - pg])
+        def terminal(x, p):
+            return jnp.concatenate([x[object_q][:2] - og, x[pusher] - pg])
 
     problem = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, terminal_equality=terminal)
-    return PushTask(scene, params, problem, x0, U_plain, X_plain, bunny_goal, pusher_goal, bunny_q, "qfrc", dofs,
-                    u_ref, config)
+    return PushTask(scene, params, problem, x0, U_plain, X_plain, np.asarray(object_goal), pusher_goal, object_q,
+                    "qfrc", dofs, u_ref, config)
+
+
+def push_sphere_task(config: PushSphereConfig = PushSphereConfig()) -> PushTask:
+    """Build the push-sphere task: the scene, the plain push and the constrained problem."""
+    def goals(X_plain, bunny_q, pusher):
+        side = np.array([0.0, config.sideways])
+        return X_plain[-1, bunny_q][:2] + side, np.r_[X_plain[-1, pusher][:2] + side, SPHERE_START[2]]
+
+    return _sphere_pusher_task(config, load_builtin("bunny"), "bunny", SPHERE_RADIUS, SPHERE_MASS, SPHERE_START,
+                               (PLAIN_FORCE, 0.0, 0.0), goals)
+
+
+# the paper's sphere and push relative to its bunny (longest extent 1.004, mass 3.22)
+PUSHER_RADIUS_PER_LENGTH, PUSHER_MASS_PER_MASS, PUSHER_START_PER_LENGTH = 0.25, 3.1, 0.8
+PUSH_FORCE_PER_MASS_LENGTH = 25.0  # N per (kg m)
+
+
+def push_object_task(config: PushObjectConfig = PushObjectConfig()) -> PushTask:
+    """Build the ``push`` task for ``config.object`` (see :class:`PushObjectConfig`).
+    Raises DanoError / FileFormatError naming the object file."""
+    asset = load_asset(config.object)
+    L, m = float(np.max(asset.size()["extents"])), asset.mass
+    goal = np.array([L, 0.5 * L]) if config.goal is None else np.asarray(config.goal, dtype=float)
+    if np.linalg.norm(goal) < 1e-3 * L:
+        raise DanoError(f"goal {goal.tolist()} is where the object starts: give a goal away from 0 0")
+    direction = np.r_[goal / np.linalg.norm(goal), 0.0]
+    r = PUSHER_RADIUS_PER_LENGTH * L
+    start = -PUSHER_START_PER_LENGTH * L * direction + np.array([0.0, 0.0, r])
+    name = asset.name or "object"
+    return _sphere_pusher_task(config, asset, name, r, PUSHER_MASS_PER_MASS * m, start,
+                               PUSH_FORCE_PER_MASS_LENGTH * m * L * direction, lambda *_: (goal, None))
 
 
 PANDA_TORQUE = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0])  # N m, Franka's joint torque limits
@@ -386,7 +449,8 @@ def model_error_run(task: PushTask, solution: Solution, callback=None) -> ModelE
     return ModelErrorResult(mu_world, X_open, rh)
 
 
-TASKS = {"push-sphere": (push_sphere_task, PushSphereConfig), "push-panda": (push_panda_task, PushPandaConfig)}
+TASKS = {"push-sphere": (push_sphere_task, PushSphereConfig), "push-panda": (push_panda_task, PushPandaConfig),
+         "push": (push_object_task, PushObjectConfig)}
 
 
 def task_names() -> tuple[str, ...]:

@@ -54,8 +54,8 @@ def load_config(source: str, **overrides):
 
 
 def report(task, solution, model_error=None) -> dict:
-    """The JSON report: ``bunny_final_error``, ``pusher_final_error`` [m] (null for a
-    pusher without a goal), ``max_constraint_violation``, ``iterations``, ``converged``,
+    """The JSON report: ``bunny_final_error`` (also ``object_final_error``: the pushed
+    object, whatever it is), ``pusher_final_error`` [m] (null for a pusher without a goal), ``max_constraint_violation``, ``iterations``, ``converged``,
     ``status``, ``cost``, ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final``
     (where the initial guess leaves the bunny), goals, ``max_control_ratio`` and (arm)
     ``joint_limit_violation`` and, with a model error, ``model_error``: world friction,
@@ -67,6 +67,7 @@ def report(task, solution, model_error=None) -> dict:
         "converged": solution.converged, "status": solution.status, "cost": solution.cost,
         "wall_time_s": solution.wall_time_s, "compile_time_s": solution.compile_time_s,
         "bunny_goal": task.bunny_goal.tolist(),
+        "object_final_error": eb, "object_goal": task.bunny_goal.tolist(),  # the same, for any object
         "pusher_goal": None if task.pusher_goal is None else task.pusher_goal.tolist(),
         "plain_push_bunny_final": task.X_plain[-1, task.bunny_qpos].tolist(),
         "horizon": task.problem.horizon, "dt": task.scene.dt,
@@ -213,8 +214,8 @@ class TrajoptCommandConfig:
     """Optimise a robot motion through contact (constrained iLQR with an augmented Lagrangian)."""
 
     task: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="TASK|CONFIG")]
-    """a built-in task (push-sphere: the paper's sphere pushing the bunny 1.0 sideways of a plain push; push-
-    panda: the Menagerie Panda's joint torques pushing a 15 cm bunny 10 cm, needs MENAGERIE_ROOT; grasp-
+    """a built-in task (push: a sphere sized to the object pushes any DANO (--object) to --goal; push-sphere:
+    the paper's sphere pushing the bunny 1.0 sideways of a plain push; push-panda: the Menagerie Panda's joint torques pushing a 15 cm bunny 10 cm, needs MENAGERIE_ROOT; grasp-
     panda: the Panda's hand grasps, lifts and holds the 15 cm bunny, needs MENAGERIE_ROOT) or a TOML/JSON
     configuration (key task and the task's settings, e.g. the config.json a run saved)."""
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False
@@ -231,6 +232,13 @@ class TrajoptCommandConfig:
     """iLQR iterations in all (default 300)."""
     contact_model: str | None = None
     """DANO contact model: centroid (the paper's, default) or per_sample."""
+    object: str | None = None
+    """push: the DANO to push, FILE.dano or builtin:NAME (default builtin:bunny)."""
+    goal: Annotated[str | None, tyro.conf.arg(metavar="X,Y")] = None
+    """push: where the object's centre of mass should end, X,Y world frame [m] (it starts at 0 0; default: one
+    longest extent along +x, half of one along +y)."""
+    pusher: str | None = None
+    """push: the pusher, sphere (the default and, for now, the only one for any object)."""
     no_video: bool = False
     """skip the video."""
     quiet: bool = False
@@ -239,6 +247,19 @@ class TrajoptCommandConfig:
     def __post_init__(self):
         if self.contact_model is not None and self.contact_model not in CONTACT_MODELS:
             raise DanoError(f"unknown --contact-model {self.contact_model!r}; available: {', '.join(CONTACT_MODELS)}")
+        self.goal_xy()  # checked now
+
+    def goal_xy(self) -> tuple[float, float] | None:
+        """--goal as two numbers [m]. Raises DanoError unless it is two finite numbers X,Y."""
+        if self.goal is None:
+            return None
+        try:
+            xy = tuple(float(v) for v in self.goal.split(","))
+        except ValueError:
+            xy = ()
+        if len(xy) != 2 or not np.all(np.isfinite(xy)):
+            raise DanoError(f"--goal must be two numbers X,Y [m], got {self.goal!r}")
+        return xy
 
 
 def trajopt_command(config: TrajoptCommandConfig, progress=None) -> tuple[dict, list]:
@@ -246,7 +267,8 @@ def trajopt_command(config: TrajoptCommandConfig, progress=None) -> tuple[dict, 
     values as null, listed in ``warnings``), every output written to ``out_dir`` (default
     ``trajopt-<task>/``, :func:`write_outputs`). Returns (report, paths written)."""
     task, solution, me, rep = run(config.task, progress=progress, model_error=config.model_error,
-                                  max_iterations=config.max_iterations, contact_model=config.contact_model)
+                                  max_iterations=config.max_iterations, contact_model=config.contact_model,
+                                  object=config.object, goal=config.goal_xy(), pusher=config.pusher)
     rep, nonfinite = json_safe(rep)
     if nonfinite:
         rep["warnings"] = [f"not finite (written as null): {', '.join(nonfinite)}"]
