@@ -148,16 +148,24 @@ _CORRUPTIONS = {
 }
 
 
-@pytest.mark.parametrize("case", sorted(_CORRUPTIONS))
-def test_physically_invalid_files_are_refused(case, tmp_path, sphere_asset):
+def _refused(asset, tmp_path, change, message):
+    """``asset`` saved, then changed by ``change``: reading it raises FileFormatError naming the
+    file and matching ``message``, and ``dano inspect`` exits 1. Returns the bad file."""
     from dano.cli import main
 
-    change, message = _CORRUPTIONS[case]
-    bad = _rewrite(save(sphere_asset, tmp_path / "a.dano"), tmp_path / "bad.dano", change)
+    bad = _rewrite(save(asset, tmp_path / "a.dano"), tmp_path / "bad.dano", change)
     with pytest.raises(FileFormatError, match=message) as info:
         load(bad)
     assert str(info.value).startswith(str(bad))
     assert main(["inspect", str(bad)]) == 1
+    return bad
+
+
+@pytest.mark.parametrize("case", sorted(_CORRUPTIONS))
+def test_physically_invalid_files_are_refused(case, tmp_path, sphere_asset):
+    from dano.cli import main
+
+    bad = _refused(sphere_asset, tmp_path, *_CORRUPTIONS[case])
     assert main(["export", str(bad), "-o", str(tmp_path / "out.xml")]) == 1
     assert not (tmp_path / "out.xml").exists()
 
@@ -227,12 +235,7 @@ def test_bad_stored_fields_are_refused(case, tmp_path, sphere_asset, capsys):
     parameters is refused when read, naming the file (inspect and simulate exit 1)."""
     from dano.cli import main
 
-    change, message = _STORED_FIELDS[case]
-    bad = _rewrite(save(sphere_asset, tmp_path / "a.dano"), tmp_path / "bad.dano", change)
-    with pytest.raises(FileFormatError, match=message) as info:
-        load(bad)
-    assert str(info.value).startswith(str(bad))
-    assert main(["inspect", str(bad)]) == 1
+    bad = _refused(sphere_asset, tmp_path, *_STORED_FIELDS[case])
     capsys.readouterr()
     floor = tmp_path / "floor.xml"
     floor.write_text('<mujoco><worldbody><geom type="plane" size="1 1 0.1"/></worldbody></mujoco>')
