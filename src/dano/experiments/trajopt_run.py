@@ -55,9 +55,10 @@ def load_config(source: str, **overrides):
 
 def report(task, solution, model_error=None) -> dict:
     """The JSON report: ``bunny_final_error`` (also ``object_final_error``: the pushed
-    object, whatever it is), ``pusher_final_error`` [m] (null for a pusher without a goal), ``max_constraint_violation``, ``iterations``, ``converged``,
-    ``status``, ``cost``, ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final``
-    (where the initial guess leaves the bunny), goals, ``max_control_ratio`` and (arm)
+    object, whatever it is), ``pusher_final_error`` [m] (null for a pusher without a goal),
+    ``max_constraint_violation``, ``iterations``, ``converged``, ``status``, ``cost``,
+    ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final`` (where the initial guess
+    leaves the bunny), goals, ``max_control_ratio`` and (arm)
     ``joint_limit_violation`` and, with a model error, ``model_error``: world friction,
     open-loop and receding-horizon final errors."""
     eb, ep = final_errors(task, solution.states)
@@ -215,9 +216,9 @@ class TrajoptCommandConfig:
 
     task: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="TASK|CONFIG")]
     """a built-in task (push: a sphere sized to the object pushes any DANO (--object) to --goal; push-sphere:
-    the paper's sphere pushing the bunny 1.0 sideways of a plain push; push-panda: the Menagerie Panda's joint torques pushing a 15 cm bunny 10 cm, needs MENAGERIE_ROOT; grasp-
-    panda: the Panda's hand grasps, lifts and holds the 15 cm bunny, needs MENAGERIE_ROOT) or a TOML/JSON
-    configuration (key task and the task's settings, e.g. the config.json a run saved)."""
+    the paper's sphere pushing the bunny 1.0 sideways of a plain push; push-panda: the Menagerie Panda's joint
+    torques pushing a 15 cm bunny 10 cm, needs MENAGERIE_ROOT; grasp-panda: the Panda's hand grasps, lifts and
+    holds the 15 cm bunny, needs MENAGERIE_ROOT) or a TOML/JSON configuration (key task and the task's settings, e.g. the config.json a run saved)."""
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False
     """print one JSON object (bunny_final_error, pusher_final_error, max_constraint_violation, iterations,
     converged, status, wall_time_s, compile_time_s, ...; model_error with --model-error; grasp-panda:

@@ -9,8 +9,8 @@ h = 0, control bounds folded in as inequalities),
 is minimised by iLQR, then λ ← λ + μc (λ ≥ 0 for inequalities) and μ ← φμ until the
 largest violation is below tolerance (Howell, Jackson & Manchester, "ALTRO", IROS 2019).
 
-Inner loop (iLQR): dynamics linearised by forward-mode AD (``jax.jacfwd``, vmapped over
-the horizon), the cost's second-order expansion by AD, constraint terms Gauss–Newton;
+Inner loop (iLQR): dynamics linearised by forward-mode AD (``jax.jacfwd``, over the
+horizon in batches of :data:`STAGE_BATCH` stages), the cost's second-order expansion by AD, constraint terms Gauss–Newton;
 Riccati backward pass with state regularisation ρ (Tassa, Erez & Todorov, IROS 2012),
 raised when Q_uu is not positive definite; forward pass with a backtracking line search
 on the merit L (accepted when the actual decrease is at least 1e-4 of the predicted
