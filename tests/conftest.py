@@ -11,6 +11,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import dano  # noqa: E402,F401  (sets up JAX before any test imports it)
+import dano._compiled  # noqa: E402
 
 dano.enable_float64()  # physics and gradient tests compare in float64 (tests/test_float32.py: float32)
 dano.enable_compilation_cache()
@@ -73,6 +74,7 @@ def _free_memory() -> None:
     if os.environ.get("DANO_TEST_KEEP_CACHES"):  # to measure the difference (DANO_TEST_MEMORY=1)
         return
     jax.clear_caches()
+    dano._compiled.clear()
     gc.collect()
     _malloc_trim()
 

@@ -96,8 +96,9 @@ def test_problems_of_one_structure_share_one_compilation(box):
                                      weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=4)
     first, second = make(0), make(1)
     first.residuals_and_jacobian(first.initial())
-    compiled = _residuals_and_jacobian_jit._cache_size()
+    counts, compiled = dict(_residuals_and_jacobian_jit.counts), _residuals_and_jacobian_jit._cache_size()
     r, J = second.residuals_and_jacobian(second.initial())
+    assert dict(_residuals_and_jacobian_jit.counts) == counts  # nothing traced, loaded or compiled again
     assert _residuals_and_jacobian_jit._cache_size() == compiled
     assert r.shape == (second.num_residuals,) and J.shape == (second.num_residuals, 1)
     assert np.all(np.isfinite(J)) and np.any(J != 0)

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._compiled import cached_jit
 from ..errors import DanoError
 from ..trajectory import Trajectory
 from .implicit import NewtonConfig
@@ -25,12 +24,7 @@ class SimulationDiverged(DanoError):
                          "reduce the time step or check the parameters")
 
 
-@functools.partial(jax.jit, static_argnames=("newton",))
-def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig = NewtonConfig()):
-    """T steps from MJX ``data`` with controls (T, nu) and applied generalized forces
-    (T, nv) per step. Returns (final Data, qpos (T+1, nq), qvel (T+1, nv), psi (T+1, P),
-    Newton iterations (T,)). Jitted; one compilation per scene structure and T."""
-
+def _scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig):
     def body(d, inputs):
         ctrl, f = inputs
         d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype), qfrc_applied=f.astype(d.qfrc_applied.dtype))
@@ -41,6 +35,17 @@ def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: Ne
     psi_last = overlaps(scene, params, d_last)  # each step reported ψ at its start
     return (d_last, jnp.concatenate([data.qpos[None], qpos]), jnp.concatenate([data.qvel[None], qvel]),
             jnp.concatenate([psi, psi_last[None]]), iters)
+
+
+_scan_steps_compiled = cached_jit(_scan_steps, static_argnums=(5,))
+
+
+def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig = NewtonConfig()):
+    """T steps from MJX ``data`` with controls (T, nu) and applied generalized forces
+    (T, nv) per step. Returns (final Data, qpos (T+1, nq), qvel (T+1, nv), psi (T+1, P),
+    Newton iterations (T,)). Jitted; compiled once per scene structure and T, and, with the
+    compilation cache on, traced once per structure across processes (:mod:`dano._compiled`)."""
+    return _scan_steps_compiled(scene, params, data, controls, qfrc, newton)
 
 
 def _inputs(scene: Scene, data, controls, qfrc, steps: int):

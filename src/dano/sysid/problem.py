@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import time
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -21,6 +20,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from .. import _compiled
+from .._compiled import cached_jit
 from ..contact.params import ContactParams
 from ..errors import DanoError
 from ..pose import quat_error, quat_inverse, quat_mean, quat_multiply, rotate, rotvec_to_quat, velocity_from_poses
@@ -432,21 +433,18 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
 
 
 def _run(fn, *args) -> np.ndarray:
-    """``fn(*args)`` as a NumPy array; the time of a call that compiled (JAX's cache grew) is
-    added to :data:`COMPILE_SECONDS`."""
-    before = fn._cache_size()
-    t0 = time.perf_counter()
-    out = jax.tree_util.tree_map(np.asarray, fn(*args))
-    if fn._cache_size() > before:
-        COMPILE_SECONDS[0] += time.perf_counter() - t0
-    return out
+    """``fn(*args)`` as NumPy arrays; the time of a call that traced, loaded or compiled
+    counts in :data:`COMPILE_SECONDS`."""
+    return jax.tree_util.tree_map(np.asarray, fn(*args))
 
 
-#: seconds spent in calls that compiled a residual, Jacobian or batch of this module (one
-#: process-wide counter: :func:`~dano.sysid.identify` reports its own share as compile time)
-COMPILE_SECONDS = [0.0]
+#: seconds spent in calls that traced, loaded or compiled a program (process-wide, shared
+#: by every compiled function of dano: :func:`~dano.sysid.identify` reports its own share)
+COMPILE_SECONDS = _compiled.COMPILE_SECONDS
 
-# compiled once per layout, scene structure and shapes (JAX's cache, keyed on the static layout)
+
+# compiled once per layout, scene structure and shapes, and traced once per structure across
+# processes when the compilation cache is on (dano._compiled)
 def _residuals_and_jacobian(layout, scene, base_params, data, theta):
     """(forward-mode Jacobian, residual) of :func:`padded_residuals`: one trace, the primal
     computed once with the tangents (tracing the rollout is most of a compilation's time)."""
@@ -454,17 +452,19 @@ def _residuals_and_jacobian(layout, scene, base_params, data, theta):
     return jax.jacfwd(r, has_aux=True)(theta)
 
 
-_residuals_and_jacobian_jit = jax.jit(_residuals_and_jacobian, static_argnums=0)
-_residuals_only_jit = jax.jit(padded_residuals, static_argnums=0)  # finite-difference solves only
+_residuals_and_jacobian_jit = cached_jit(_residuals_and_jacobian, static_argnums=(0,))
+_residuals_only_jit = cached_jit(padded_residuals, static_argnums=(0,))  # finite-difference solves only
 
 
 #: parameter vectors per vmapped batch (:meth:`SysIdProblem.batch_residuals`): one compiled shape
 BATCH = 16
 
 
-@functools.partial(jax.jit, static_argnums=0)
-def _batch_residuals_jit(layout, scene, base_params, data, thetas):
+def _batch_residuals(layout, scene, base_params, data, thetas):
     return jax.vmap(lambda th: padded_residuals(layout, scene, base_params, data, th))(thetas)
+
+
+_batch_residuals_jit = cached_jit(_batch_residuals, static_argnums=(0,))
 
 
 #: contact parameters held at a neutral value when ``sliding_friction`` is identified and they

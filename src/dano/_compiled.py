@@ -1,0 +1,335 @@
+"""Compiled once per structure, across processes: jitted functions whose traced programs are
+kept on disk.
+
+JAX's persistent compilation cache (:func:`dano.enable_compilation_cache`) saves XLA's
+compile, but every new process still traces and lowers each function again, and for an
+MJX rollout under ``vmap`` and ``jacfwd`` that is most of the wait (the soap's residual and
+Jacobian: 6.3 s of tracing and lowering, 0.5 s to load the compiled program from the
+cache). :func:`cached_jit` wraps a function like ``jax.jit`` and, with the cache on, keeps
+each traced and lowered program (a :class:`jax.export.Exported`, StableHLO) in
+``<cache>/dano-exported/``, keyed on everything that decides the trace:
+
+* the function (module and name) and a digest of dano's own source files;
+* the versions of jax, jaxlib, mujoco and mujoco-mjx, the backend, 64-bit mode, XLA_FLAGS;
+* the static arguments and the structure of the others: their pytree definitions with
+  all static metadata by content (MuJoCo models as their binary MJB, assets, contact
+  models, layouts; an object it cannot digest by content makes the call a plain ``jax.jit``
+  call), and every leaf's shape, dtype and weak type.
+
+Values are arguments, never part of the key: problems of the same structure (other
+observations, parameters, initial states) load the program instead of tracing it again.
+Called with tracers (inside ``jit``, ``vmap``, ``jacfwd``, ...) or with the cache off, a
+cached function is plain ``jax.jit``, so it composes as usual. ``DANO_EXPORT_CACHE=0``
+turns the disk part off.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import enum
+import functools
+import hashlib
+import importlib.metadata
+import os
+import pickle
+import threading
+import time
+import weakref
+from pathlib import Path
+
+import jax
+import numpy as np
+
+#: seconds spent in calls that traced, loaded or compiled a program (process-wide; callers
+#: report their own share as the difference before and after)
+COMPILE_SECONDS = [0.0]
+#: how many programs were traced (and exported) and how many were loaded from disk
+COUNTS = collections.Counter()
+
+_DIRECTORY: list[Path | None] = [None]
+_FUNCTIONS: "weakref.WeakSet[CachedFunction]" = weakref.WeakSet()
+_LOCK = threading.Lock()
+_MEMORY_SIZE = 64  # loaded programs kept per process (least recently used dropped first)
+
+
+def set_directory(path: str | os.PathLike | None) -> None:
+    """Keep exported programs in ``path`` instead of beside JAX's compilation cache (None:
+    back to that default)."""
+    _DIRECTORY[0] = None if path is None else Path(path)
+
+
+def directory() -> Path | None:
+    """Where exported programs are kept: :func:`set_directory`'s folder, else
+    ``<JAX's compilation cache folder>/dano-exported`` when that cache is on
+    (:func:`dano.enable_compilation_cache`, which the command line calls); None (traced in
+    every process, as plain ``jax.jit``) when it is off or ``DANO_EXPORT_CACHE=0``."""
+    if os.environ.get("DANO_EXPORT_CACHE", "1").lower() in ("0", "false", "no", "off"):
+        return None
+    if _DIRECTORY[0] is not None:
+        return _DIRECTORY[0]
+    jax_dir = jax.config.jax_compilation_cache_dir
+    return Path(jax_dir) / "dano-exported" if jax_dir else None
+
+
+class _Unkeyable(Exception):
+    """An argument's static part cannot be digested by content."""
+
+
+@functools.lru_cache(maxsize=1)
+def _environment() -> bytes:
+    """What every key shares: dano's source digest, library versions, backend, flags."""
+    h = hashlib.sha256()
+    root = Path(__file__).resolve().parent
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    for dist in ("jax", "jaxlib", "mujoco", "mujoco-mjx"):
+        try:
+            h.update(f"{dist}={importlib.metadata.version(dist)};".encode())
+        except importlib.metadata.PackageNotFoundError:  # pragma: no cover
+            h.update(f"{dist}=none;".encode())
+    h.update(os.environ.get("XLA_FLAGS", "").encode())
+    return h.digest()
+
+
+def _session() -> bytes:
+    """The parts of the key that may change within a process."""
+    devices = jax.devices()
+    kinds = sorted({d.device_kind for d in devices})
+    return (f"{jax.default_backend()};{kinds};{len(devices)} devices;{jax.process_count()} processes;"
+            f"x64={jax.config.jax_enable_x64};").encode()
+
+
+def _digest_value(x, h) -> None:
+    """Feed a static value into hash ``h`` by content; raises _Unkeyable where it cannot."""
+    if x is None or isinstance(x, (bool, int, float, complex, str, bytes)):
+        h.update(f"{type(x).__name__}:{x!r};".encode())
+    elif isinstance(x, enum.Enum):
+        h.update(f"enum:{type(x).__module__}.{type(x).__qualname__}.{x.name};".encode())
+    elif isinstance(x, type):
+        h.update(f"type:{x.__module__}.{x.__qualname__};".encode())
+    elif isinstance(x, (tuple, list, frozenset, set)):
+        items = sorted(x, key=repr) if isinstance(x, (frozenset, set)) else x
+        h.update(f"{type(x).__name__}[{len(items)}](".encode())
+        for item in items:
+            _digest_value(item, h)
+        h.update(b")")
+    elif isinstance(x, dict):
+        h.update(f"dict[{len(x)}](".encode())
+        for k in sorted(x, key=repr):
+            _digest_value(k, h)
+            _digest_value(x[k], h)
+        h.update(b")")
+    elif isinstance(x, (np.ndarray, np.generic, jax.Array)):
+        a = np.ascontiguousarray(np.asarray(x))
+        h.update(f"array:{a.dtype.str}{a.shape};".encode())
+        h.update(a.tobytes() if a.dtype != object else repr(a.tolist()).encode())
+    elif type(x).__name__ == "_NumPyArrayHashWrapper":  # MJX's static numpy fields
+        _digest_value(x.array, h)
+    elif type(x).__name__ == "MjModel" and type(x).__module__.startswith("mujoco"):
+        import mujoco
+
+        buffer = np.zeros(mujoco.mj_sizeModel(x), dtype=np.uint8)
+        mujoco.mj_saveModel(x, None, buffer)
+        h.update(b"MjModel:")
+        h.update(hashlib.sha256(buffer.tobytes()).digest())
+    elif dataclasses.is_dataclass(x):
+        h.update(f"dataclass:{type(x).__module__}.{type(x).__qualname__}(".encode())
+        for f in dataclasses.fields(x):
+            h.update(f"{f.name}=".encode())
+            _digest_value(getattr(x, f.name), h)
+        h.update(b")")
+    elif isinstance(x, jax.tree_util.PyTreeDef):
+        _digest_tree(x, h)
+    else:
+        raise _Unkeyable(f"{type(x).__module__}.{type(x).__qualname__}")
+
+
+def _digest_tree(tree, h) -> None:
+    """A pytree definition with its static metadata, by content."""
+    data = tree.node_data()
+    if data is None:
+        h.update(b"*")
+        return
+    kind, aux = data
+    h.update(f"<{kind.__module__}.{kind.__qualname__}:".encode())
+    _digest_value(aux, h)
+    for child in tree.children():
+        _digest_tree(child, h)
+    h.update(b">")
+
+
+def _aval(x):
+    aval = jax.typeof(x)
+    return (tuple(aval.shape), str(aval.dtype), bool(getattr(aval, "weak_type", False)))
+
+
+def _abstract(x):
+    shape, dtype, weak = _aval(x)
+    return jax.ShapeDtypeStruct(shape, np.dtype(dtype), weak_type=weak)
+
+
+class CachedFunction:
+    """A jitted function whose traced program is kept on disk per structure (see the module
+    documentation). Call it like the function; ``lower`` and other ``jax.jit`` attributes
+    are those of the plain jitted function (``.jit``)."""
+
+    def __init__(self, fn, static_argnums=()):
+        self.fn = fn
+        self.static_argnums = tuple(sorted(static_argnums))
+        self.jit = jax.jit(fn, static_argnums=self.static_argnums)
+        self.name = f"{fn.__module__}.{fn.__qualname__}"
+        self._by_structure: collections.OrderedDict = collections.OrderedDict()  # (statics, tree, avals) -> program
+        self._by_digest: collections.OrderedDict = collections.OrderedDict()  # digest -> program
+        #: this function's programs: traced (and exported), loaded from disk, reused from memory
+        #: for another structure-equal argument set, and plain ``jax.jit`` calls that compiled
+        self.counts = collections.Counter()
+        functools.update_wrapper(self, fn)
+        _FUNCTIONS.add(self)
+
+    def __getattr__(self, name):  # lower, trace, eval_shape, _cache_size, ...
+        return getattr(self.jit, name)
+
+    def clear(self) -> None:
+        """Forget the programs loaded in this process (the disk keeps them)."""
+        self._by_structure.clear()
+        self._by_digest.clear()
+
+    def __call__(self, *args):
+        where = directory()
+        statics = tuple(args[i] for i in self.static_argnums)
+        dynamic = tuple(a for i, a in enumerate(args) if i not in self.static_argnums)
+        leaves, tree = jax.tree_util.tree_flatten(dynamic)
+        if where is None or any(isinstance(x, jax.core.Tracer) for x in leaves):
+            return self._timed_jit(args)
+        try:
+            memory_key = (statics, tree, tuple(_aval(x) for x in leaves), _session())
+            hash(memory_key)
+        except TypeError:
+            return self._timed_jit(args)
+        program = self._by_structure.get(memory_key)
+        if program is None:
+            t0 = time.perf_counter()
+            try:
+                program = self._program(where, statics, tree, leaves)
+            except _Unkeyable:
+                return self._timed_jit(args)
+            out = program[0](*leaves)
+            jax.block_until_ready(out)
+            COMPILE_SECONDS[0] += time.perf_counter() - t0
+            _remember(self._by_structure, memory_key, program)
+        else:
+            self._by_structure.move_to_end(memory_key)
+            out = program[0](*leaves)
+        return jax.tree_util.tree_unflatten(program[1], out)
+
+    def _timed_jit(self, args):
+        """The plain jitted call; its time counts as compiling when JAX's cache grew."""
+        before = self.jit._cache_size()
+        t0 = time.perf_counter()
+        out = self.jit(*args)
+        if self.jit._cache_size() > before:
+            self.counts["jit"] += 1
+            jax.block_until_ready(out)
+            COMPILE_SECONDS[0] += time.perf_counter() - t0
+        return out
+
+    def _program(self, where: Path, statics, tree, leaves):
+        """(jitted call of the exported program on the flat leaves, output tree): from this
+        process, from disk, or traced and exported now."""
+        h = hashlib.sha256(_environment() + _session())
+        h.update(self.name.encode())
+        _digest_value(statics, h)
+        _digest_tree(tree, h)
+        _digest_value(tuple(_aval(x) for x in leaves), h)
+        digest = h.hexdigest()
+        program = self._by_digest.get(digest)
+        if program is not None:
+            self.counts["reused"] += 1
+            return program
+        path = where / f"{digest}.jaxexp"
+        program = _load(path)
+        kind = "loaded" if program is not None else "traced"
+        if program is None:
+            program = self._export(tree, statics, leaves, path)
+        COUNTS[kind] += 1
+        self.counts[kind] += 1
+        _remember(self._by_digest, digest, program)
+        return program
+
+    def _export(self, tree, statics, leaves, path: Path):
+        holder = {}
+
+        def flat(*flat_leaves):
+            dynamic = iter(jax.tree_util.tree_unflatten(tree, flat_leaves))
+            fixed = dict(zip(self.static_argnums, statics))
+            count = len(statics) + len(tree.children())  # (the dynamic arguments: a tuple)
+            args = [fixed[i] if i in fixed else next(dynamic) for i in range(count)]
+            out_leaves, holder["tree"] = jax.tree_util.tree_flatten(self.fn(*args))
+            return tuple(out_leaves)
+
+        exported = jax.export.export(jax.jit(flat))(*(_abstract(x) for x in leaves))
+        _save(path, exported, holder["tree"])
+        return jax.jit(exported.call), holder["tree"]
+
+
+def _remember(memory: collections.OrderedDict, key, program) -> None:
+    with _LOCK:
+        memory[key] = program
+        memory.move_to_end(key)
+        while len(memory) > _MEMORY_SIZE:
+            memory.popitem(last=False)
+
+
+_MAGIC = b"dano-exported-1\n"
+
+
+def _save(path: Path, exported, out_tree) -> None:
+    """Write the program atomically; a program that cannot be saved stays in memory only."""
+    try:
+        tree_bytes = pickle.dumps(out_tree)
+        blob = _MAGIC + len(tree_bytes).to_bytes(8, "little") + tree_bytes + bytes(exported.serialize())
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_bytes(blob)
+        os.replace(tmp, path)
+    except Exception:  # noqa: BLE001 - a read-only or full disk, an unpicklable tree: not an error
+        pass
+
+
+def _load(path: Path):
+    """(jitted call, output tree) of a saved program, or None (absent, or unreadable: then removed)."""
+    try:
+        blob = path.read_bytes()
+    except OSError:
+        return None
+    try:
+        if not blob.startswith(_MAGIC):
+            raise ValueError("not a dano program")
+        at = len(_MAGIC)
+        n = int.from_bytes(blob[at : at + 8], "little")
+        out_tree = pickle.loads(blob[at + 8 : at + 8 + n])
+        exported = jax.export.deserialize(bytearray(blob[at + 8 + n :]))
+        return jax.jit(exported.call), out_tree
+    except Exception:  # noqa: BLE001 - a truncated or foreign file: trace again
+        try:
+            path.unlink()
+        except OSError:
+            pass
+        return None
+
+
+def clear() -> None:
+    """Forget every program loaded in this process (the disk keeps them), e.g. beside
+    ``jax.clear_caches()`` to free memory."""
+    for f in list(_FUNCTIONS):
+        f.clear()
+
+
+def cached_jit(fn=None, *, static_argnums=()):
+    """``jax.jit`` whose traced program is kept per structure, across processes (module
+    documentation). Use as ``cached_jit(fn, static_argnums=(0,))`` or as a decorator."""
+    if fn is None:
+        return functools.partial(cached_jit, static_argnums=static_argnums)
+    return CachedFunction(fn, static_argnums)

@@ -1,0 +1,98 @@
+"""Compiled once per structure, across processes (dano._compiled, issue 32 item 1): a second
+process loads the traced program instead of tracing it, with bit-identical results; another
+structure traces anew; tracers get plain jax.jit; a damaged file is traced again."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dano import _compiled
+from dano._compiled import cached_jit
+
+# A box DANO sliding on the ground in a fresh process: prints the program counts and the
+# final state. argv: cache folder, time step, steps.
+SCRIPT = textwrap.dedent("""
+    import json, sys
+    import dano
+    dano.enable_float64()
+    dano.enable_compilation_cache(sys.argv[1])
+    from dano import _compiled
+    from dano.asset import build
+    from dano.fields import BoxField
+    from dano.sim import DanoObject, State, compose, rollout
+    asset = build(BoxField((0.05, 0.05, 0.05)), mass=0.3, num_samples=300, mesh_resolution=0, name="box")
+    scene = compose([DanoObject("box", asset, (0, 0, 0.05))], dt=float(sys.argv[2]))
+    qvel = [0.5, 0, 0, 0, 0, 0]
+    traj = rollout(scene, State(scene.qpos0, qvel), steps=int(sys.argv[3]))
+    print(json.dumps({"counts": dict(_compiled.COUNTS), "qpos": traj.qpos[-1].tolist(),
+                      "compile_s": _compiled.COMPILE_SECONDS[0]}))
+""")
+
+
+def _run(cache, dt="0.01", steps="30"):
+    env = {**os.environ, "NPROC": "1"}
+    env.pop("DANO_EXPORT_CACHE", None)
+    out = subprocess.run([sys.executable, "-c", SCRIPT, str(cache), dt, steps], capture_output=True, text=True,
+                         env=env, timeout=600)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.slow
+def test_a_second_process_loads_the_program_and_another_structure_traces_anew(tmp_path):
+    first = _run(tmp_path)
+    assert first["counts"].get("traced", 0) >= 1 and first["counts"].get("loaded", 0) == 0
+    saved = sorted((tmp_path / "dano-exported").glob("*.jaxexp"))
+    assert saved
+    second = _run(tmp_path)
+    assert second["counts"].get("traced", 0) == 0 and second["counts"].get("loaded", 0) >= 1
+    assert second["qpos"] == first["qpos"]  # the same program: bit-identical
+    # another structure (the time step is static, the step count a shape): traced anew
+    third = _run(tmp_path, dt="0.005", steps="40")
+    assert third["counts"].get("traced", 0) >= 1
+    # a damaged program is removed and traced again, with the same result
+    saved[0].write_bytes(b"dano-exported-1\n" + b"\0" * 20)
+    fourth = _run(tmp_path)
+    assert fourth["counts"].get("traced", 0) >= 1 and fourth["qpos"] == first["qpos"]
+
+
+def _affine(scale, x, y):
+    return {"sum": scale * x + y, "max": jnp.max(x)}
+
+
+def test_values_are_arguments_statics_and_shapes_are_the_key(tmp_path, monkeypatch):
+    monkeypatch.delenv("DANO_EXPORT_CACHE", raising=False)
+    _compiled.set_directory(tmp_path)
+    try:
+        f = cached_jit(_affine, static_argnums=(0,))
+        a = f(2.0, jnp.arange(3.0), jnp.ones(3))
+        b = f(2.0, jnp.arange(3.0) + 1, jnp.zeros(3))  # other values: the same program
+        assert f.counts["traced"] == 1 and np.allclose(a["sum"], [1, 3, 5]) and np.allclose(b["sum"], [2, 4, 6])
+        f(3.0, jnp.arange(3.0), jnp.ones(3))  # another static value
+        f(2.0, jnp.arange(4.0), jnp.ones(4))  # another shape
+        assert f.counts["traced"] == 3 and len(list(tmp_path.glob("*.jaxexp"))) == 3
+        f.clear()  # as a new process would: loaded from disk, not traced
+        c = f(2.0, jnp.arange(3.0), jnp.ones(3))
+        assert f.counts["traced"] == 3 and f.counts["loaded"] == 1 and np.array_equal(c["sum"], a["sum"])
+        # under a transformation (tracers): plain jax.jit, differentiable
+        g = jax.grad(lambda x: f(2.0, x, jnp.ones(3))["sum"].sum())(jnp.arange(3.0))
+        assert np.allclose(g, 2.0) and f.counts["traced"] == 3
+        # a static argument that cannot be digested by content: plain jax.jit
+        h = cached_jit(lambda fn, x: fn(x), static_argnums=(0,))
+        assert np.allclose(h(jnp.sin, jnp.zeros(2)), 0.0) and h.counts["traced"] == 0 and h.counts["jit"] == 1
+    finally:
+        _compiled.set_directory(None)
+
+
+def test_off_without_the_compilation_cache(monkeypatch):
+    monkeypatch.setenv("DANO_EXPORT_CACHE", "0")
+    f = cached_jit(_affine, static_argnums=(0,))
+    assert np.allclose(f(1.0, jnp.ones(2), jnp.ones(2))["sum"], 2.0)
+    assert f.counts["traced"] == 0 and f.counts["jit"] == 1
