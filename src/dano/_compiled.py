@@ -161,8 +161,13 @@ def _digest_tree(tree, h) -> None:
 
 
 def _aval(x):
+    """(shape, dtype, weak type) of a leaf; arrays without JAX's abstract-value machinery."""
+    if isinstance(x, np.ndarray):
+        return (x.shape, x.dtype.str, False)
+    if isinstance(x, jax.Array) and not isinstance(x, jax.core.Tracer):
+        return (x.shape, x.dtype.str, bool(x.weak_type))
     aval = jax.typeof(x)
-    return (tuple(aval.shape), str(aval.dtype), bool(getattr(aval, "weak_type", False)))
+    return (tuple(aval.shape), np.dtype(aval.dtype).str, bool(getattr(aval, "weak_type", False)))
 
 
 def _abstract(x):

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
+from ._compiled import cached_jit
 from .errors import DanoError
 
 __all__ = ["normalize_quat", "quat_error", "quat_inverse", "quat_mean", "quat_multiply", "quat_to_matrix",
@@ -34,14 +35,18 @@ _TAYLOR = {jnp.dtype("float32"): 1e-5, jnp.dtype("float64"): 1e-10}
 
 
 def _host_or_jax(fn):
-    """NumPy in, NumPy out (float64 computation); JAX arrays or tracers in: plain JAX."""
+    """NumPy in, NumPy out (float64 computation, jitted: one compilation per shape instead of
+    one per JAX operation executed eagerly, and traced once per shape across processes when the
+    compilation cache is on); JAX arrays or tracers in: plain JAX."""
+    jitted = cached_jit(fn)
 
     @functools.wraps(fn)
     def wrapped(*args, **kwargs):
         if any(isinstance(a, jax.Array) for a in (*args, *kwargs.values())):
             return fn(*args, **kwargs)
         with jax.enable_x64(True), jax.ensure_compile_time_eval():  # eager also inside a trace
-            return np.array(fn(*args, **kwargs))  # a writable copy, as NumPy code expects
+            args = [np.asarray(a) for a in args]  # (shape errors are raised while tracing: DanoError)
+            return np.array(jitted(*args, **kwargs))  # a writable copy, as NumPy code expects
 
     return wrapped
 
