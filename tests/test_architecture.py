@@ -59,7 +59,8 @@ def test_the_library_never_imports_experiments():
 def test_import_dano_stays_light():
     """``import dano`` loads fields, assets and importers only: no MuJoCo (nor MJX), no
     simulation, identification, optimisation, rendering or NeRF stage, no plotting, no
-    experiments; and it starts no JAX backend."""
+    experiments, none of the heavy readers (trimesh, scipy.stats, h5py: loaded where a mesh is
+    read, an asset built, a .jld2 opened); and it starts no JAX backend."""
     code = (
         "import sys, json\n"
         "import dano\n"
@@ -74,7 +75,7 @@ def test_import_dano_stays_light():
     assert {"dano.asset", "dano.fields", "dano.io", "dano.data"} <= loaded
     heavy = ["mujoco", "mujoco.mjx", "optax", "matplotlib", "dano._mjx", "dano.sim", "dano.contact", "dano.sysid",
              "dano.trajopt", "dano.render", "dano.nerf", "dano.tracking", "dano.viz", "dano.experiments",
-             "dano.sources", "dano.bench", "dano.cli"]
+             "dano.sources", "dano.bench", "dano.cli", "trimesh", "scipy.stats", "h5py", "dano.io.exporters"]
     assert not [m for m in heavy if m in loaded], [m for m in heavy if m in loaded]
     assert out["backends"] == [], out["backends"]
     # the simulation names are still there, loaded on first use

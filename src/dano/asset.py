@@ -24,7 +24,6 @@ from typing import Any, Callable
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.stats import qmc
 
 from ._version import __version__
 from ._files import atomic_write
@@ -155,6 +154,8 @@ def mass_properties(
         chunk = min(n, 1 << 17)
         estimates = []
         rng = np.random.default_rng(seed)
+        from scipy.stats import qmc  # (scipy.stats: 0.5 s to import, only when building)
+
         for rep in range(reps):
             sampler = qmc.Sobol(d=3, scramble=True, seed=rng)
             acc = [0.0, np.zeros(3), np.zeros((3, 3))]
@@ -292,6 +293,8 @@ def boundary_samples(
     if num_samples < 1:
         raise DanoError(f"num_samples must be positive, got {num_samples}")
     b = check_bounds(field.bounds() if bounds is None else bounds)
+    from scipy.stats import qmc  # (scipy.stats: 0.5 s to import, only when building)
+
     sampler = qmc.Sobol(d=3, scramble=True, seed=np.random.default_rng(seed))
     batch = 1 << 16
     want = 4 * num_samples

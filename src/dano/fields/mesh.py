@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from ..errors import DanoError, FileFormatError
 from .grid import SdfGridField
+
+if TYPE_CHECKING:  # (trimesh takes 0.2 s to import: only where meshes are read)
+    import trimesh
 
 
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
@@ -46,6 +49,8 @@ def load_mesh(path: str | Path, require_watertight: bool = True) -> trimesh.Trim
     if path.suffix.lower() == ".stl":
         _check_binary_stl(path)
     try:
+        import trimesh
+
         loaded = trimesh.load(path, process=False, force="mesh")
     except Exception as exc:
         raise FileFormatError(f"{path}: cannot read mesh ({exc})") from exc
@@ -92,6 +97,8 @@ def mesh_field(
     inertia with w = cell/4; +2 % / +4.5 % with w = one cell).
     Raises DanoError if the mesh is not watertight or the resolution is below 8.
     """
+    import trimesh
+
     if not isinstance(mesh, trimesh.Trimesh):
         mesh = load_mesh(mesh)
     elif not mesh.is_watertight:

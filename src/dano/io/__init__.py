@@ -7,11 +7,22 @@ from pathlib import Path
 
 from ..errors import FileFormatError
 from .jld2 import PAPER_ALPHA, load_paper_collider, normals_from_mesh
-from .exporters import Decomposition, add_to_spec, body_meshes, export
 from .mesh import MESH_SUFFIXES, load_mesh
 
 __all__ = ["PAPER_ALPHA", "MESH_SUFFIXES", "Decomposition", "add_to_spec", "body_meshes", "export", "load_mesh",
            "load_paper_collider", "normals_from_mesh", "source_kind"]
+
+
+_EXPORTERS = ("Decomposition", "add_to_spec", "body_meshes", "export")
+
+
+def __getattr__(name: str):
+    """The exporters' names, loaded on first use (they import trimesh: ``import dano`` stays light)."""
+    if name in _EXPORTERS:
+        from . import exporters
+
+        return getattr(exporters, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def source_kind(path: str | Path) -> str:
