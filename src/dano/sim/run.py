@@ -72,7 +72,8 @@ class SimulateConfig:
     camera: str | None = None
     """Video: the name of a camera in the scene's MJCF; None: a free camera following the DANOs."""
     keyframe: str | None = None
-    """MJCF scenes: start from this key of the MJCF's ``<keyframe>``, by name or index ("0"):
+    """MJCF scenes: start from this key of the MJCF's ``<keyframe>``, by name or index ("0"; an int
+    is read as its index):
     its qpos and qvel for the MJCF's own joints and its ctrl, held for the whole run (time is not
     used); the DANOs keep their ``object`` pose and ``qvel``. None: the MJCF's qpos0, at rest."""
 
@@ -86,8 +87,10 @@ class SimulateConfig:
                 raise DanoError(f"--{opt} must be a finite positive number, got {v}")
         if self.max_steps < 1:
             raise DanoError(f"--max-steps must be at least 1, got {self.max_steps}")
-        if self.keyframe is not None and not self.keyframe.strip():
-            raise DanoError("--keyframe: give a key's name or its index (0 for the first)")
+        if isinstance(self.keyframe, int) and not isinstance(self.keyframe, bool) and self.keyframe >= 0:
+            object.__setattr__(self, "keyframe", str(self.keyframe))  # an index, saved as the option reads it
+        if self.keyframe is not None and not (isinstance(self.keyframe, str) and self.keyframe.strip()):
+            raise DanoError(f"--keyframe {self.keyframe!r}: give a key's name or its index (0 for the first)")
 
     @classmethod
     def read(cls, path: str | Path) -> SimulateConfig:
