@@ -13,7 +13,7 @@ from dano.errors import DanoError
 from dano.fields import BoxField, SphereField, TransformedField, VoxelField, field_name, mesh_field
 from dano.fields.mesh import load_mesh
 
-SMALL = dict(num_samples=200, integration_points=4096, mesh_resolution=12)
+SMALL = {"num_samples": 200, "integration_points": 4096, "mesh_resolution": 12}
 
 
 def test_mesh_field_asset_is_named_after_the_file(shared, tmp_path):

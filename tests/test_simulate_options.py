@@ -1,11 +1,17 @@
-"""`dano simulate` options for one's own object: initial velocities (--qvel) and the
-MJCF's cameras (--camera); both refused before any run when wrong, leaving nothing."""
+"""`dano simulate` options for one's own object: initial velocities (--qvel), the MJCF's
+cameras (--camera) and keyframes (--keyframe); all refused before any run when wrong, leaving
+nothing."""
 
 import json
+import re
 
 import numpy as np
+import pytest
 
 from dano.cli import main
+from dano.errors import DanoError
+from dano.sim.run import parse_object
+from dano.sim.scenes import mjcf_setup
 
 SCENE = """<mujoco>
   <option timestep="0.005"/>
@@ -110,14 +116,6 @@ def test_unknown_or_unusable_keyframe_refused_naming_the_keys(tmp_path, capsys):
 def test_keyframe_reaching_the_danos_or_setting_mocap_is_refused(tmp_path):
     """MuJoCo fills a short key with qpos0; a key longer than the MJCF's own joints would write
     into the DANO's free joint (its pose overrides it), and mocap poses are not applied: refused."""
-    import re
-
-    import pytest
-
-    from dano.errors import DanoError
-    from dano.sim.scenes import mjcf_setup
-    from dano.sim.run import parse_object
-
     bunny = [parse_object("builtin:bunny_lowpoly@0,0,0.6")]
     long_key = KEYED.replace('<key qpos="-0.4"/>', '<key name="long" qpos="-0.4 1 2 3"/>')
     mocap = KEYED.replace("</worldbody>", '<body name="target" mocap="true" pos="1 1 1"/></worldbody>').replace(
