@@ -30,7 +30,7 @@ from ._files import atomic_write
 from ._jax_setup import in_float64
 from .errors import DanoError, FileFormatError
 from .fields import DensityField, TransformedField, from_arrays, to_arrays
-from .fields.base import check_bounds, evaluate
+from .fields.base import check_bounds, evaluate, field_name
 
 #: ``progress(done, total, description)``, called from long loops; may be None.
 Progress = Callable[[int, int, str], None]
@@ -613,7 +613,7 @@ def build(
     integration_points: int = 1 << 20,
     mesh_level: float | None = None,
     mesh_resolution: int = 64,
-    name: str = "",
+    name: str | None = None,
     source: str = "",
     progress: Progress | None = None,
 ) -> DanoAsset:
@@ -625,8 +625,13 @@ def build(
     integration, integration_points: see :func:`mass_properties`.
     mesh_level: density of the visual mesh's level set (default: the middle of the band);
     mesh_resolution: marching-cubes nodes along the longest axis (0: no mesh).
+    name: the asset's name, which scenes, tables and exports call it (None or "": the field's,
+    :func:`~dano.fields.field_name`: the file's stem for :func:`~dano.fields.mesh_field` and
+    :meth:`~dano.fields.VoxelField.load`, "sphere", "box", ...); source: provenance text kept in
+    the metadata.
     Raises DanoError on bad input (see the functions above).
     """
+    name = name or field_name(field)
     mp = mass_properties(field, alpha=alpha, mass=mass, method=integration, num_points=integration_points,
                          seed=seed, progress=progress)
     bs = boundary_samples(field, num_samples, band=band, seed=seed, stencil=stencil, progress=progress)
@@ -749,7 +754,7 @@ def load(path: str | Path) -> DanoAsset:
         fld = from_arrays(arrays)
         extra = {k: v for k, v in meta.items() if k not in ("mass", "alpha", "name", "num_samples", "band")}
         return DanoAsset(
-            name=meta.get("name", path.stem),
+            name=meta.get("name") or path.stem,
             mass=meta["mass"],
             alpha=meta["alpha"],
             field=fld,

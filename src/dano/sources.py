@@ -28,6 +28,43 @@ from .io import load_paper_collider, source_kind
 #: largest accepted sample count
 MAX_SAMPLES = 10_000_000
 
+#: ``--up`` choices: the source's axis that points up -> the rotation (3, 3) taking it to +z
+#: (y: +90° about x, the usual y-up to z-up conversion, so the source's -z faces +y)
+UP_ROTATIONS = {
+    "z": np.eye(3),
+    "y": np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]),
+    "x": np.array([[0.0, 0, -1], [0, 1, 0], [1, 0, 0]]),
+    "-z": np.array([[1.0, 0, 0], [0, -1, 0], [0, 0, -1]]),
+    "-y": np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]),
+    "-x": np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]]),
+}
+
+
+def up_rotation(up: str) -> np.ndarray:
+    """The rotation (3, 3) that turns the source axis ``up`` (x, y, z, -x, -y, -z; a leading +
+    allowed) into +z. Raises DanoError naming --up for anything else."""
+    key = str(up).strip().lower().lstrip("+")
+    if key not in UP_ROTATIONS:
+        raise DanoError(f"--up {up!r}: must be the source's axis that points up: {', '.join(UP_ROTATIONS)}")
+    return UP_ROTATIONS[key]
+
+
+def rotate_grid(field: VoxelField, rotation: np.ndarray) -> VoxelField:
+    """``field`` turned by an axis-aligned ``rotation`` (3, 3), a signed permutation (e.g.
+    :func:`up_rotation`): the nodes are transposed and flipped, exactly (no resampling)."""
+    R = np.rint(np.asarray(rotation)).astype(int)
+    values, lower, upper = np.asarray(field.values), np.asarray(field.lower), np.asarray(field.upper)
+    src = [int(np.flatnonzero(R[i])[0]) for i in range(3)]  # new axis i is source axis src[i] times R[i, src[i]]
+    out = np.transpose(values, src)
+    lo, hi = np.empty(3), np.empty(3)
+    for i, j in enumerate(src):
+        if R[i, j] > 0:
+            lo[i], hi[i] = lower[j], upper[j]
+        else:
+            lo[i], hi[i] = -upper[j], -lower[j]
+            out = np.flip(out, axis=i)
+    return VoxelField.create(np.ascontiguousarray(out), np.stack([lo, hi])).named(field.name)
+
 
 @dataclass(frozen=True)
 class BuildResult:
@@ -47,7 +84,7 @@ def build_from_source(source: str | Path, *, mass: float | None = None, alpha: f
                       visual_mesh: str | Path | None = None, density_rule: str = "solid",
                       surface_opacity: float = 0.5, calibrate_surface: bool = True, field_scale: float = 1.0,
                       voxels: str | Path | None = None, scale: float | None = None, size: float | None = None,
-                      progress=None) -> BuildResult:
+                      up: str = "z", progress=None) -> BuildResult:
     """Build a DANO from ``source`` (the options of ``dano build``, same names and units).
 
     source: a mesh (.obj/.stl/.ply/.off/.glb/.gltf, units m), a voxel grid (.npz/.npy), a
@@ -61,7 +98,11 @@ def build_from_source(source: str | Path, *, mass: float | None = None, alpha: f
     anywhere, written atomically. scale: multiply the source's lengths by this (e.g. 0.001 for
     a mesh in millimetres); size: scale the source so that its longest bounding-box extent is
     this [m] (meshes: the mesh's box; grids: the box of the nodes at half the peak density);
-    at most one of the two, for meshes, voxel grids and trained fields. progress: optional callback ``(done, total, label)``.
+    at most one of the two, for meshes, voxel grids and trained fields. up: the source's axis
+    that points up (x, y, z, -x, -y, -z; default z, the source as it is): the source is turned
+    so that this axis becomes +z (dano's up), e.g. "y" for a mesh written y-up, as many .obj
+    files are (Spot, the Stanford bunny): +90° about x (:data:`UP_ROTATIONS`); meshes, voxel grids and
+    trained fields. progress: optional callback ``(done, total, label)``.
     The asset's name is the source's file stem. Raises DanoError naming the option for an
     option that does not apply to the source or is out of range, FileFormatError for an
     unreadable source, FileNotFoundError for a missing file.
@@ -79,13 +120,15 @@ def build_from_source(source: str | Path, *, mass: float | None = None, alpha: f
                             or not calibrate_surface):
         raise DanoError("--density-rule, --surface-opacity, --no-calibrate-surface, --field-scale and --voxels "
                         "apply to trained-field folders only")
+    rotation = up_rotation(up)
     check_resolution(resolution)
     if not 1 <= samples <= MAX_SAMPLES:
         raise DanoError(f"--samples {samples}: must be 1 to {MAX_SAMPLES}")
     if kind == "jld2":
-        if band is not None or edge_width is not None or scale is not None or size is not None:
-            raise DanoError("--band, --edge-width, --scale and --size do not apply to a .jld2 collider (its samples "
-                            "are fixed)")
+        turned = rotation is not UP_ROTATIONS["z"]
+        if band is not None or edge_width is not None or scale is not None or size is not None or turned:
+            raise DanoError("--band, --edge-width, --scale, --size and --up do not apply to a .jld2 collider (its "
+                            "samples are fixed)")
         if alpha is not None and mass is not None:
             raise DanoError("give either --mass or --alpha, not both")
         asset = load_paper_collider(source, normals_mesh=normals_mesh, visual_mesh=visual_mesh)
@@ -107,6 +150,10 @@ def build_from_source(source: str | Path, *, mass: float | None = None, alpha: f
         mesh = load_mesh(source)
         if scale is not None or size is not None:
             mesh.apply_scale(scale if scale is not None else size / float(np.max(mesh.extents)))
+        if rotation is not UP_ROTATIONS["z"]:
+            transform = np.eye(4)
+            transform[:3, :3] = rotation
+            mesh.apply_transform(transform)
         dens = mesh_field(mesh, resolution=resolution, edge_width=edge_width,
                           progress=(lambda d, t: progress(d, t, "signed distance")) if progress else None)
     else:
@@ -115,6 +162,8 @@ def build_from_source(source: str | Path, *, mass: float | None = None, alpha: f
         factor = scale if scale is not None else size / occupied_extent(dens)
         dens = VoxelField.create(np.asarray(dens.values), np.stack([np.asarray(dens.lower), np.asarray(dens.upper)])
                                  * factor)
+    if kind != "mesh" and rotation is not UP_ROTATIONS["z"]:
+        dens = rotate_grid(dens, rotation)
     asset = build_asset(dens, alpha=alpha, mass=mass, num_samples=samples, band=band, seed=seed,
                         name=source.stem, source=str(source.name), progress=progress)
     if voxels is not None:
@@ -169,10 +218,14 @@ class BuildConfig:
     size: float | None = None
     """scale the source so that its longest extent is this [m] (meshes: the mesh's bounding box; grids: the
     box of the nodes at half the peak density). Not with --scale."""
+    up: Annotated[str, tyro.conf.arg(metavar="AXIS")] = "z"
+    """the source's axis that points up: x, y, z, -x, -y or -z; the DANO is turned so that it becomes +z (dano's
+    up). y for a mesh written y-up, as many .obj files are (+90 degrees about x)."""
     quiet: bool = False
     """no progress bar."""
 
     def __post_init__(self):
+        up_rotation(self.up)
         check_resolution(self.resolution)
         if not 1 <= self.samples <= MAX_SAMPLES:
             raise DanoError(f"--samples {self.samples}: must be 1 to {MAX_SAMPLES}")
@@ -183,7 +236,8 @@ def build_file(config: BuildConfig, progress=None) -> BuildResult:
     ``config.out`` (atomically; and the voxel grid to ``config.voxels`` for a trained field)."""
     options = {f: getattr(config, f) for f in ("mass", "alpha", "samples", "band", "seed", "resolution", "edge_width",
                                                "normals_mesh", "visual_mesh", "density_rule", "surface_opacity",
-                                               "calibrate_surface", "field_scale", "voxels", "scale", "size")}
+                                               "calibrate_surface", "field_scale", "voxels", "scale", "size",
+                                               "up")}
     result = build_from_source(config.source, **options, progress=progress)
     save(result.asset, config.out)
     return result

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import FileFormatError
 from .analytic import BoxField, SphereField
-from .base import DensityField, evaluate, smooth_occupancy
+from .base import DensityField, evaluate, field_name, smooth_occupancy
 from .grid import SdfGridField, VoxelField
 from .mesh import mesh_field
 from .transform import TransformedField
@@ -26,6 +26,7 @@ __all__ = [
     "TransformedField",
     "VoxelField",
     "evaluate",
+    "field_name",
     "from_arrays",
     "mesh_field",
     "smooth_occupancy",

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..errors import DanoError
-from .base import as_points, safe_norm, smooth_occupancy
+from .base import NamedField, as_points, safe_norm, smooth_occupancy
 
 
 def _concrete(*values) -> bool:
@@ -27,14 +28,16 @@ def _positive(name: str, value: float) -> float:
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
-class SphereField:
+class SphereField(NamedField):
     """Solid sphere with a smooth edge: φ(x) = ρ·σ((R − |x − c|)/w).
 
     radius R [m]; edge_width w [m] (logistic scale, see :func:`smooth_occupancy`);
     density ρ (interior value); center c (3,) object frame [m].
     The exact mass of the sharp sphere is α·ρ·4/3·πR³; the smooth edge adds a relative
-    π²(w/R)² to second order.
+    π²(w/R)² to second order. ``name``: "sphere" unless :meth:`named`.
     """
+
+    kind: ClassVar[str] = "sphere"
 
     radius: float
     edge_width: float = field(default=0.0)
@@ -65,14 +68,16 @@ class SphereField:
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
-class BoxField:
+class BoxField(NamedField):
     """Solid axis-aligned box with a smooth edge: φ(x) = ρ·σ(−d_box(x − c)/w).
 
     half_extents h (3,) [m]; d_box is the exact signed distance to the box surface
     (negative inside); edge_width w [m]; density ρ; center c (3,) object frame [m].
     Exact sharp-box references: mass α·ρ·8·h_x·h_y·h_z, inertia about the centre
-    m/3·diag(h_y²+h_z², h_x²+h_z², h_x²+h_y²).
+    m/3·diag(h_y²+h_z², h_x²+h_z², h_x²+h_y²). ``name``: "box" unless :meth:`named`.
     """
+
+    kind: ClassVar[str] = "box"
 
     half_extents: tuple[float, float, float]
     edge_width: float = 0.0

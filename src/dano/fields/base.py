@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Any, Protocol, runtime_checkable
+import copy
+import re
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
@@ -25,11 +27,54 @@ class DensityField(Protocol):
     Optional ``interior_density()`` -> float: the density of full occupancy (the surface
     is the level at half of it; contact begins there). Without it dano takes the largest
     density on a grid over the bounds.
+
+    Optional ``name`` (str): what the object is called; :func:`dano.build` names the asset
+    after it (:func:`field_name`).
     """
 
     def density(self, points: jax.Array) -> jax.Array: ...
 
     def bounds(self) -> np.ndarray: ...
+
+
+class NamedField:
+    """What a built-in field is called: ``name``, the stem of the file it was read from
+    (:func:`~dano.fields.mesh_field`, :meth:`~dano.fields.VoxelField.load`) or given by
+    :meth:`named`, else the field's kind (``"sphere"``, ``"box"``, ``"voxel"``, ``"sdf_grid"``;
+    a transformed field: its base's name). :func:`dano.build` names its asset so.
+
+    The name is not part of the pytree (no leaf, no static metadata: fields of one structure
+    share compilations and DANO-DANO pair groups whatever they are called), so JAX
+    transformations and :func:`dataclasses.replace` return fields called by their kind."""
+
+    kind: ClassVar[str] = ""
+
+    @property
+    def name(self) -> str:
+        return self.__dict__.get("_name") or self._default_name()
+
+    def _default_name(self) -> str:
+        return self.kind
+
+    def named(self, name: str):
+        """A copy of this field called ``name`` (a non-empty string). Raises DanoError otherwise."""
+        if not isinstance(name, str) or not name.strip():
+            raise DanoError(f"a field's name must be a non-empty string, got {name!r}")
+        new = copy.copy(self)
+        object.__setattr__(new, "_name", name)
+        return new
+
+
+def field_name(field) -> str:
+    """The name of an asset built from ``field`` when none is given: the field's ``name``
+    when it is a non-empty string (built-in fields: :class:`NamedField`), else its class name
+    in snake case without a ``Field`` suffix (a user's ``TorusField`` -> ``"torus"``), else
+    ``"dano"``."""
+    name = getattr(field, "name", None)
+    if isinstance(name, str) and name.strip():
+        return name
+    stem = re.sub(r"_?field$", "", re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", type(field).__name__).lower())
+    return stem or "dano"
 
 
 def smooth_occupancy(signed_distance: jax.Array, edge_width: float) -> jax.Array:

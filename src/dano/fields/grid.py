@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -17,7 +18,7 @@ import numpy as np
 from jax.scipy.ndimage import map_coordinates
 
 from ..errors import DanoError, FileFormatError
-from .base import as_points, check_bounds, smooth_occupancy
+from .base import NamedField, as_points, check_bounds, smooth_occupancy
 
 
 def _grid_coords(points: jax.Array, lower: jax.Array, upper: jax.Array, shape) -> list[jax.Array]:
@@ -40,15 +41,18 @@ def _check_grid(values: np.ndarray, what: str) -> np.ndarray:
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
-class VoxelField:
+class VoxelField(NamedField):
     """Density on a voxel grid, trilinear in between; beyond the outer nodes it falls
     linearly to zero over one cell (continuous), so :meth:`bounds` is the node box
     grown by one cell.
 
     values: (nx, ny, nz) float, density φ >= 0 at the grid nodes;
     lower, upper: (3,) float, object frame [m], positions of the first and last node.
+    ``name``: the file's stem when read by :meth:`load`, else "voxel" (:meth:`named` sets one).
     Raises DanoError on negative or non-finite densities or bad shapes.
     """
+
+    kind: ClassVar[str] = "voxel"
 
     values: jax.Array
     lower: jax.Array
@@ -68,7 +72,8 @@ class VoxelField:
     @classmethod
     def load(cls, path: str | Path, bounds=None) -> "VoxelField":
         """Read a volume from ``.npz`` (arrays ``density`` (nx, ny, nz) and ``bounds``
-        (2, 3) [m]) or ``.npy`` (the density array; ``bounds`` must then be given).
+        (2, 3) [m]) or ``.npy`` (the density array; ``bounds`` must then be given), named
+        after the file's stem.
 
         Raises FileFormatError naming the file if it cannot be read or lacks arrays.
         """
@@ -88,7 +93,7 @@ class VoxelField:
                     raise FileFormatError(f"{path}: missing array(s) {sorted(missing)}; expected 'density' and 'bounds'")
                 values = data["density"]
                 bounds = data["bounds"] if bounds is None else bounds
-            return cls.create(values, bounds)
+            return cls.create(values, bounds).named(path.stem)
         except DanoError as exc:
             if str(exc).startswith(str(path)):
                 raise
@@ -116,15 +121,17 @@ class VoxelField:
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
-class SdfGridField:
+class SdfGridField(NamedField):
     """Smoothed occupancy of a signed-distance grid: φ(x) = ρ·σ(−d(x)/w).
 
     sdf: (nx, ny, nz) float, signed distance at the nodes [m], negative inside;
     lower, upper: (3,) object frame [m]; edge_width w [m]; density_scale ρ.
     Outside the grid the nearest node's distance is used (the grid is padded so
     that this is far outside the surface). Build one from a mesh with
-    :func:`dano.fields.mesh_field`.
+    :func:`dano.fields.mesh_field` (named after the mesh file's stem; else "sdf_grid").
     """
+
+    kind: ClassVar[str] = "sdf_grid"
 
     sdf: jax.Array
     lower: jax.Array

@@ -12,12 +12,12 @@ import numpy as np
 
 from ..errors import DanoError
 from ..pose import quat_to_matrix
-from .base import as_points
+from .base import NamedField, as_points, field_name
 
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
-class TransformedField:
+class TransformedField(NamedField):
     """φ(x) = φ_base(Rᵀ(x − t) / s): the base field scaled by s, then rotated by R,
     then offset by t.
 
@@ -25,6 +25,7 @@ class TransformedField:
     matrix R; offset t: (3,) [m]. Densities keep their values (a uniformly scaled
     object keeps its density; its mass grows as s³).
     Build with :meth:`create`, which accepts a wxyz quaternion (MuJoCo's convention).
+    ``name``: the base field's (:func:`~dano.fields.base.field_name`) unless :meth:`named`.
     """
 
     base: Any
@@ -63,6 +64,9 @@ class TransformedField:
         if t.shape != (3,) or not np.all(np.isfinite(t)):
             raise DanoError(f"offset must be 3 finite numbers, got {t.tolist()}")
         return cls(base, scale, jnp.asarray(R), jnp.asarray(t))
+
+    def _default_name(self) -> str:
+        return field_name(self.base)
 
     def density(self, points: jax.Array) -> jax.Array:
         p = as_points(points)

@@ -71,6 +71,11 @@ class SimulateConfig:
     qvel); NAME is the DANO's name (its file stem, or the asset's name); others start at rest."""
     camera: str | None = None
     """Video: the name of a camera in the scene's MJCF; None: a free camera following the DANOs."""
+    keyframe: str | None = None
+    """MJCF scenes: start from this key of the MJCF's ``<keyframe>``, by name or index ("0"; an int
+    is read as its index):
+    its qpos and qvel for the MJCF's own joints and its ctrl, held for the whole run (time is not
+    used); the DANOs keep their ``object`` pose and ``qvel``. None: the MJCF's qpos0, at rest."""
 
     def __post_init__(self):
         for item in self.qvel:
@@ -82,6 +87,10 @@ class SimulateConfig:
                 raise DanoError(f"--{opt} must be a finite positive number, got {v}")
         if self.max_steps < 1:
             raise DanoError(f"--max-steps must be at least 1, got {self.max_steps}")
+        if isinstance(self.keyframe, int) and not isinstance(self.keyframe, bool) and self.keyframe >= 0:
+            object.__setattr__(self, "keyframe", str(self.keyframe))  # an index, saved as the option reads it
+        if self.keyframe is not None and not (isinstance(self.keyframe, str) and self.keyframe.strip()):
+            raise DanoError(f"--keyframe {self.keyframe!r}: give a key's name or its index (0 for the first)")
 
     @classmethod
     def read(cls, path: str | Path) -> SimulateConfig:
@@ -193,15 +202,17 @@ def setup_for(config: SimulateConfig) -> Setup:
     """The scene of ``config``: a built-in scene, or the MJCF with its DANOs placed.
     Raises DanoError for an unknown scene or objects given to a built-in one."""
     if config.scene in BUILTIN_SCENES:
-        if config.object:
-            raise DanoError("--object applies to MJCF scenes, not to built-in ones")
+        for option, value in (("--object", config.object), ("--keyframe", config.keyframe)):
+            if value:
+                raise DanoError(f"{option} applies to MJCF scenes, not to built-in ones")
         return load_scene(config.scene, config.dt, contact_model=config.contact_model)
     path = Path(config.scene)
     if path.suffix.lower() != ".xml" and not path.exists():
         raise DanoError(f"unknown scene {config.scene!r}; built-in scenes: {', '.join(BUILTIN_SCENES)} "
                         "(or an MJCF path)")
     objs = [parse_object(o) for o in (config.object or (DEFAULT_OBJECT,))]
-    return mjcf_setup(path, objs, dt=config.dt, contact_model=config.contact_model)  # dt None: the MJCF's
+    return mjcf_setup(path, objs, dt=config.dt, contact_model=config.contact_model,  # dt None: the MJCF's
+                      keyframe=config.keyframe)
 
 
 def simulate(config: SimulateConfig, progress=None) -> SimulationRun:
@@ -269,6 +280,10 @@ class SimulateCommandConfig:
     (e.g. bunny=1,0,0 or bunny=1,0,0,0,0,5); other bodies start at rest."""
     camera: str | None = None
     """video: a camera of the MJCF, by name (default: a free camera following the DANOs)."""
+    keyframe: Annotated[str | None, tyro.conf.arg(metavar="NAME|INDEX")] = None
+    """MJCF scenes: start from this key of the MJCF's <keyframe> (name, or index from 0): its qpos, qvel and
+    ctrl for the MJCF's own joints and actuators (ctrl held for the run); DANOs keep --object's pose and --qvel
+    (default: the MJCF's reference pose qpos0, at rest)."""
     quiet: bool = False
     """no progress bars."""
 
@@ -282,7 +297,7 @@ class SimulateCommandConfig:
         (if any) or the defaults. Raises DanoError for a value out of range."""
         given = {"duration": self.duration, "dt": self.dt, "param": self.param, "object": self.object,
                  "fps": self.fps, "contact_model": self.contact_model, "max_steps": self.max_steps,
-                 "qvel": self.qvel, "camera": self.camera}
+                 "qvel": self.qvel, "camera": self.camera, "keyframe": self.keyframe}
         given = {k: v for k, v in given.items() if v not in (None, ())}
         if self.config is not None:
             saved = SimulateConfig.read(self.config)

@@ -42,14 +42,16 @@ def _normalize(q) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-def initial_state(scene: Scene, poses: dict, velocities: dict | None = None) -> State:
-    """A :class:`State` from the model's qpos0 with free bodies placed and launched.
+def initial_state(scene: Scene, poses: dict, velocities: dict | None = None, start: State | None = None) -> State:
+    """A :class:`State` from the model's qpos0 (or ``start``) with free bodies placed and launched.
 
     poses: {body name: (pos (3,) world [m], quat (4,) wxyz)}; velocities: {body name:
-    (v (3,) world [m/s], ω (3,) body frame [rad/s])}; other dofs keep qpos0 and zero
-    velocity. Bodies must have a free joint."""
-    qpos = scene.qpos0
-    qvel = np.zeros(scene.nv)
+    (v (3,) world [m/s], ω (3,) body frame [rad/s])}; start: the configuration (nq,) and
+    velocity (nv,) the other dofs keep (default: qpos0, at rest; e.g. a keyframe's,
+    :func:`keyframe_start`); the named bodies' own velocities start at zero unless given.
+    Bodies must have a free joint."""
+    qpos = scene.qpos0 if start is None else np.array(start.qpos, dtype=np.float64)
+    qvel = np.zeros(scene.nv) if start is None else np.array(start.qvel, dtype=np.float64)
     m = scene.mj_model
 
     def free_joint(name):
@@ -62,8 +64,10 @@ def initial_state(scene: Scene, poses: dict, velocities: dict | None = None) -> 
         return j
 
     for name, (pos, quat) in poses.items():
-        a = m.jnt_qposadr[free_joint(name)]
+        j = free_joint(name)
+        a = m.jnt_qposadr[j]
         qpos[a : a + 7] = np.r_[pos, _normalize(quat)]
+        qvel[m.jnt_dofadr[j] : m.jnt_dofadr[j] + 6] = 0.0
     for name, (v, w) in (velocities or {}).items():
         a = m.jnt_dofadr[free_joint(name)]
         qvel[a : a + 6] = np.r_[v, w]
@@ -229,18 +233,99 @@ def stated_timestep(path: str | Path) -> float | None:
 DEFAULT_DT = 0.01
 
 
+def keyframe_names(scene: Scene) -> list[str]:
+    """The names of the scene's MuJoCo keyframes (``<keyframe><key name=...>``), in order
+    ("" for an unnamed key)."""
+    m = scene.mj_model
+    return [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_KEY, k) or "" for k in range(m.nkey)]
+
+
+@dataclass(frozen=True)
+class KeyframeStart:
+    """A MuJoCo keyframe of the scene's MJCF as a start: state: qpos (nq,) and qvel (nv,) of
+    the key for the MJCF's own joints, each DANO at its placed pose (``qpos0``) and at rest;
+    ctrl: (nu,) the key's actuator controls (MuJoCo holds them until changed); index and name
+    of the key."""
+
+    state: State
+    ctrl: np.ndarray
+    index: int
+    name: str
+
+
+def keyframe_start(scene: Scene, key: str | int, where: str = "the scene") -> KeyframeStart:
+    """The start that MuJoCo's keyframe ``key`` (a name, or an index as an int or a string of
+    digits; a name takes precedence) describes, for a scene composed from an MJCF that has
+    ``<keyframe>`` keys. A key is written for the MJCF as it stands: its qpos/qvel cover the
+    MJCF's own joints (MuJoCo fills the rest, the DANOs' free joints that :func:`compose`
+    appends after them, with qpos0, i.e. their placed pose, and zero velocity); time is not
+    used (a run starts at t = 0). where: how errors name the model (e.g. its file).
+
+    Raises DanoError (one line, listing the keys) for an unknown key or a scene without keys,
+    and for a key that dano cannot apply faithfully: one that sets mocap poses or actuator
+    activations (only qpos, qvel and ctrl are applied), or whose qpos/qvel is longer than the
+    MJCF's own joints (it would write into the DANOs' free joints, which their placed poses
+    override)."""
+    m = scene.mj_model
+    names = keyframe_names(scene)
+    label = f"--keyframe {str(key)!r}"
+    if not names:
+        raise DanoError(f"{label}: {where} has no keyframes (an MJCF <keyframe><key .../></keyframe>)")
+    text = str(key)
+    if text in names:
+        k = names.index(text)
+    elif text.isdigit() and int(text) < len(names):
+        k = int(text)
+    else:
+        listed = ", ".join(f"{i} {n!r}" if n else f"{i} (unnamed)" for i, n in enumerate(names))
+        raise DanoError(f"{label}: {where} has no key {text!r}; its keys (index, name): {listed}")
+    qpos, qvel = np.array(m.key_qpos[k], dtype=np.float64), np.array(m.key_qvel[k], dtype=np.float64)
+    for name, qa, va in zip(scene.dano_names, scene.qpos_adr, scene.dof_adr):
+        if not (np.array_equal(qpos[qa : qa + 7], m.qpos0[qa : qa + 7]) and not np.any(qvel[va : va + 6])):
+            raise DanoError(f"{label}: the key's qpos or qvel is longer than {where}'s own joints and reaches the "
+                            f"free joint dano adds for DANO {name!r}; write the key for the MJCF alone (the DANOs' "
+                            "start is --object's pose and --qvel)")
+    unsupported = []
+    if m.na and np.any(m.key_act[k] != 0):
+        unsupported.append("act (actuator activations)")
+    if m.nmocap:
+        mocap = np.flatnonzero(m.body_mocapid >= 0)
+        order = m.body_mocapid[mocap]
+        if not (np.allclose(m.key_mpos[k].reshape(-1, 3)[order], m.body_pos[mocap])
+                and np.allclose(m.key_mquat[k].reshape(-1, 4)[order], m.body_quat[mocap])):
+            unsupported.append("mpos/mquat (mocap poses)")
+    if unsupported:
+        raise DanoError(f"{label}: the key sets {' and '.join(unsupported)}, which dano simulate does not apply "
+                        "(it applies a key's qpos, qvel and ctrl)")
+    return KeyframeStart(State(jnp.asarray(qpos), jnp.asarray(qvel)), np.array(m.key_ctrl[k], dtype=np.float64),
+                         k, names[k])
+
+
 def mjcf_setup(path: str | Path, objects: list[DanoObject], dt: float | None = None, duration: float = 2.0,
-               contact_model: str = "centroid") -> Setup:
+               contact_model: str = "centroid", keyframe: str | int | None = None) -> Setup:
     """A runnable :class:`Setup` from a user's MJCF/URDF file and DANOs placed at their
     ``pos``/``quat`` at rest (paper default contact parameters, zero controls). dt: the time
     step [s]; default: the one the MJCF states (:func:`stated_timestep`), else
-    :data:`DEFAULT_DT`. Raises DanoError if the file is missing or does not compile."""
+    :data:`DEFAULT_DT`. keyframe: start the MJCF's own joints and actuators from this key of
+    its ``<keyframe>`` (name or index; :func:`keyframe_start`): its qpos and qvel, and its
+    ctrl held for the whole run; the DANOs keep their pose, at rest. Raises DanoError if the
+    file is missing or does not compile, or for an unknown or unsupported key."""
     path = Path(path)
     if dt is None:
         dt = stated_timestep(path) or DEFAULT_DT
     scene = compose(objects, path, dt=dt, name=path.stem, contact_model=contact_model)
-    state = initial_state(scene, {o.name: (o.pos, o.quat) for o in objects})
-    return Setup(scene, state, scene.default_params(), duration, None, f"MJCF {path}")
+    start = keyframe_start(scene, keyframe, where=str(path)) if keyframe is not None else None
+    state = initial_state(scene, {o.name: (o.pos, o.quat) for o in objects}, start=start.state if start else None)
+    controls = None
+    description = f"MJCF {path}"
+    if start is not None and scene.nu:
+        ctrl = start.ctrl
+
+        def controls(times: np.ndarray) -> np.ndarray:
+            return np.tile(ctrl, (len(times), 1))
+    if start is not None:
+        description += f", from its key {start.index}" + (f" {start.name!r}" if start.name else "")
+    return Setup(scene, state, scene.default_params(), duration, controls, description)
 
 
 BUILTIN_SCENES: dict[str, Callable[..., Setup]] = {
