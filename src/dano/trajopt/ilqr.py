@@ -205,8 +205,14 @@ class _Compiled:
 
             # stages in batches (lax.map): the batched linearisation's intermediates, not the
             # whole horizon's at once, bound the memory (a vmap over T stages held them all)
-            F, lz, lzz = jax.lax.map(lambda a: stage(*a), (X[:-1], U, ts, lam.inequality, lam.equality),
-                                     batch_size=min(T, STAGE_BATCH))
+            # batches of equal size, the horizon padded with copies of its last stage where they
+            # do not divide it (lax.map would trace and compile a remainder batch a second time)
+            count = -(-T // STAGE_BATCH)
+            size = -(-T // count)
+            pad = lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], size * count - T, axis=0)])  # noqa: E731
+            F, lz, lzz = jax.lax.map(lambda a: stage(*a), tuple(pad(a) for a in (X[:-1], U, ts, lam.inequality,
+                                                                                   lam.equality)), batch_size=size)
+            F, lz, lzz = F[:T], lz[:T], lzz[:T]
             xT = X[-1]
 
             def fT(x):
