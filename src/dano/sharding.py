@@ -102,12 +102,14 @@ def mesh_of_size(shards: int) -> Mesh | None:
 
 
 def shards_for(rows: int, per_process: int | None = None) -> int:
-    """How many shards a batch of ``rows`` rows is split into: every process's devices in
-    use, but no more per process than its share of the rows needs (a batch of 3 rows on
-    8 devices uses 3); at least one per process (every process takes part)."""
+    """How many devices (in all processes) a batch of ``rows`` rows is split over: as few
+    as give each device no more rows than using every device in use would (10 rows on 8
+    devices: 2 rows each either way, so 5 devices and no padding; 3 rows on 8: 3 devices),
+    the same number in every process (each takes part)."""
     per = devices_in_use() if per_process is None else per_process
     processes = jax.process_count()
-    return max(1, min(per, -(-rows // processes))) * processes
+    each = -(-rows // (per * processes))  # rows per device with every device in use
+    return max(1, min(per, -(-rows // (each * processes)))) * processes
 
 
 def padded_size(rows: int, shards: int) -> int:
@@ -207,9 +209,6 @@ def initialize(coordinator_address: str | None = None, num_processes: int | None
 
     if jax.distributed.is_initialized():
         return _topology()
-    if _jax_setup._backend_started():
-        raise DanoError("jax.distributed must be initialised before any JAX computation: call "
-                        "dano.sharding.initialize() (or set DANO_NUM_PROCESSES) first")
 
     def number(value, env, what):
         if value is None and os.environ.get(env, "").strip():
@@ -228,6 +227,9 @@ def initialize(coordinator_address: str | None = None, num_processes: int | None
         raise DanoError(f"process_id (${ENV_PROCESS_ID}) must be 0 to {num_processes - 1}, got {process_id}")
     if coordinator_address is not None and ":" not in coordinator_address:
         raise DanoError(f"coordinator_address (${ENV_COORDINATOR}) must be host:port, got {coordinator_address!r}")
+    if _jax_setup._backend_started():
+        raise DanoError("jax.distributed must be initialised before any JAX computation: call "
+                        "dano.sharding.initialize() (or set $DANO_NUM_PROCESSES) first")
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
     try:
         jax.distributed.initialize(coordinator_address=coordinator_address, num_processes=num_processes,
@@ -276,7 +278,21 @@ def allgather_objects(obj) -> list:
 def load_shares(items: Sequence, load: Callable) -> list:
     """``[load(x) for x in items]``, each process loading only its :func:`share` of ``items``
     (e.g. trajectory files) and receiving the others' through :func:`allgather_objects`:
-    every process gets the whole list, in order. Collective across processes."""
-    mine = share(len(items))
-    parts = allgather_objects([load(items[i]) for i in mine])
-    return [x for part in parts for x in part]
+    every process gets the whole list, in order (the results must be picklable). Collective
+    across processes: an error while one process loads is raised on every process (the
+    first process's first error), so that none waits for the others."""
+    if jax.process_count() == 1:
+        return [load(x) for x in items]
+    try:
+        mine = (None, [load(items[i]) for i in share(len(items))])
+    except Exception as exc:  # noqa: BLE001 - handed to every process, raised there
+        try:
+            pickle.dumps(exc)
+            mine = (exc, None)
+        except Exception:  # noqa: BLE001 - an exception that cannot travel: its message does
+            mine = (DanoError(str(exc)), None)
+    parts = allgather_objects(mine)
+    for error, _ in parts:
+        if error is not None:
+            raise error
+    return [x for _, part in parts for x in part]

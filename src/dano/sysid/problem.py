@@ -869,9 +869,9 @@ class SysIdProblem:
         return self._structure[2]
 
     @functools.cached_property
-    def _placed(self) -> dict:
-        """Structures for split work, built on first use: {("segments", shards): (layout, data
-        replicated on the mesh, keep)}, {("thetas", shards): data replicated on the mesh}."""
+    def _split(self) -> dict:
+        """Structures for segments split over devices, built on first use: {shards: (layout,
+        data, keep)}."""
         return {}
 
     def _split_segments(self):
@@ -881,11 +881,9 @@ class SysIdProblem:
         shards = sharding.shards_for(max(len(b.segments) for b in self.layout.batches))
         if shards == 1:
             return self._structure
-        key = ("segments", shards)
-        if key not in self._placed:
-            layout, data, keep = self._build_structure(shards)
-            self._placed[key] = (layout, jax.device_put(data, sharding.replicated(_layout_mesh(layout))), keep)
-        return self._placed[key]
+        if shards not in self._split:
+            self._split[shards] = self._build_structure(shards)
+        return self._split[shards]
 
     def residuals_and_jacobian(self, theta) -> tuple[np.ndarray, np.ndarray]:
         """(m,) residual vector and (m, n) its forward-mode Jacobian at θ (n,), compiled once
@@ -920,17 +918,11 @@ class SysIdProblem:
         thetas = np.asarray(thetas, dtype=np.float64)
         shards = sharding.shards_for(BATCH)
         size = sharding.padded_size(BATCH, shards)
-        data = self.data
-        if shards > 1:
-            if ("thetas", shards) not in self._placed:
-                mesh = sharding.mesh_of_size(shards)
-                self._placed[("thetas", shards)] = jax.device_put(self.data, sharding.replicated(mesh))
-            data = self._placed[("thetas", shards)]
         out = []
         for start in range(0, len(thetas), size):
             chunk = thetas[start : start + size]
             padded = np.concatenate([chunk, np.repeat(chunk[-1:], size - len(chunk), axis=0)])
-            r = _run(_batch_residuals_jit, self.layout, shards, self.scene, self.base_params, data,
+            r = _run(_batch_residuals_jit, self.layout, shards, self.scene, self.base_params, self.data,
                      jnp.asarray(padded))
             out.append(r[: len(chunk)][:, self.keep])
         return np.concatenate(out) if out else np.zeros((0, self.num_residuals))
