@@ -236,7 +236,28 @@ def initialize(coordinator_address: str | None = None, num_processes: int | None
                                    process_id=process_id, local_device_ids=local_device_ids)
     except (ValueError, RuntimeError) as exc:
         raise DanoError(f"jax.distributed.initialize failed: {' '.join(str(exc).split())}") from exc
+    if jax.default_backend() == "cpu":
+        _connect_quietly()
     return _topology()
+
+
+def _connect_quietly() -> None:
+    """One barrier over every device, with this process's standard output sent to standard
+    error meanwhile: gloo announces its first connection ("[Gloo] Rank 0 is connected to 1
+    peer ranks") on standard output, where it would break a command's JSON output."""
+    import sys
+
+    from jax.experimental import multihost_utils
+
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        multihost_utils.sync_global_devices("dano.sharding.initialize")
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def _topology() -> dict:
