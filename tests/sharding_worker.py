@@ -107,6 +107,18 @@ def devices_check() -> dict:
             "scan_max_abs_diff": float(np.max(np.abs(Bn - B1))),
             "shapes": [list(r.shape), list(J.shape), list(Bn.shape)],
         }
+    # the 8-device programs again, from disk: forget the loaded programs, load them (dano._compiled)
+    from dano import _compiled
+
+    loaded = _compiled.COUNTS["loaded"]
+    _compiled.clear()
+    with sharding.use_devices(8):
+        r, J = problem.residuals_and_jacobian(theta)
+        Bn = problem.batch_residuals(thetas)
+    out["reloaded"] = {"programs_loaded": _compiled.COUNTS["loaded"] - loaded,
+                       "export_directory": str(_compiled.directory()),
+                       "max_abs_diff": max(float(np.max(np.abs(r - r1))), float(np.max(np.abs(J - J1))),
+                                           float(np.max(np.abs(Bn - B1))))}
     out["reference"] = {"rollout_shapes": [list(x.shape) for x in ref],
                         "shapes": [list(r1.shape), list(J1.shape), list(B1.shape)],
                         "rollout_spread": float(np.ptp(ref[0][:, -1, 0])),  # the rows differ: padding would show

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import dano
 from dano import sharding
 from dano.cli import main
 from dano.errors import DanoError
@@ -24,12 +25,13 @@ from dano.errors import DanoError
 from .sharding_worker import IDENTIFY, SCAN_FRICTIONS, box_scene, load_observation, slide_problem
 
 WORKER = Path(__file__).with_name("sharding_worker.py")
-SRC = Path(__file__).resolve().parents[1] / "src"
+DANO_ROOT = Path(dano.__file__).resolve().parents[1]  # the workers import the dano this process imported
 
 
 def _env(**extra) -> dict:
     env = dict(os.environ, **extra)
-    env["PYTHONPATH"] = os.pathsep.join([str(SRC)] + [p for p in [os.environ.get("PYTHONPATH")] if p])
+    env.pop("DANO_EXPORT_CACHE", None)  # the exported programs' disk cache on (dano._compiled)
+    env["PYTHONPATH"] = os.pathsep.join([str(DANO_ROOT)] + [p for p in [os.environ.get("PYTHONPATH")] if p])
     return env
 
 
@@ -101,11 +103,12 @@ def test_distributed_settings_are_checked(monkeypatch):
     assert sharding.initialize_from_environment() is None
 
 
-@pytest.mark.slow  # 20 s with a warm compilation cache, 60-90 s cold on the 2-core machine
+@pytest.mark.slow  # 14-20 s with warm compilation caches, 36-90 s cold on the 2-core machine
 def test_sharded_equals_unsharded_on_8_host_devices(tmp_path):
-    """Rollouts under vmap (5 rows: padded to 6 and 8), the identification residual and its
-    Jacobian (3 trajectories: split over 2 devices, padded to 4; over 3 of the 8) and the
-    scan's batch, on 2 and 8 of 8 forced host devices, against 1 device, in float64."""
+    """Rollouts under vmap (5 rows: padded to 6 on 2 devices, 5 of 8), the identification
+    residual and its Jacobian (3 trajectories: split over 2 devices, padded to 4; over 3 of
+    the 8) and the scan's batch, on 2 and 8 of 8 forced host devices, against 1 device, in
+    float64; the 8-device programs loaded again from disk give the same."""
     out = tmp_path / "devices.json"
     proc = subprocess.run([sys.executable, str(WORKER), "devices", str(out)], capture_output=True, text=True,
                           timeout=600, env=_env(XLA_FLAGS="--xla_force_host_platform_device_count=8"))
@@ -121,6 +124,8 @@ def test_sharded_equals_unsharded_on_8_host_devices(tmp_path):
         assert got["rollout_shapes"] == ref["rollout_shapes"] and got["shapes"] == ref["shapes"]
         for key in ("rollout_max_abs_diff", "residual_max_abs_diff", "jacobian_max_abs_diff", "scan_max_abs_diff"):
             assert got[key] <= 1e-12, (n, key, got[key])
+    # the sharded programs were exported to disk and load in place of tracing (dano._compiled)
+    assert report["reloaded"]["programs_loaded"] == 2 and report["reloaded"]["max_abs_diff"] <= 1e-12
 
 
 def _free_port() -> int:
@@ -129,7 +134,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.mark.slow  # 32 s with a warm compilation cache (three processes on two cores), ~100 s cold
+@pytest.mark.slow  # 22-32 s with warm caches (three processes on two cores), 60-100 s cold
 def test_two_processes_identify_as_one(tmp_path):
     """Four trajectory files; two jax.distributed processes (CPU collectives by gloo, one
     device each) each load two of them, split the identification's rollouts between them and
