@@ -108,7 +108,7 @@ def shards_for(rows: int, per_process: int | None = None) -> int:
     the same number in every process (each takes part)."""
     per = devices_in_use() if per_process is None else per_process
     processes = jax.process_count()
-    each = -(-rows // (per * processes))  # rows per device with every device in use
+    each = max(1, -(-rows // (per * processes)))  # rows per device with every device in use
     return max(1, min(per, -(-rows // (each * processes)))) * processes
 
 
