@@ -1,5 +1,6 @@
 """The public step and its pytrees (issue 7, "What to build" 1 and 6)."""
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -154,7 +155,9 @@ def test_scene_and_parameters_are_pytrees_with_replace(box_scene):
 
 
 def test_no_mjx_private_fields_in_the_source():
-    offenders = [str(p.relative_to(SRC)) for p in SRC.rglob("*.py") if "_impl" in p.read_text()]
+    # MJX's private fields are reached as attributes (model._impl, data._impl); a config name
+    # such as jax_cpu_collectives_implementation is no offence
+    offenders = [str(p.relative_to(SRC)) for p in SRC.rglob("*.py") if re.search(r"\._impl\b", p.read_text())]
     assert offenders == []
 
 

@@ -18,6 +18,14 @@ each traced and lowered program (a :class:`jax.export.Exported`, StableHLO) in
 
 Values are arguments, never part of the key: problems of the same structure (other
 observations, parameters, initial states) load the program instead of tracing it again.
+
+Sharded programs (``mesh=``: a function of the static arguments that returns the
+:class:`jax.sharding.Mesh` the function's ``shard_map`` runs on, or None) are exported and
+called with every argument and result replicated over that mesh (``in_shardings`` /
+``out_shardings``; the program splits its batch inside and gathers its result), so a loaded
+program runs on the same number of devices, across processes too; the static arguments
+must tell the mesh's size (e.g. a layout's shard count), so that its key differs from the
+single-device program's.
 Called with tracers (inside ``jit``, ``vmap``, ``jacfwd``, ...) or with the cache off, a
 cached function is plain ``jax.jit``, so it composes as usual. ``DANO_EXPORT_CACHE=0``
 turns the disk part off.
@@ -180,10 +188,12 @@ class CachedFunction:
     documentation). Call it like the function; ``lower`` and other ``jax.jit`` attributes
     are those of the plain jitted function (``.jit``)."""
 
-    def __init__(self, fn, static_argnums=()):
+    def __init__(self, fn, static_argnums=(), mesh=None):
         self.fn = fn
         self.static_argnums = tuple(sorted(static_argnums))
         self.jit = jax.jit(fn, static_argnums=self.static_argnums)
+        self.mesh_of = mesh
+        self._sharded_jits: dict = {}  # mesh -> jax.jit with replicated in/out shardings
         self.name = f"{fn.__module__}.{fn.__qualname__}"
         self._by_structure: collections.OrderedDict = collections.OrderedDict()  # (statics, tree, avals) -> program
         self._by_digest: collections.OrderedDict = collections.OrderedDict()  # digest -> program
@@ -206,20 +216,22 @@ class CachedFunction:
         statics = tuple(args[i] for i in self.static_argnums)
         dynamic = tuple(a for i, a in enumerate(args) if i not in self.static_argnums)
         leaves, tree = jax.tree_util.tree_flatten(dynamic)
-        if where is None or any(isinstance(x, jax.core.Tracer) for x in leaves):
-            return self._timed_jit(args)
+        traced = any(isinstance(x, jax.core.Tracer) for x in leaves)
+        mesh = None if (self.mesh_of is None or traced) else self.mesh_of(*statics)
+        if where is None or traced:
+            return self._timed_jit(args, mesh)
         try:
             memory_key = (statics, tree, tuple(_aval(x) for x in leaves), _session())
             hash(memory_key)
         except TypeError:
-            return self._timed_jit(args)
+            return self._timed_jit(args, mesh)
         program = self._by_structure.get(memory_key)
         if program is None:
             t0 = time.perf_counter()
             try:
-                program = self._program(where, statics, tree, leaves)
+                program = self._program(where, statics, tree, leaves, mesh)
             except _Unkeyable:
-                return self._timed_jit(args)
+                return self._timed_jit(args, mesh)
             out = program[0](*leaves)
             jax.block_until_ready(out)
             COMPILE_SECONDS[0] += time.perf_counter() - t0
@@ -229,18 +241,29 @@ class CachedFunction:
             out = program[0](*leaves)
         return jax.tree_util.tree_unflatten(program[1], out)
 
-    def _timed_jit(self, args):
+    def _jit_for(self, mesh):
+        """The plain jitted function, for a sharded program with replicated arguments and results."""
+        if mesh is None:
+            return self.jit
+        if mesh not in self._sharded_jits:
+            rep = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
+            self._sharded_jits[mesh] = jax.jit(self.fn, static_argnums=self.static_argnums, in_shardings=rep,
+                                               out_shardings=rep)
+        return self._sharded_jits[mesh]
+
+    def _timed_jit(self, args, mesh=None):
         """The plain jitted call; its time counts as compiling when JAX's cache grew."""
-        before = self.jit._cache_size()
+        jitted = self._jit_for(mesh)
+        before = jitted._cache_size()
         t0 = time.perf_counter()
-        out = self.jit(*args)
-        if self.jit._cache_size() > before:
+        out = jitted(*args)
+        if jitted._cache_size() > before:
             self.counts["jit"] += 1
             jax.block_until_ready(out)
             COMPILE_SECONDS[0] += time.perf_counter() - t0
         return out
 
-    def _program(self, where: Path, statics, tree, leaves):
+    def _program(self, where: Path, statics, tree, leaves, mesh=None):
         """(jitted call of the exported program on the flat leaves, output tree): from this
         process, from disk, or traced and exported now."""
         h = hashlib.sha256(_environment() + _session())
@@ -254,16 +277,16 @@ class CachedFunction:
             self.counts["reused"] += 1
             return program
         path = where / f"{digest}.jaxexp"
-        program = _load(path)
+        program = _load(path, mesh)
         kind = "loaded" if program is not None else "traced"
         if program is None:
-            program = self._export(tree, statics, leaves, path)
+            program = self._export(tree, statics, leaves, path, mesh)
         COUNTS[kind] += 1
         self.counts[kind] += 1
         _remember(self._by_digest, digest, program)
         return program
 
-    def _export(self, tree, statics, leaves, path: Path):
+    def _export(self, tree, statics, leaves, path: Path, mesh=None):
         holder = {}
 
         def flat(*flat_leaves):
@@ -274,9 +297,18 @@ class CachedFunction:
             out_leaves, holder["tree"] = jax.tree_util.tree_flatten(self.fn(*args))
             return tuple(out_leaves)
 
-        exported = jax.export.export(jax.jit(flat))(*(_abstract(x) for x in leaves))
+        exported = jax.export.export(jax.jit(flat, **_replicated(mesh)))(*(_abstract(x) for x in leaves))
         _save(path, exported, holder["tree"])
-        return jax.jit(exported.call), holder["tree"]
+        return jax.jit(exported.call, **_replicated(mesh)), holder["tree"]
+
+
+def _replicated(mesh) -> dict:
+    """jit's keyword arguments for a program on ``mesh`` with every argument and result
+    replicated (none for a single-device program)."""
+    if mesh is None:
+        return {}
+    rep = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
+    return {"in_shardings": rep, "out_shardings": rep}
 
 
 def _remember(memory: collections.OrderedDict, key, program) -> None:
@@ -303,8 +335,9 @@ def _save(path: Path, exported, out_tree) -> None:
         pass
 
 
-def _load(path: Path):
-    """(jitted call, output tree) of a saved program, or None (absent, or unreadable: then removed)."""
+def _load(path: Path, mesh=None):
+    """(jitted call, output tree) of a saved program, or None (absent, or unreadable: then
+    removed); a sharded program is called on ``mesh``."""
     try:
         blob = path.read_bytes()
     except OSError:
@@ -316,7 +349,9 @@ def _load(path: Path):
         n = int.from_bytes(blob[at : at + 8], "little")
         out_tree = pickle.loads(blob[at + 8 : at + 8 + n])
         exported = jax.export.deserialize(bytearray(blob[at + 8 + n :]))
-        return jax.jit(exported.call), out_tree
+        if exported.nr_devices != (1 if mesh is None else mesh.size):
+            raise ValueError("exported for another number of devices")
+        return jax.jit(exported.call, **_replicated(mesh)), out_tree
     except Exception:  # noqa: BLE001 - a truncated or foreign file: trace again
         try:
             path.unlink()
@@ -332,9 +367,11 @@ def clear() -> None:
         f.clear()
 
 
-def cached_jit(fn=None, *, static_argnums=()):
+def cached_jit(fn=None, *, static_argnums=(), mesh=None):
     """``jax.jit`` whose traced program is kept per structure, across processes (module
-    documentation). Use as ``cached_jit(fn, static_argnums=(0,))`` or as a decorator."""
+    documentation). Use as ``cached_jit(fn, static_argnums=(0,))`` or as a decorator.
+    mesh: for a function that shards its work with ``shard_map``, ``mesh(*static
+    arguments)`` -> the Mesh it runs on, or None for a single-device call."""
     if fn is None:
-        return functools.partial(cached_jit, static_argnums=static_argnums)
-    return CachedFunction(fn, static_argnums)
+        return functools.partial(cached_jit, static_argnums=static_argnums, mesh=mesh)
+    return CachedFunction(fn, static_argnums, mesh)

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import tyro
 
+from . import sharding
 from ._jax_setup import enable_float64
 from ._version import __version__
 from .errors import DanoError
@@ -287,23 +288,85 @@ def _compile_by_lengths(count: int = 20) -> dict:
     return out
 
 
+def _drops(b: int, sc, s0):
+    """B bunny-drop initial states (qpos (B, nq), qvel (B, nv)): the drop's, velocities perturbed (seeded by B)."""
+    rng = np.random.default_rng(b)
+    return jnp.tile(s0.qpos, (b, 1)), jnp.asarray(np.asarray(s0.qvel) + rng.normal(0, 0.2, (b, sc.nv)))
+
+
 def bench_batched(repeats: int = 3, steps: int = 200, batches: tuple[int, ...] | None = None) -> dict:
     """Batched throughput: ``jax.vmap`` of the bunny-drop rollout over B initial states
-    (perturbed drop velocities), as env-steps per second. Default B: 1, 16, 64 on CPU and
-    1, 1024, 4096 on a GPU."""
+    (perturbed drop velocities), as env-steps per second, the batch split over the devices
+    in use (:mod:`dano.sharding`, ``--devices``; one device: ``jax.jit(jax.vmap(...))``).
+    Default B: 1, 16, 64 on CPU and 1, 1024, 4096 on a GPU."""
     setup = load_scene("bunny-drop")
     sc, s0, p = setup.scene, setup.state0, setup.params
     if batches is None:
         batches = (1, 1024, 4096) if jax.default_backend() == "gpu" else (1, 16, 64)
-    out: dict = {"steps": steps, "backend": jax.default_backend()}
-    run = jax.jit(jax.vmap(lambda q, v: rollout_arrays(sc, State(q, v), None, p, steps)[0][-1]))
+    out: dict = {"steps": steps, "backend": jax.default_backend(), "devices": sharding.devices_in_use()}
+    run = sharding.sharded_vmap(lambda q, v: rollout_arrays(sc, State(q, v), None, p, steps)[0][-1])
     for b in batches:
-        rng = np.random.default_rng(b)
-        qpos = jnp.tile(s0.qpos, (b, 1))
-        qvel = jnp.asarray(np.asarray(s0.qvel) + rng.normal(0, 0.2, (b, sc.nv)))
+        qpos, qvel = _drops(b, sc, s0)
         r = _time(lambda: jax.block_until_ready(run(qpos, qvel)), repeats)
         r["env_steps_per_s"] = b * steps / r["median_s"]
         out[f"batch_{b}"] = r
+    return out
+
+
+def _device_counts(available: int) -> list[int]:
+    """1, 2, 4, … below ``available``, then ``available``."""
+    counts, n = [], 1
+    while n < available:
+        counts.append(n)
+        n *= 2
+    return counts + [available]
+
+
+def bench_sharded(repeats: int = 3, steps: int = 200, batch: int | None = None, trajectories: int = 8) -> dict:
+    """Batches split over devices (:mod:`dano.sharding`), for 1, 2, 4, … devices up to those in
+    use: ``rollouts``: B bunny drops (float64; default B = 64 on CPU, 4096 on a GPU) of
+    ``steps`` steps, wall time and env-steps/s, and the largest difference of the final
+    states from one device's; ``sysid``: ``trajectories`` box slides (closed-form data,
+    a 400-sample box): the residual and Jacobian (segments split) and the scan's batch of
+    16 parameter vectors (vectors split), times and the largest differences from one
+    device's. ``first_s`` includes compiling (each device count is its own program).
+    On forced host devices (``XLA_FLAGS=--xla_force_host_platform_device_count=8``) every
+    device shares the machine's cores: this measures correctness and overhead, not speed."""
+    enable_float64()
+    setup = load_scene("bunny-drop")
+    sc, s0, p = setup.scene, setup.state0, setup.params
+    batch = batch or (4096 if jax.default_backend() == "gpu" else 64)
+    qpos, qvel = _drops(batch, sc, s0)
+    run = sharding.sharded_vmap(lambda q, v: rollout_arrays(sc, State(q, v), None, p, steps)[0][-1])
+    box = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=0,
+                name="box")
+    scene = compose([DanoObject("box", box, (0, 0, 0.05))], dt=0.0025)
+    problem = SysIdProblem(scene, analytic_slides(0, 0.05, trajectories), [FitParameter("sliding_friction", 0.3, 0.0,
+                                                                                        2.0)],
+                           weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=4)
+    theta, thetas = problem.initial(), np.linspace(0.05, 1.5, 16)[:, None]
+    out: dict = {"backend": jax.default_backend(), "available_devices": jax.local_device_count(),
+                 "processes": jax.process_count(), "cpu_count": os.cpu_count(),
+                 "rollouts": {"batch": batch, "steps": steps}, "sysid": {"trajectories": trajectories,
+                                                                         "residuals": problem.num_residuals,
+                                                                         "scan_batch": len(thetas)}}
+    ref = None
+    for n in _device_counts(sharding.devices_in_use()):
+        with sharding.use_devices(n):
+            roll = _time(lambda: jax.block_until_ready(run(qpos, qvel)), repeats)
+            final = np.asarray(run(qpos, qvel))
+            jac = _time(lambda: problem.residuals_and_jacobian(theta), repeats)
+            r, J = problem.residuals_and_jacobian(theta)
+            scan = _time(lambda: problem.batch_residuals(thetas), repeats)
+            R = problem.batch_residuals(thetas)
+        if ref is None:
+            ref = final, r, J, R
+        roll["env_steps_per_s"] = batch * steps / roll["median_s"]
+        roll["max_abs_diff_from_one_device"] = float(np.max(np.abs(final - ref[0])))
+        jac["max_abs_diff_from_one_device"] = max(float(np.max(np.abs(r - ref[1]))), float(np.max(np.abs(J - ref[2]))))
+        scan["max_abs_diff_from_one_device"] = float(np.max(np.abs(R - ref[3])))
+        out["rollouts"][f"devices_{n}"] = roll
+        out["sysid"][f"devices_{n}"] = {"residuals_and_jacobian": jac, "scan_batch": scan}
     return out
 
 
@@ -365,6 +428,8 @@ def environment() -> dict:
         "python": platform.python_version(),
         "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "devices_in_use": sharding.devices_in_use(),
+        "processes": jax.process_count(),
         "cpu_count": os.cpu_count(),
     }
 
@@ -417,6 +482,7 @@ def bench_tracking(repeats: int = 1, curve: bool = True, colour_minutes: float =
 
 
 SUITES = {"build": bench_build, "sim": bench_sim, "sysid": bench_sysid, "batched": bench_batched,
+          "sharded": bench_sharded,
           "trajopt": bench_trajopt, "energy": bench_energy, "nerf": bench_nerf, "tracking": bench_tracking}
 
 
@@ -435,8 +501,12 @@ class BenchConfig:
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False
     """print one JSON object."""
     suite: tuple[str, ...] = ()
-    """suites to run (default all): build, sim, sysid, batched, trajopt, energy, nerf (fields from images;
-    needs the shared data, see benchmarks/README.md)."""
+    """suites to run (default all): build, sim, sysid, batched, sharded (batches split over 1, 2, 4, ... devices:
+    correctness and overhead), trajopt, energy, nerf (fields from images; needs the shared data, see
+    benchmarks/README.md), tracking."""
+    devices: int | None = None
+    """local devices that batched suites (batched, sharded, energy) split their batches over (default: all of
+    this process's; see docs/scaling.md)."""
     repeats: int = 3
     """timed repeats after the first call."""
     drops: int = 1000
@@ -474,10 +544,18 @@ class BenchConfig:
             raise DanoError(f"--cube-data {self.cube_data}: no such file")
         if not 2 <= self.cube_tosses <= 200:
             raise DanoError(f"--cube-tosses must be 2 to 200, got {self.cube_tosses}")
+        if self.devices is not None:
+            sharding.check_devices(self.devices, "--devices")
 
 
 def bench_command(config: BenchConfig) -> dict:
-    """``dano bench``: :func:`run` with ``config``'s suites and options."""
+    """``dano bench``: :func:`run` with ``config``'s suites and options, batches split over
+    ``config.devices`` devices (default all)."""
+    with sharding.use_devices(config.devices, "--devices"):
+        return _bench_command(config)
+
+
+def _bench_command(config: BenchConfig) -> dict:
     return run(list(config.suite) or None, repeats=config.repeats,
                options={"energy": {"drops": config.drops, "seed": config.seed, "contact_model": config.contact_model},
                         "sysid": {"cube_data": None if config.cube_data is None else str(config.cube_data),

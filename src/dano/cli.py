@@ -127,6 +127,13 @@ def _train_progress(enabled: bool):
     return bar()
 
 
+def _primary() -> bool:
+    """Whether this process prints and writes: the only one, or process 0 of a multi-process run."""
+    import jax
+
+    return jax.process_index() == 0
+
+
 def _build(c) -> None:
     from .sources import build_file
 
@@ -196,6 +203,8 @@ def _sysid(c) -> None:
         print(template(c.template), end="")
         return
     problem, result, report, out_dir = sysid_command(c)
+    if not _primary():
+        return
     for note in report["warnings"]:
         err.print(f"[yellow]warning:[/] {c.config}: {note}", highlight=False, soft_wrap=True)
     if c.json_:
@@ -229,6 +238,8 @@ def _bench(c) -> None:
     from .bench import bench_command
 
     text = json.dumps(bench_command(c), indent=None if c.json_ else 2)
+    if not _primary():
+        return
     if c.out is not None:
         atomic_write(c.out, lambda f: f.write(text.encode()))
     print(text)
@@ -346,6 +357,10 @@ def _configure_process(args: list[str] | None = None) -> None:
 
     from . import _jax_setup
 
+    if os.environ.get("DANO_NUM_PROCESSES", "").strip():  # a multi-process run (docs/scaling.md) joins first
+        from . import sharding
+
+        sharding.initialize_from_environment()
     if "NPROC" not in os.environ and not _jax_setup._backend_started() and not _wide(args):
         os.environ["NPROC"] = "1"
     _jax_setup.enable_float64()

@@ -148,10 +148,17 @@ class SysIdCommandConfig:
     bootstrap: int = 0
     """contactnets-cube: also refit this many resamples of the fitted tosses (with replacement) for a 95 %
     interval, key "bootstrap" of the JSON (TOML problems: [options] bootstrap)."""
+    devices: int | None = None
+    """local devices that the identification splits its trajectories (residual and Jacobian) and its scan's
+    parameter vectors over (default: all of this process's; the estimate is the same; docs/scaling.md)."""
 
     def __post_init__(self):
         if self.config is None and not self.template:
             raise DanoError("give a CONFIG (a TOML problem, a saved config.json or a built-in example) or --template")
+        if self.devices is not None:
+            from ..sharding import check_devices  # (starts JAX: only when asked)
+
+            check_devices(self.devices, "--devices")
 
     def resolved(self) -> SysIdCommandConfig:
         """The configuration to run: a saved ``config.json`` of a built-in example becomes that
@@ -185,8 +192,16 @@ def sysid_command(config: SysIdCommandConfig):
     (problem, result, report, out_dir): the report as written, non-finite values as null
     and listed in its ``warnings``. Raises DanoError for an unknown name or a bad file."""
     # the registry stays light (no MuJoCo, no JAX) until an identification runs
+    from ..sharding import use_devices
     from ..sysid.config import run
     from ..sysid.outputs import write_outputs
+
+    with use_devices(config.devices, "--devices"):
+        return _sysid_command(config, run, write_outputs)
+
+
+def _sysid_command(config: SysIdCommandConfig, run, write_outputs):
+    import jax
 
     c = config.resolved()
     if c.config == "contactnets-cube":
@@ -210,7 +225,8 @@ def sysid_command(config: SysIdCommandConfig):
     report["warnings"] = notes
     name = c.config if c.config == "contactnets-cube" else config.config
     out_dir = c.out_dir or Path(f"sysid-{Path(name).stem}")
-    write_outputs(out_dir, report, out["config"], problem, result)
+    if jax.process_index() == 0:  # a multi-process run (docs/scaling.md): every process has the result
+        write_outputs(out_dir, report, out["config"], problem, result)
     return problem, result, report, out_dir
 
 

@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import sharding
 from ..contact import ContactParams
 from ..pose import quat_to_matrix, random_quats
 from ..sim import NewtonConfig, make_data, scan_steps
@@ -60,7 +61,8 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
     ``unconverged_steps``: steps whose Newton solve used all its iterations.
     contact_model: of the bunny/ground pair. batch: drops per vmapped call (default 50 for
     the centroid model; 1, unbatched, for per_sample, whose gathering of the samples in
-    reach only pays off outside ``jax.vmap``)."""
+    reach only pays off outside ``jax.vmap``); a batched call is split over the devices in
+    use (:mod:`dano.sharding`; the batch rounded up to a multiple of their number)."""
 
     setup = load_scene("bunny-drop", contact_model=contact_model)
     sc, base = setup.scene, setup.params
@@ -79,10 +81,12 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
         single = jax.jit(one)
         run = lambda q, v, p: tuple(x[None] for x in single(q[0], v[0], jax.tree_util.tree_map(lambda a: a[0], p)))  # noqa: E731
     else:
-        run = jax.jit(jax.vmap(one))
+        batch = sharding.padded_size(batch, sharding.shards_for(batch))
+        run = sharding.sharded_vmap(one)
     out = {"drops": drops, "nonfinite": 0, "diverged": 0, "energy_rises": 0, "max_energy_ratio": 0.0,
            "seed": seed, "steps": steps, "dt": sc.dt, "contact_model": contact_model,
-           "unconverged_steps": 0, "max_newton_iterations": 0, "batch": batch}
+           "unconverged_steps": 0, "max_newton_iterations": 0, "batch": batch,
+           "devices": 1 if batch == 1 else sharding.shards_for(batch)}
     t0 = time.perf_counter()
     worst = []
     for start in range(0, drops, batch):

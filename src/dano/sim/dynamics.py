@@ -69,7 +69,9 @@ def make_data(scene: Scene, qpos=None, qvel=None, *, act=None, ctrl=None, time: 
     field in the scene's dtype. Jittable. Shapes are not checked here (:func:`rollout`
     checks them and raises DanoError)."""
     dt = scene.dtype
-    d = mjx.make_data(scene.model)  # (MJX makes its float fields in JAX's default float type)
+    # (MJX makes its float fields in JAX's default float type; on this process's first device, not
+    # jax.devices()[0], which is process 0's in a multi-process run)
+    d = mjx.make_data(scene.model, device=jax.local_devices()[0])
     d = jax.tree_util.tree_map(lambda x: x.astype(dt) if jnp.issubdtype(x.dtype, jnp.floating) else x, d)
     repl = {"time": jnp.asarray(time, dt)}
     if qpos is not None:

@@ -525,7 +525,9 @@ def compose(
         pairs=tuple(pairs),
         name=name,
     )
-    scene = Scene(model=mjx.put_model(mj_model), samples=samples, fields=fields,
+    # this process's first device (MJX's default, jax.devices()[0], belongs to process 0 in a
+    # multi-process run)
+    scene = Scene(model=mjx.put_model(mj_model, device=jax.local_devices()[0]), samples=samples, fields=fields,
                   base_mass=jnp.asarray(base_mass).reshape(len(objects)),
                   base_inertia=jnp.asarray(base_inertia).reshape(len(objects), 3),
                   groups=_pair_groups(pairs, fields), dt=float(dt),

@@ -69,6 +69,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import sharding
 from .._config import read_table, typed_table
 from .._files import read_npz
 from ..asset import load
@@ -405,7 +406,9 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
         mjcf = base / sc.mjcf if sc.mjcf is not None else None
         scene = compose(objects, mjcf, dt=sc.dt, ground=None if mjcf else True, name=path.stem,
                         contact_model=sc.contact_model)
-        obs = [_read_trajectory(base / t.file, t.object, scene, t.velocities) for t in cfg.trajectory]
+        # each process of a multi-process run reads its share of the files (dano.sharding)
+        obs = sharding.load_shares(cfg.trajectory,
+                                   lambda t: _read_trajectory(base / t.file, t.object, scene, t.velocities))
         params = [FitParameter(p.name, p.initial, p.lower, np.inf if p.upper is None else p.upper, p.target)
                   for p in cfg.parameter]
         base_params, notes = identification_params(scene, params, cfg.contact)

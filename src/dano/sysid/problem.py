@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from .. import _compiled
+from .. import _compiled, sharding
 from .._compiled import cached_jit
 from ..contact.params import ContactParams
 from ..errors import DanoError
@@ -365,6 +365,14 @@ class ResidualLayout:
     substeps: int
     fit_ground: bool
     fit_tilt: bool
+    #: devices (in all processes) the segments of each batch are split over
+    #: (:mod:`dano.sharding`); every batch's segment count is then a multiple of it
+    shards: int = 1
+
+
+def _layout_mesh(layout: ResidualLayout, *_):
+    """The mesh a layout's segments are split over, or None (one device)."""
+    return sharding.mesh_of_size(layout.shards)
 
 
 def _table(theta, fit_tilt: bool):
@@ -390,7 +398,9 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
     """The identification residual at θ (n,), a pure JAX function of its arguments: every
     batch's segments rolled out (vmapped) for the batch's longest segment, each segment's
     residuals frame by frame, padded frames included (their entries are meaningless:
-    :attr:`SysIdProblem.keep` selects the real ones). ``data``: :attr:`SysIdProblem.data`."""
+    :attr:`SysIdProblem.keep` selects the real ones). ``data``: :attr:`SysIdProblem.data`.
+    With ``layout.shards`` > 1 each batch's segments are split over that many devices
+    (``shard_map``; every device rolls out its own segments, the residuals are gathered)."""
     params = _with_parameters(scene, base_params, layout.parameters, theta)
     sim_scene = scene
     if layout.fit_ground:
@@ -399,6 +409,7 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
             sim_scene = _tilted_scene(scene, R)
     pos_axes = jnp.asarray(layout.pos_axes, dtype=jnp.int32)
     wpos, wjoint, axes, substeps = data["wpos"], data["wjoint"], layout.fit_axes, layout.substeps
+    mesh = _layout_mesh(layout)
     out = []
     for b, batch in enumerate(layout.batches):
         qadr, dadr, jadr, settle = batch.qadr, batch.dadr, batch.jadr, batch.settle
@@ -427,7 +438,8 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
             return jnp.concatenate(res)
 
         d = data["batches"][b]
-        r = jax.vmap(one)(d["qpos0"], d["qvel0"], d["ctrl"], d["qfrc"], d["obs_pose"], d["obs_joint"], blocks)
+        r = sharding.split_rows(one, mesh, (0,) * 7)(d["qpos0"], d["qvel0"], d["ctrl"], d["qfrc"], d["obs_pose"],
+                                                     d["obs_joint"], blocks)
         out.append(r.ravel())
     return jnp.concatenate(out)
 
@@ -452,19 +464,23 @@ def _residuals_and_jacobian(layout, scene, base_params, data, theta):
     return jax.jacfwd(r, has_aux=True)(theta)
 
 
-_residuals_and_jacobian_jit = cached_jit(_residuals_and_jacobian, static_argnums=(0,))
-_residuals_only_jit = cached_jit(padded_residuals, static_argnums=(0,))  # finite-difference solves only
+_residuals_and_jacobian_jit = cached_jit(_residuals_and_jacobian, static_argnums=(0,), mesh=_layout_mesh)
+_residuals_only_jit = cached_jit(padded_residuals, static_argnums=(0,), mesh=_layout_mesh)  # finite differences
 
 
 #: parameter vectors per vmapped batch (:meth:`SysIdProblem.batch_residuals`): one compiled shape
+#: (rounded up to a multiple of the devices in use when they split the batch)
 BATCH = 16
 
 
-def _batch_residuals(layout, scene, base_params, data, thetas):
-    return jax.vmap(lambda th: padded_residuals(layout, scene, base_params, data, th))(thetas)
+def _batch_residuals(layout, shards, scene, base_params, data, thetas):
+    """Residuals (K, padded m) at K parameter vectors, the vectors split over ``shards`` devices."""
+    one = lambda th: padded_residuals(layout, scene, base_params, data, th)  # noqa: E731
+    return sharding.split_rows(one, sharding.mesh_of_size(shards), (0,))(thetas)
 
 
-_batch_residuals_jit = cached_jit(_batch_residuals, static_argnums=(0,))
+_batch_residuals_jit = cached_jit(_batch_residuals, static_argnums=(0, 1),
+                                  mesh=lambda layout, shards: sharding.mesh_of_size(shards))
 
 
 #: contact parameters held at a neutral value when ``sliding_friction`` is identified and they
@@ -804,15 +820,24 @@ class SysIdProblem:
         the real (not padded) entries of :func:`padded_residuals`' output. Segments of the same
         layout are batched whatever their lengths: shorter ones are padded to the longest (extra
         steps simulated, their frames dropped by ``keep``)."""
+        return self._build_structure(1)
+
+    def _build_structure(self, shards: int):
+        """:attr:`_structure` with each batch's segments split over ``shards`` devices: a batch
+        whose segment count does not divide is padded with copies of its last segment (their
+        residuals are dropped by ``keep``)."""
         batches, arrays, wrot, keep, offset = [], [], [], [], 0
         rot_w = self.rotation_weights()
         for (qadr, dadr, jadr, settle), items in self._groups().items():
+            real = len(items)
+            items = items + [items[-1]] * (sharding.padded_size(real, shards) - real)
             steps = max(st for _, _, st in items)
             frames = steps // self.substeps + 1
             arrays.append({k: jnp.asarray(np.stack([_pad(d[k], k, frames, settle + steps) for _, d, _ in items]))
                            for k in items[0][1]})
             cols = self._columns(qadr, jadr)
-            keep.append(offset + _valid_residuals([st // self.substeps for _, _, st in items], frames - 1, cols))
+            intervals = [st // self.substeps for _, _, st in items[:real]] + [0] * (len(items) - real)
+            keep.append(offset + _valid_residuals(intervals, frames - 1, cols))
             offset += len(items) * (frames - 1) * sum(cols)
             batches.append(BatchLayout(tuple(i for i, _, _ in items), qadr, dadr, jadr, settle + steps, settle))
             wrot.append(jnp.asarray([rot_w[self.scene.qpos_adr.index(a)] for a in qadr], dtype=jnp.float64))
@@ -820,7 +845,7 @@ class SysIdProblem:
             batches=tuple(batches), parameters=tuple((p.name, p.target) for p in self.parameters),
             nuisance=tuple(int(x) for x in self._nuisance_offsets()), fit_axes=self.fit_axes,
             pos_axes=self._pos_axes(), rotation=self._rotation_weighted(), joints=self.weights.joints > 0,
-            substeps=self.substeps, fit_ground=self.fit_ground, fit_tilt=self.fit_tilt)
+            substeps=self.substeps, fit_ground=self.fit_ground, fit_tilt=self.fit_tilt, shards=shards)
         data = {"batches": tuple(arrays), "wrot": tuple(wrot),
                 "wpos": jnp.sqrt(jnp.asarray(self.weights.position, dtype=jnp.float64))[np.asarray(layout.pos_axes,
                                                                                                    dtype=int)],
@@ -843,12 +868,31 @@ class SysIdProblem:
         """(m,) int: the entries of :func:`padded_residuals`' output that are residuals."""
         return self._structure[2]
 
+    @functools.cached_property
+    def _split(self) -> dict:
+        """Structures for segments split over devices, built on first use: {shards: (layout,
+        data, keep)}."""
+        return {}
+
+    def _split_segments(self):
+        """(layout, data, keep) for the devices in use (:mod:`dano.sharding`): the segments of
+        each batch split over as many devices as the largest batch can use; one device: the
+        plain :attr:`_structure`."""
+        shards = sharding.shards_for(max(len(b.segments) for b in self.layout.batches))
+        if shards == 1:
+            return self._structure
+        if shards not in self._split:
+            self._split[shards] = self._build_structure(shards)
+        return self._split[shards]
+
     def residuals_and_jacobian(self, theta) -> tuple[np.ndarray, np.ndarray]:
         """(m,) residual vector and (m, n) its forward-mode Jacobian at θ (n,), compiled once
-        per structure (:class:`ResidualLayout`, scene, shapes)."""
-        J, r = _run(_residuals_and_jacobian_jit, self.layout, self.scene, self.base_params, self.data,
+        per structure (:class:`ResidualLayout`, scene, shapes). The segments are split over the
+        devices in use (:mod:`dano.sharding`; the same values as on one device)."""
+        layout, data, keep = self._split_segments()
+        J, r = _run(_residuals_and_jacobian_jit, layout, self.scene, self.base_params, data,
                     jnp.asarray(theta, dtype=jnp.float64))
-        return r[self.keep], J[self.keep]
+        return r[keep], J[keep]
 
     def residuals(self, theta) -> np.ndarray:
         """(m,) residual vector at θ (n,) (see :meth:`residuals_and_jacobian`: the same compiled
@@ -859,8 +903,9 @@ class SysIdProblem:
         """(m,) residual vector at θ (n,) without the Jacobian's tangents: a compilation of its
         own, worth it where residuals are evaluated many times without Jacobians
         (finite-difference solves)."""
-        return _run(_residuals_only_jit, self.layout, self.scene, self.base_params, self.data,
-                    jnp.asarray(theta, dtype=jnp.float64))[self.keep]
+        layout, data, keep = self._split_segments()
+        return _run(_residuals_only_jit, layout, self.scene, self.base_params, data,
+                    jnp.asarray(theta, dtype=jnp.float64))[keep]
 
     def jacobian(self, theta) -> np.ndarray:
         """(m, n) forward-mode Jacobian of the residual at θ (see :meth:`residuals_and_jacobian`)."""
@@ -868,13 +913,17 @@ class SysIdProblem:
 
     def batch_residuals(self, thetas) -> np.ndarray:
         """(K, m) residual vectors at K parameter vectors (K, n), vmapped in batches of
-        :data:`BATCH` (the last one padded: compiled once per structure)."""
+        :data:`BATCH` (the last one padded: compiled once per structure); each batch's vectors
+        are split over the devices in use (:mod:`dano.sharding`)."""
         thetas = np.asarray(thetas, dtype=np.float64)
+        shards = sharding.shards_for(BATCH)
+        size = sharding.padded_size(BATCH, shards)
         out = []
-        for start in range(0, len(thetas), BATCH):
-            chunk = thetas[start : start + BATCH]
-            padded = np.concatenate([chunk, np.repeat(chunk[-1:], BATCH - len(chunk), axis=0)])
-            r = _run(_batch_residuals_jit, self.layout, self.scene, self.base_params, self.data, jnp.asarray(padded))
+        for start in range(0, len(thetas), size):
+            chunk = thetas[start : start + size]
+            padded = np.concatenate([chunk, np.repeat(chunk[-1:], size - len(chunk), axis=0)])
+            r = _run(_batch_residuals_jit, self.layout, shards, self.scene, self.base_params, self.data,
+                     jnp.asarray(padded))
             out.append(r[: len(chunk)][:, self.keep])
         return np.concatenate(out) if out else np.zeros((0, self.num_residuals))
 
