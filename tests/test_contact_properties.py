@@ -186,3 +186,38 @@ def test_forward_gradients_are_finite_at_rest_onset_and_in_flight(tmp_path_facto
                                         evaluate(kind, model, {**inputs, "xa": xa}, u_)[3]])
             J = jax.jacfwd(f, argnums=(0, 1))(inputs["xa"], u)
             assert all(np.all(np.isfinite(np.asarray(j))) for j in J), (kind, model.name, height)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_pose_linearised_geometry_has_the_direct_derivatives(tmp_path_factory, kind):
+    """NewtonConfig(geometry_tangents="pose"): the geometry differentiated along the frames'
+    poses (6 or 12 directions) gives the direct JVP's tangents, for tangents of both frames
+    (rotations as [δθ]×R) and of the mass scales, in contact (float64)."""
+    from dano.contact.base import pose_linearised_geometry
+
+    base = pair_inputs(kind, "box", str(tmp_path_factory.getbasetemp()))
+    Ra = Rotation.from_euler("xyz", [0.3, -0.2, 0.1]).as_matrix()
+    offset = np.asarray(base["Rb"])[:, 2] * 0.01 if kind == "plane" else np.array([0.0, 0.0, 0.03])
+    inputs = cast(place(base, kind, Ra, offset), "float64")
+    assert float(PAIR_KINDS[kind].geometry(inputs).psi) > 0
+    rng = np.random.default_rng(0)
+    fixed_b = kind == "plane"
+    alphas = [k for k in inputs if k.startswith("alpha")]
+
+    def tangent():
+        t = jax.tree_util.tree_map(jnp.zeros_like, inputs)
+        t["xa"], t["Ra"] = jnp.asarray(rng.normal(size=3)), jnp.asarray(np.cross(rng.normal(size=3), np.eye(3)) @ Ra)
+        if not fixed_b:
+            t["xb"] = jnp.asarray(rng.normal(size=3))
+            t["Rb"] = jnp.asarray(np.cross(rng.normal(size=3), np.eye(3)) @ np.asarray(inputs["Rb"]))
+        for k in alphas:
+            t[k] = jnp.asarray(rng.normal(size=np.shape(inputs[k])))
+        return t
+
+    for _ in range(3):
+        t = tangent()
+        direct = jax.jvp(PAIR_KINDS[kind].geometry, (inputs,), (t,))
+        pose = jax.jvp(lambda i: pose_linearised_geometry(PAIR_KINDS[kind], fixed_b, i), (inputs,), (t,))
+        for a, b in zip(jax.tree_util.tree_leaves(direct), jax.tree_util.tree_leaves(pose)):
+            a, b = np.asarray(a), np.asarray(b)
+            np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(a).max()))

@@ -24,6 +24,7 @@ Only public MJX functions and fields are used.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import jax
@@ -33,6 +34,7 @@ import numpy as np
 
 from .._mjx import mjx
 from ..contact import PAIR_KINDS
+from ..contact.base import pose_linearised_geometry
 from ..pose import normalize_quat, quat_multiply, rotvec_to_quat
 from .implicit import ImplicitProblem, NewtonConfig, contact_force, solve_velocity
 from .scene import Scene, SimParams
@@ -144,15 +146,20 @@ def _group_params(params: SimParams, group, num_pairs: int):
     return jax.tree_util.tree_map(lambda x: jnp.broadcast_to(jnp.asarray(x), (num_pairs,))[idx], params.contact)
 
 
-def contact_geometry(scene: Scene, params: SimParams, m, d):
+def contact_geometry(scene: Scene, params: SimParams, m, d, tangents: str = "direct"):
     """Per pair group: the batched :class:`~dano.contact.PairGeometry` and the relative point
     Jacobians (G, nv, 6) [Jp | Jr] of A minus B at each centroid, for Data ``d`` after
-    ``fwd_position`` on model ``m``."""
+    ``fwd_position`` on model ``m``. tangents: how forward-mode derivatives go through the
+    geometry (:attr:`NewtonConfig.geometry_tangents`)."""
     geos, jacs = [], []
     for group in scene.groups:
         kind = PAIR_KINDS[group.kind]
-        g = jax.vmap(kind.geometry)(kind.inputs(scene, group, m, d, params.alpha))
         world_b = all(b == 0 for b in group.body_b)  # fixed geoms: B does not move
+        if tangents == "pose":
+            geometry = functools.partial(pose_linearised_geometry, kind, world_b)
+        else:
+            geometry = kind.geometry
+        g = jax.vmap(geometry)(kind.inputs(scene, group, m, d, params.alpha))
 
         def rel_jac(chi, ba, bb):
             jpa, jra = mjx.jac(m, d, chi, ba)
@@ -193,7 +200,7 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig =
     h = scene.dt
     user_qfrc = data.qfrc_applied
     d = mjx.fwd_position(m, data)
-    geos, jacs = contact_geometry(scene, params, m, d)
+    geos, jacs = contact_geometry(scene, params, m, d, newton.geometry_tangents)
     models = tuple(g.model for g in scene.groups)
     gparams = tuple(_group_params(params, g, len(scene.pairs)) for g in scene.groups)
     states = tuple(jax.vmap(lambda g_, model=model: model.prepare(g_, h))(g) for model, g in zip(models, geos))

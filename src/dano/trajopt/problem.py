@@ -124,9 +124,11 @@ def mjx_dynamics(scene, apply: str = "ctrl", dofs=None, newton=None) -> Callable
 
     apply: "ctrl" (u (nu,) is ``data.ctrl``, the model's actuators) or "qfrc" (u is a
     generalised force on the dofs ``dofs`` (indices into qvel), e.g. a free body's force
-    (world frame [N]) and torque (body frame [N m]))."""
+    (world frame [N]) and torque (body frame [N m])). newton: the step's
+    :class:`~dano.sim.NewtonConfig` (default: its defaults with ``geometry_tangents="pose"``,
+    since the solver differentiates the step along all nx + nu directions at once)."""
     nq = scene.nq
-    opts = newton or NewtonConfig()
+    opts = newton or NewtonConfig(geometry_tangents="pose")
     if apply not in ("ctrl", "qfrc"):
         raise DanoError(f"apply must be 'ctrl' or 'qfrc', got {apply!r}")
     idx = None if dofs is None else np.asarray(dofs, dtype=np.int32)
