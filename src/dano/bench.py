@@ -27,6 +27,7 @@ from .errors import DanoError
 from .asset import build
 from .contact import CONTACT_MODELS
 from .experiments.energy import energy_check
+from .experiments.mujoco_c import mujoco_c_slides
 from .experiments.nerf_loop import ground_truth_loop
 from .experiments.push import PushPandaConfig, PushSphereConfig, push_panda_task, push_sphere_task, solve_task
 from .experiments.real2sim import synthetic_slide_real2sim
@@ -264,6 +265,34 @@ def command_times(args: list[str], repeats: int = 2) -> dict:
     return {"command": "dano " + " ".join(args), "cold_s": cold, "warm_s": statistics.median(warm), "warm_runs": warm}
 
 
+def bench_latency(repeats: int = 2) -> dict:
+    """Time to first result of the commands users wait for (:func:`command_times`: a fresh
+    process each, cold = an empty compilation cache, warm = the cache that run filled; medians of
+    ``repeats`` warm runs): ``dano sysid soap``, a user's TOML identification (three MuJoCo C
+    slides of the low-poly bunny as a 0.2 m, 0.7 kg toy; needs the shared data's mesh, else
+    skipped), ``dano trajopt push-sphere``, ``dano simulate bunny-drop --duration 2`` and
+    ``dano demo``."""
+    repeats = max(1, repeats)
+    out: dict = {
+        "sysid_soap": command_times(["sysid", "soap", "--json", "-o", "{out}"], repeats),
+        "trajopt_push_sphere": command_times(["trajopt", "push-sphere", "--json", "--quiet", "--no-video", "-o",
+                                              "{out}"], repeats),
+        "simulate_bunny_drop_2s": command_times(["simulate", "bunny-drop", "--duration", "2", "--out",
+                                                 "{out}/drop.npz"], repeats),
+        "demo": command_times(["demo", "--out-dir", "{out}"], repeats),
+    }
+    data_dir = _shared_data()
+    mesh = None if data_dir is None else data_dir / "meshes" / "bunny_lowpoly.obj"
+    if mesh is None or not mesh.is_file():
+        out["sysid_own_toml"] = "skipped: needs meshes/bunny_lowpoly.obj of the shared data ($DANO_SHARED_DATA)"
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            made = mujoco_c_slides(Path(tmp) / "toy", mesh=str(mesh))
+            out["sysid_own_toml"] = command_times(["sysid", str(made["toml"]), "--json", "-o", "{out}"], repeats)
+            out["sysid_own_toml"]["problem"] = "3 MuJoCo C slides of bunny_lowpoly.obj at 0.2 m, 0.7 kg (friction 0.5)"
+    return out
+
+
 def _compile_by_lengths(count: int = 20) -> dict:
     """Compile time of an identification's residual and Jacobian for ``count`` trajectories of
     ``count`` different lengths (11, 12, … frames) against one trajectory of the longest
@@ -481,8 +510,8 @@ def bench_tracking(repeats: int = 1, curve: bool = True, colour_minutes: float =
     return out
 
 
-SUITES = {"build": bench_build, "sim": bench_sim, "sysid": bench_sysid, "batched": bench_batched,
-          "sharded": bench_sharded,
+SUITES = {"build": bench_build, "sim": bench_sim, "sysid": bench_sysid, "latency": bench_latency,
+          "batched": bench_batched, "sharded": bench_sharded,
           "trajopt": bench_trajopt, "energy": bench_energy, "nerf": bench_nerf, "tracking": bench_tracking}
 
 
@@ -501,7 +530,8 @@ class BenchConfig:
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False
     """print one JSON object."""
     suite: tuple[str, ...] = ()
-    """suites to run (default all): build, sim, sysid, batched, sharded (batches split over 1, 2, 4, ... devices:
+    """suites to run (default all): build, sim, sysid, latency (time to first result of five commands, cold and
+    warm compilation cache), batched, sharded (batches split over 1, 2, 4, ... devices:
     correctness and overhead), trajopt, energy, nerf (fields from images; needs the shared data, see
     benchmarks/README.md), tracking."""
     devices: int | None = None

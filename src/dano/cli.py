@@ -10,6 +10,7 @@ import inspect as _inspect
 import json
 import signal
 import sys
+import time
 import typing
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
@@ -208,7 +209,7 @@ def _sysid(c) -> None:
     for note in report["warnings"]:
         err.print(f"[yellow]warning:[/] {c.config}: {note}", highlight=False, soft_wrap=True)
     if c.json_:
-        print(json.dumps({k: v for k, v in report.items() if k not in ("grid", "heldout_per_toss")}))
+        _print_report({k: v for k, v in report.items() if k not in ("grid", "heldout_per_toss")})
     else:
         out.print(sysid_table(c.config, problem, result, report, out_dir))
 
@@ -245,13 +246,28 @@ def _bench(c) -> None:
     print(text)
 
 
+_STARTED = [time.time()]  # when main() began (wall_time_s of verbs that report no wall time of their own)
+
+
+def _print_report(report: dict) -> None:
+    """One JSON object; ``compile_time_s`` (seconds this process traced, lowered and compiled,
+    :func:`dano._compiled.compile_seconds`) and ``wall_time_s`` added where the verb has none
+    of its own, so that every compute verb's --json reports compile and run separately."""
+    from ._compiled import compile_seconds
+
+    report = dict(report)
+    report.setdefault("compile_time_s", compile_seconds(_STARTED[0]))
+    report.setdefault("wall_time_s", time.time() - _STARTED[0])
+    print(json.dumps(report))
+
+
 def _trajopt(c) -> None:
     from .experiments.trajopt_run import trajopt_command
 
     with _progress(not c.quiet and not c.json_) as progress:
         report, paths = trajopt_command(c, progress=progress)
     if c.json_:
-        print(json.dumps(report))
+        _print_report(report)
         return
     out.print(trajopt_table(c.task, report, paths))
 
@@ -262,7 +278,7 @@ def _train_field(c) -> None:
     with _train_progress(not c.quiet and not c.json_) as progress:
         report, result = train_field(c, progress=progress)
     if c.json_:
-        print(json.dumps(report))
+        _print_report(report)
         return
     err.print(f"held-out PSNR {report['psnr_heldout']:.2f} dB after {result.steps} steps, {result.wall_time_s:.0f} s "
               f"({result.rays_per_s:.0f} rays/s); wrote {c.out}/")
@@ -282,7 +298,7 @@ def _track(c) -> None:
     with _progress(not c.quiet and not c.json_) as progress:
         report, files = track_command(c, progress=progress)
     if c.json_:
-        print(json.dumps(report))
+        _print_report(report)
     else:
         err.print(f"tracked {report['frames']} frames ({report['poor_frames']} poor, mean IoU "
                   f"{report['mean_iou']:.3f}, {report['time_per_frame_s']:.2f} s per frame); wrote "
@@ -295,7 +311,7 @@ def _real2sim(c) -> None:
     with _progress(not c.quiet and not c.json_) as progress:
         report = synthetic_slide_real2sim(c.out, c.friction, video_file=not c.no_video, progress=progress)
     if c.json_:
-        print(json.dumps(json_safe({k: v for k, v in report.items() if k != "per_frame"})[0]))
+        _print_report(json_safe({k: v for k, v in report.items() if k != "per_frame"})[0])
     else:
         err.print(f"mu: true {report['mu_true']:.4f}, two-stage {report['mu_two_stage']:.4f}, pixels "
                   f"{report['mu_pixels']:.4f}; tracking RMS {report['track_rms_mm']:.1f} mm, "
@@ -319,7 +335,7 @@ def _compare_mesh(c) -> None:
     for path in paths:
         err.print(f"wrote {path}")
     if c.json_:
-        print(json.dumps(report))
+        _print_report(report)
     else:
         out.print(compare_table(report))
 
@@ -386,6 +402,7 @@ def main(argv: list[str] | None = None) -> int:
     from . import __version__
     from .errors import DanoError
 
+    _STARTED[0] = time.time()
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
     args = [a for a in args if a != "--debug"]

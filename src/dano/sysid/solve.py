@@ -28,7 +28,8 @@ from scipy.optimize import least_squares
 
 from ..errors import DanoError
 from . import uncertainty as unc
-from .problem import COMPILE_SECONDS, SysIdProblem
+from .._compiled import compile_seconds
+from .problem import SysIdProblem
 
 
 @dataclass
@@ -247,7 +248,7 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         raise DanoError(f"profile_points must be 0 (off) or 8 to 256, got {profile_points}")
     if scan is None:
         scan = default_scan(n_global) if n_global else 0
-    compiled_before = COMPILE_SECONDS[0]
+    started = time.time()
     result = _identify(problem, jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol,
                        horizons=horizons, scan=scan, starts=starts)
     local = dict(jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
@@ -266,7 +267,7 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
                                          max_iterations=max_iterations)
     if not result.fitted:
         result.fitted = problem.simulate(result.estimates)
-    result.compile_time_s = COMPILE_SECONDS[0] - compiled_before  # every call that compiled, scan included
+    result.compile_time_s = compile_seconds(started)  # tracing, lowering and compiling (loads too), scan included
     return result
 
 
