@@ -101,12 +101,33 @@ def _bound_memory_within_a_file():
         _free_memory()
 
 
+# ---------------------------------------------------------------- where a worker's time goes
+
+# seconds of JAX's tracing, lowering and XLA compiling in this process (JAX's monitoring spans;
+# nested spans each counted; a load from the persistent cache counts as a compile), XLA
+# compiles split at 1 s (small programs: the many eager and helper ones; large: the MJX programs)
+_SPANS: dict[str, float] = {}
+
+
+def _record_span(event: str, start: float, end: float, **_) -> None:
+    duration = end - start
+    if event.startswith("/jax/core/compile/"):
+        name = event.rsplit("/", 1)[-1].removesuffix("_duration")
+        if name == "backend_compile":
+            name += "_over_1s" if duration >= 1.0 else "_under_1s"
+        _SPANS[name] = _SPANS.get(name, 0.0) + duration
+
+
+jax.monitoring.register_event_time_span_listener(_record_span)
+
+
 def pytest_sessionfinish(session):
     """With DANO_TEST_MEMORY set, each process reports its peak resident set (and the files
-    that raised it most): on the terminal and in the pytest cache (dano/memory)."""
+    that raised it most) and its seconds of tracing, lowering and compiling: on the terminal
+    and in the pytest cache (dano/memory)."""
     if not os.environ.get("DANO_TEST_MEMORY"):
         return
-    report = {"peak_rss_mb": round(_peak_rss_mb()),
+    report = {"peak_rss_mb": round(_peak_rss_mb()), "compile_s": {k: round(v) for k, v in sorted(_SPANS.items())},
               "largest_rises_mb": dict(sorted(((k, round(v)) for k, v in _MEMORY.items() if v >= 1),
                                               key=lambda kv: -kv[1])[:5])}
     workeroutput = getattr(session.config, "workeroutput", None)
@@ -132,7 +153,8 @@ def pytest_terminal_summary(terminalreporter, config):
     terminalreporter.section("dano memory (DANO_TEST_MEMORY)")
     for who, report in sorted(_REPORTS.items()):
         rises = ", ".join(f"{Path(k).name} +{v}" for k, v in report["largest_rises_mb"].items())
-        terminalreporter.write_line(f"{who}: peak RSS {report['peak_rss_mb']} MB (largest rises, MB: {rises})")
+        terminalreporter.write_line(f"{who}: peak RSS {report['peak_rss_mb']} MB (largest rises, MB: {rises}); "
+                                    f"JAX seconds: {report['compile_s']}")
     if getattr(config, "cache", None) is not None:  # not with -p no:cacheprovider
         config.cache.set("dano/memory", _REPORTS)
 

@@ -20,7 +20,7 @@ Explicit switches (the ``dano`` command line turns both on):
   jax.enable_x64(True)``); identification needs a float64 scene and says so otherwise.
 * :func:`enable_compilation_cache` — JAX's persistent compilation cache in
   ``~/.cache/dano/jax`` (or ``$DANO_CACHE_DIR``), so the 5–20 s compiles of MJX functions
-  are paid once per machine.
+  are paid once per machine (small ones kept too).
 """
 
 from __future__ import annotations
@@ -95,12 +95,15 @@ def enable_float64() -> None:
 
 def enable_compilation_cache(path: str | None = None) -> str:
     """Turn on JAX's persistent compilation cache in ``path`` (default
-    ``$DANO_CACHE_DIR`` or ``~/.cache/dano/jax``) for compilations over 1 s; returns it."""
+    ``$DANO_CACHE_DIR`` or ``~/.cache/dano/jax``) for every compilation, small ones included
+    (JAX's default keeps only those over 1 s: a warm ``dano sysid soap`` then compiled its
+    ~70 small programs again, 7.7 s vs 6.8-7.1 s with all kept; the cache grew 1.6 -> 1.9 MB);
+    returns it."""
     import jax
 
     path = path or os.environ.get("DANO_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "dano", "jax"))
     jax.config.update("jax_compilation_cache_dir", path)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     return path
 
 
