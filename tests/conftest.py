@@ -107,6 +107,8 @@ def _bound_memory_within_a_file():
 # nested spans each counted; a load from the persistent cache counts as a compile), XLA
 # compiles split at 1 s (small programs: the many eager and helper ones; large: the MJX programs)
 _SPANS: dict[str, float] = {}
+_FILE_COMPILES: dict[str, list] = {}  # test file -> [XLA compiles over 1 s, their seconds]
+_CURRENT_FILE = [""]
 
 
 def _record_span(event: str, start: float, end: float, **_) -> None:
@@ -115,10 +117,19 @@ def _record_span(event: str, start: float, end: float, **_) -> None:
         name = event.rsplit("/", 1)[-1].removesuffix("_duration")
         if name == "backend_compile":
             name += "_over_1s" if duration >= 1.0 else "_under_1s"
+            if duration >= 1.0:
+                entry = _FILE_COMPILES.setdefault(_CURRENT_FILE[0], [0, 0.0])
+                entry[0] += 1
+                entry[1] += duration
         _SPANS[name] = _SPANS.get(name, 0.0) + duration
 
 
 jax.monitoring.register_event_time_span_listener(_record_span)
+
+
+@pytest.fixture(autouse=True)
+def _note_the_test_file(request):
+    _CURRENT_FILE[0] = request.node.path.name
 
 
 def pytest_sessionfinish(session):
@@ -129,7 +140,9 @@ def pytest_sessionfinish(session):
         return
     report = {"peak_rss_mb": round(_peak_rss_mb()), "compile_s": {k: round(v) for k, v in sorted(_SPANS.items())},
               "largest_rises_mb": dict(sorted(((k, round(v)) for k, v in _MEMORY.items() if v >= 1),
-                                              key=lambda kv: -kv[1])[:5])}
+                                              key=lambda kv: -kv[1])[:5]),
+              "compiles_over_1s": dict(sorted(((k, [n, round(t)]) for k, (n, t) in _FILE_COMPILES.items()),
+                                              key=lambda kv: -kv[1][1])[:12])}
     workeroutput = getattr(session.config, "workeroutput", None)
     if workeroutput is not None:  # an xdist worker: its controller prints it
         workeroutput["dano_memory"] = report
@@ -154,7 +167,8 @@ def pytest_terminal_summary(terminalreporter, config):
     for who, report in sorted(_REPORTS.items()):
         rises = ", ".join(f"{Path(k).name} +{v}" for k, v in report["largest_rises_mb"].items())
         terminalreporter.write_line(f"{who}: peak RSS {report['peak_rss_mb']} MB (largest rises, MB: {rises}); "
-                                    f"JAX seconds: {report['compile_s']}")
+                                    f"JAX seconds: {report['compile_s']}; XLA compiles over 1 s per file "
+                                    f"[count, s]: {report['compiles_over_1s']}")
     if getattr(config, "cache", None) is not None:  # not with -p no:cacheprovider
         config.cache.set("dano/memory", _REPORTS)
 
