@@ -189,6 +189,10 @@ def test_real_soap_video():
     assert r["num_residuals"] == 2 * 32  # zero-weight components (z, orientation) are left out
     sens = r["length_scale_sensitivity"]["sliding_friction_at_length_scale"]
     assert sens["0.9"] < sens["1.0"] < sens["1.1"]  # friction grows with the assumed length scale
+    # the study beside the result is optional (dano sysid soap --no-sensitivity): the same answer
+    _, _, without = run_sysid("soap", sensitivity=False)
+    assert "length_scale_sensitivity" not in without["report"] and without["config"]["sensitivity"] is False
+    assert without["report"]["sliding_friction"] == r["sliding_friction"]
 
 
 @pytest.mark.slow

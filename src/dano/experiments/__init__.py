@@ -106,7 +106,7 @@ def is_experiment(verb: str, name: str) -> bool:
 
 def run_sysid(name: str, **options):
     """Run a built-in identification: ``soap``, ``bunny-pushes``, ``bunny-dynamics``
-    (options ``jacobian``, ``noise``) or ``contactnets-cube`` (options of
+    (options ``jacobian``, ``noise``, ``sensitivity``) or ``contactnets-cube`` (options of
     :class:`~dano.experiments.sysid_examples.ContactNetsConfig`). Returns (problem, result,
     {"report", "config"}) as :func:`dano.sysid.config.run`."""
     exp = get("sysid", name)
@@ -133,6 +133,9 @@ class SysIdCommandConfig:
     """ad (forward-mode AD, default) or fd (finite differences, for comparison)."""
     no_noise: bool = False
     """bunny-pushes, bunny-dynamics: observations without the 1 mm / 0.5 deg pose noise."""
+    no_sensitivity: bool = False
+    """soap: leave out the length-scale sensitivity study (two more identifications beside the result, about
+    1 s warm; JSON key length_scale_sensitivity)."""
     data: Path | None = None
     """contactnets-cube: the ContactNets tosses (.npz of toss_<n> arrays, (T, 13) each; not shipped with dano,
     e.g. shared/data/real/contactnets_cube/tosses_100_299.npz)."""
@@ -181,7 +184,8 @@ class SysIdCommandConfig:
                                       f"{', '.join(names('sysid'))}")
             noise_saved = saved.get("noise", {})
             no_noise = self.no_noise or (isinstance(noise_saved, dict) and noise_saved.get("position_m") == 0)
-            return dataclasses.replace(self, config=saved["example"], no_noise=no_noise)
+            no_sensitivity = self.no_sensitivity or saved.get("sensitivity") is False
+            return dataclasses.replace(self, config=saved["example"], no_noise=no_noise, no_sensitivity=no_sensitivity)
         return self
 
 
@@ -211,7 +215,8 @@ def _sysid_command(config: SysIdCommandConfig, run, write_outputs):
         problem, result, out = run_sysid(c.config, data=c.data, tosses=c.tosses, start=c.start,
                                          contact_model=c.contact_model, bootstrap=c.bootstrap)
     elif is_experiment("sysid", c.config):
-        problem, result, out = run_sysid(c.config, jacobian=c.jacobian, noise=not c.no_noise)
+        problem, result, out = run_sysid(c.config, jacobian=c.jacobian, noise=not c.no_noise,
+                                         sensitivity=not c.no_sensitivity)
     else:
         if Path(c.config).suffix.lower() not in (".toml", ".json") and not Path(c.config).exists():
             raise DanoError(f"unknown identification {c.config!r}: give a TOML file, a saved config.json or one of "

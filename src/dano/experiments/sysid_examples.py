@@ -577,13 +577,16 @@ def soap_sensitivity(friction: float) -> dict:
     }
 
 
-def run_example(name: str, *, jacobian: str | None = None, noise: bool = True) -> tuple[SysIdProblem, object, dict]:
+def run_example(name: str, *, jacobian: str | None = None, noise: bool = True,
+                sensitivity: bool = True) -> tuple[SysIdProblem, object, dict]:
     """Run a built-in identification: ``soap`` (the paper's real soap video), ``bunny-pushes``
     (α and friction from 10 simulated pushes) or ``bunny-dynamics`` (the same with the centre
     of mass and inertia unknown). Returns (problem, result, {"report", "config"}) as
     :func:`dano.sysid.config.run`; the report adds, for the soap, ``length_scale_sensitivity``
     and ``paper_reference``; for the pushes, ``truth`` (and for bunny-dynamics ``recovery``).
     ``noise``: the paper's pose noise (1 mm, 0.5°) on the pushes' observations.
+    ``sensitivity``: the soap's length-scale study (:func:`soap_sensitivity`: two more
+    identifications beside the result; False leaves it and its key out).
     Raises DanoError for another name."""
     extra: dict = {}
     noise_levels = (1e-3, 0.5) if noise else (0.0, 0.0)
@@ -593,7 +596,7 @@ def run_example(name: str, *, jacobian: str | None = None, noise: bool = True) -
                     "data": "soap_pose_traj.csv (real video, 120 fps) + bluesoap collider (paper)",
                     "time_scale": "Froude: sqrt(15.342) s of simulation per s of video",
                     "fit": ["sliding_friction (soap/ground)", "initial velocity x, y (nuisance)"],
-                    "weights": {"position": [1, 1, 0], "rotation": 0}}
+                    "weights": {"position": [1, 1, 0], "rotation": 0}, "sensitivity": sensitivity}
     elif name == "bunny-dynamics":
         problem, truth = push_dynamics_problem(*noise_levels)
         # continuation from the distant guess, no scan; no profiles (8 parameters: minutes more; its
@@ -620,7 +623,8 @@ def run_example(name: str, *, jacobian: str | None = None, noise: bool = True) -
         report["recovery"] = dynamics_recovery(dict(zip(result.labels, result.estimates)), extra["truth"])
         report["recovery"]["cramer_rao"] = _push_dynamics_bound(problem, extra["truth"])
     if name == "soap":
-        report["length_scale_sensitivity"] = soap_sensitivity(report["sliding_friction"])
+        if sensitivity:
+            report["length_scale_sensitivity"] = soap_sensitivity(report["sliding_friction"])
         report["paper_reference"] = {"video_identification": 0.61, "tilted_plane": 0.75}
     return problem, result, {"report": report, "config": resolved}
 
