@@ -101,6 +101,32 @@ def test_step_vmaps_over_data_and_params(box_scene):
     assert np.all(np.isfinite(np.asarray(many)))
 
 
+def test_a_nan_env_does_not_keep_a_batch_iterating(box_scene):
+    """Under vmap the Newton loop runs until every env is done: an env whose state is already
+    NaN returns at once (0 iterations; before, all 25 on every step), stays NaN (never
+    silently finite), and the other envs' steps are what they are without it (bit for bit)
+    and alone (to rounding: vmap batches the linear algebra)."""
+    from dano.sim.dynamics import step_with_info
+
+    scene, qpos, qvel = box_scene
+    params = scene.default_params()
+    q = np.array(qpos)
+    q[scene.qpos_adr[0] + 2] = 0.05 - 0.002  # 2 mm into the ground, sliding at 0.5 m/s: contact
+    good = make_data(scene, q, qvel)
+    bad = make_data(scene, q, np.full_like(qvel, np.nan))
+    pair = lambda a, b: jax.tree_util.tree_map(lambda x, y: jnp.stack([x, y]), a, b)  # noqa: E731
+    run = jax.jit(jax.vmap(lambda d: step_with_info(scene, params, d)[::-1], in_axes=0))
+    info, out = run(pair(good, bad))
+    info_twice, twice = run(pair(good, good))
+    info_one, one = jax.jit(lambda d: step_with_info(scene, params, d)[::-1])(good)
+    iterations = np.asarray(info.newton_iterations)
+    assert iterations[1] == 0 and iterations[0] == int(info_one.newton_iterations) >= 1, iterations
+    assert np.array_equal(np.asarray(info_twice.newton_iterations), [iterations[0]] * 2)
+    assert np.array_equal(np.asarray(out.qvel[0]), np.asarray(twice.qvel[0]))
+    np.testing.assert_allclose(np.asarray(out.qvel[0]), np.asarray(one.qvel), rtol=0, atol=1e-12)
+    assert np.all(np.isnan(np.asarray(out.qvel[1])))
+
+
 def test_jacfwd_of_step_matches_central_differences(box_scene):
     scene, qpos, qvel = box_scene
     params = scene.default_params()

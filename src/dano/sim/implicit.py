@@ -178,7 +178,11 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem):
     decreased enough (Armijo) or halves Δ until it does, and evaluates the Jacobian for the
     next iteration. Near the solution an iteration thus costs one solve, one force and one
     Jacobian evaluation; the last one skips the Jacobian. If it has not converged after
-    ``max_iterations``, it returns the iterate with the smallest residual."""
+    ``max_iterations``, it returns the iterate with the smallest residual. A step whose
+    residual at the start velocity is not finite (a state already NaN, a non-finite force)
+    returns the start velocity at once, with 0 iterations: under ``vmap`` such an env
+    otherwise ran all ``max_iterations`` on every step for the whole batch, to the same
+    answer (no iterate can beat a non-finite residual)."""
     tol = _tolerance(opts, pr.v0.dtype)
     eps = jnp.finfo(pr.v0.dtype).eps
     impulse = h * jnp.max(jnp.abs(pr.f)) + jnp.max(jnp.abs(pr.Mh)) * (jnp.max(jnp.abs(pr.v0)) + 1.0) * eps
@@ -229,7 +233,7 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem):
 
     Q0, D0 = _contact_force_and_jacobian(models, pr, pr.v0)
     G0 = -h * (pr.f + Q0)
-    init = (0, pr.v0, G0, pr.Mh - h * D0, jnp.zeros((), bool), G0, pr.v0, G0)
+    init = (0, pr.v0, G0, pr.Mh - h * D0, ~jnp.all(jnp.isfinite(G0)), G0, pr.v0, G0)
     k, v, G, _, done, G_first, v_best, G_best = jax.lax.while_loop(cond, body, init)
     # not converged within max_iterations: the iterate with the smallest residual (never
     # worse than the step's start), not wherever the last iteration ended
