@@ -76,8 +76,9 @@ def test_windows_and_fd_jacobians(box_setup):
     fit = [FitParameter("sliding_friction", 0.2, 0.0, 2.0)]
     # nuisance initial velocities absorb semi-implicit Euler's ½·a·h velocity lag
     whole = SysIdProblem(scene, [obs], fit, substeps=4, fit_velocity="xy")
-    # the default identification (scan, local solves, profile) with AD; the same local solve from
-    # the same guess with finite differences (the scan and profile do not depend on the Jacobian)
+    # the default identification (scan, local solves from its best points, profile) with AD; with
+    # finite differences, one local solve from the initial guess (0.2) alone: the scan and the
+    # profile do not use the Jacobian, so they would only repeat themselves
     b = identify(whole)
     c = identify(whole, jacobian="fd", scan=0, profile_points=0)
     assert abs(b.estimates[0] / 0.45 - 1) < 0.005
