@@ -131,6 +131,22 @@ def test_windows_start_from_measured_velocities(box_setup, tmp_path):
         _read_observation(csv, "box", scene)  # one line, not one per row
 
 
+def test_fitted_trajectories_are_the_residuals_own_rollouts(box_setup):
+    """identify's fitted trajectories come from the Jacobian's program (no rollout program of
+    their own): windows of three lengths batched and padded, a nuisance velocity per window;
+    the same qpos as simulating each window on its own (problem.simulate)."""
+    _, scene, z = box_setup
+    t, poses = analytic_slide(0.45, z=z)
+    problem = SysIdProblem(scene, [Observation(time=t[:29], poses={"box": poses[:29]})],
+                           [FitParameter("sliding_friction", 0.3, 0, 1)], substeps=4, window=10, fit_velocity="x")
+    assert [seg.frames for seg in problem.segments] == [11, 11, 9]
+    theta = problem.initial() + np.r_[0.1, 0.05, -0.05, 0.02]
+    fitted, simulated = problem.fitted(theta), problem.simulate(theta)
+    assert [f.shape for f in fitted] == [s.shape for s in simulated] == [(11, 7), (11, 7), (9, 7)]
+    for f, s in zip(fitted, simulated):
+        np.testing.assert_allclose(f, s, atol=1e-12)
+
+
 def test_automatic_windows_start_before_each_impact(box_setup):
     """A closed-form bouncing ball (restitution 0.6, 1 mm noise, 100 frames/s) lands at
     0.319 s, 0.702 s and 0.932 s (where it stops): window="auto" starts windows a few frames
@@ -465,6 +481,7 @@ def test_ground_tilt_is_identified_with_height_and_friction(box_setup):
     assert abs(mu_est / mu - 1) < 0.01 and abs(h_est - h) < 2e-4
     assert abs(tx) < 1e-3 and abs(ty - beta) < 1e-3
     assert np.max(np.abs(res.fitted[0][:, :3] - poses[:, :3])) < 1e-3  # shown in the observations' frame
+    np.testing.assert_allclose(res.fitted[0], problem.simulate(res.estimates)[0], atol=1e-12)  # (simulated apart)
     with pytest.raises(DanoError, match="fit_tilt needs fit_ground"):
         SysIdProblem(scene, [obs], [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], substeps=4, fit_tilt=True)
 

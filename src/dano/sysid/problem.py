@@ -394,13 +394,17 @@ def _with_parameters(scene: Scene, base_params: SimParams, parameters, theta) ->
     return base_params
 
 
-def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParams, data: dict, theta):
+def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParams, data: dict, theta,
+                     with_frames: bool = False):
     """The identification residual at θ (n,), a pure JAX function of its arguments: every
     batch's segments rolled out (vmapped) for the batch's longest segment, each segment's
     residuals frame by frame, padded frames included (their entries are meaningless:
     :attr:`SysIdProblem.keep` selects the real ones). ``data``: :attr:`SysIdProblem.data`.
     With ``layout.shards`` > 1 each batch's segments are split over that many devices
-    (``shard_map``; every device rolls out its own segments, the residuals are gathered)."""
+    (``shard_map``; every device rolls out its own segments, the residuals are gathered).
+    with_frames (static): also return the simulated qpos at every frame, per batch (segments,
+    frames, nq), padded frames included, the tracked DANOs' poses in the observations' frame
+    (the fitted trajectories the residual compares, :meth:`SysIdProblem.fitted`)."""
     params = _with_parameters(scene, base_params, layout.parameters, theta)
     sim_scene = scene
     if layout.fit_ground:
@@ -410,7 +414,7 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
     pos_axes = jnp.asarray(layout.pos_axes, dtype=jnp.int32)
     wpos, wjoint, axes, substeps = data["wpos"], data["wjoint"], layout.fit_axes, layout.substeps
     mesh = _layout_mesh(layout)
-    out = []
+    frames_wanted, out, fitted = with_frames, [], []
     for b, batch in enumerate(layout.batches):
         qadr, dadr, jadr, settle = batch.qadr, batch.dadr, batch.jadr, batch.settle
         wrot = data["wrot"][b]
@@ -424,7 +428,8 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
                 obs_pose = jax.vmap(lambda p: _poses_to_table(p, height, R))(obs_pose)
             qpos0, qvel0 = _with_offsets(qpos0, qvel0, block, qadr, dadr, axes)
             qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, batch.steps, qfrc)
-            frames = qpos[settle + substeps :: substeps]  # states at frames 1..F-1
+            states = qpos[settle::substeps]  # states at frames 0..F-1
+            frames = states[1:]
             res = []  # components with zero weight are left out (they would dilute σ²)
             for k, a in enumerate(qadr):
                 if len(layout.pos_axes):
@@ -435,13 +440,21 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
             if layout.joints:
                 for k, a in enumerate(jadr):
                     res.append(wjoint * (frames[:, a] - obs_joint[k, 1:]))
-            return jnp.concatenate(res)
+            if not frames_wanted:
+                return jnp.concatenate(res)
+            if layout.fit_ground:  # back in the observations' frame
+                for a in qadr:
+                    states = states.at[:, a : a + 7].set(_poses_from_table(states[:, a : a + 7], height, R))
+            return jnp.concatenate(res), states
 
         d = data["batches"][b]
         r = sharding.split_rows(one, mesh, (0,) * 7)(d["qpos0"], d["qvel0"], d["ctrl"], d["qfrc"], d["obs_pose"],
                                                      d["obs_joint"], blocks)
+        if frames_wanted:
+            r, states = r
+            fitted.append(states)
         out.append(r.ravel())
-    return jnp.concatenate(out)
+    return (jnp.concatenate(out), tuple(fitted)) if frames_wanted else jnp.concatenate(out)
 
 
 def _run(fn, *args) -> np.ndarray:
@@ -458,9 +471,15 @@ COMPILE_SECONDS = _compiled.COMPILE_SECONDS
 # compiled once per layout, scene structure and shapes, and traced once per structure across
 # processes when the compilation cache is on (dano._compiled)
 def _residuals_and_jacobian(layout, scene, base_params, data, theta):
-    """(forward-mode Jacobian, residual) of :func:`padded_residuals`: one trace, the primal
-    computed once with the tangents (tracing the rollout is most of a compilation's time)."""
-    r = lambda th: (padded_residuals(layout, scene, base_params, data, th),) * 2  # noqa: E731
+    """(forward-mode Jacobian, (residual, fitted frames per batch)) of :func:`padded_residuals`:
+    one trace, the primal computed once with the tangents (tracing the rollout is most of a
+    compilation's time); the frames give the fitted trajectories without a rollout program
+    of their own."""
+
+    def r(th):
+        res, states = padded_residuals(layout, scene, base_params, data, th, with_frames=True)
+        return res, (res, states)
+
     return jax.jacfwd(r, has_aux=True)(theta)
 
 
@@ -889,10 +908,24 @@ class SysIdProblem:
         """(m,) residual vector and (m, n) its forward-mode Jacobian at θ (n,), compiled once
         per structure (:class:`ResidualLayout`, scene, shapes). The segments are split over the
         devices in use (:mod:`dano.sharding`; the same values as on one device)."""
+        return self._residuals_jacobian_frames(theta)[:2]
+
+    def _residuals_jacobian_frames(self, theta):
         layout, data, keep = self._split_segments()
-        J, r = _run(_residuals_and_jacobian_jit, layout, self.scene, self.base_params, data,
-                    jnp.asarray(theta, dtype=jnp.float64))
-        return r[keep], J[keep]
+        J, (r, states) = _run(_residuals_and_jacobian_jit, layout, self.scene, self.base_params, data,
+                              jnp.asarray(theta, dtype=jnp.float64))
+        return r[keep], J[keep], layout, states
+
+    def fitted(self, theta) -> list[np.ndarray]:
+        """Fitted qpos (frames, nq) of every segment at θ, as :meth:`simulate` gives them, from
+        the residual's own rollouts (the Jacobian's compiled program: no rollout program of
+        its own to compile; the same steps, batched as the residual batches them)."""
+        *_, layout, states = self._residuals_jacobian_frames(theta)
+        where = {}
+        for b, batch in enumerate(layout.batches):
+            for i, sid in enumerate(batch.segments):
+                where.setdefault(sid, (b, i))  # (a batch padded for devices repeats its last segment)
+        return [np.array(states[where[sid][0]][where[sid][1], : seg.frames]) for sid, seg in enumerate(self.segments)]
 
     def residuals(self, theta) -> np.ndarray:
         """(m,) residual vector at θ (n,) (see :meth:`residuals_and_jacobian`: the same compiled

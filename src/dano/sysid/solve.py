@@ -265,8 +265,8 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     if bootstrap_samples:
         result.bootstrap = unc.bootstrap(problem, result.estimates, samples=bootstrap_samples, seed=seed,
                                          max_iterations=max_iterations)
-    if not result.fitted:
-        result.fitted = problem.simulate(result.estimates)
+    if not result.fitted:  # (AD: from the Jacobian's program, already compiled; FD: a rollout of its own)
+        result.fitted = problem.fitted(result.estimates) if jacobian == "ad" else problem.simulate(result.estimates)
     result.compile_time_s = compile_seconds(started)  # tracing, lowering and compiling (loads too), scan included
     return result
 
