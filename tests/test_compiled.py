@@ -96,3 +96,22 @@ def test_off_without_the_compilation_cache(monkeypatch):
     f = cached_jit(_affine, static_argnums=(0,))
     assert np.allclose(f(1.0, jnp.ones(2), jnp.ones(2))["sum"], 2.0)
     assert f.counts["traced"] == 0 and f.counts["jit"] == 1
+
+
+def test_a_call_on_its_own_output_compiles_once(tmp_path, monkeypatch):
+    """A program continued from its own (committed) output beside fresh (uncommitted) inputs,
+    as a rollout in chunks is, runs the one compiled executable: JAX lowers a jitted call
+    once per pattern of committed arguments, and `dano simulate` compiled its rollout twice."""
+    monkeypatch.delenv("DANO_EXPORT_CACHE", raising=False)
+    _compiled.set_directory(tmp_path)
+    try:
+        f = cached_jit(_affine, static_argnums=(0,))
+        out = f(2.0, jnp.arange(3.0), jnp.ones(3))
+        assert out["sum"].committed  # (what the next call is given)
+        out = f(2.0, out["sum"], np.zeros(3))  # committed beside a NumPy array
+        out = f(2.0, jnp.arange(3.0), out["sum"])
+        (program,) = f._by_digest.values()
+        assert f.counts["traced"] == 1 and program[0]._cache_size() == 1
+        np.testing.assert_allclose(out["sum"], [2, 8, 14])
+    finally:
+        _compiled.set_directory(None)
