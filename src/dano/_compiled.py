@@ -344,11 +344,17 @@ def _committed(leaves: list) -> list:
     arguments: a rollout continued from its own output (committed) beside fresh inputs
     (uncommitted) compiled its program a second time (``dano simulate bunny-drop``, cold:
     2 × 2.1 s)."""
-    if all(isinstance(x, jax.Array) and x.committed for x in leaves):
+    loose = [i for i, x in enumerate(leaves) if not (isinstance(x, jax.Array) and x.committed)]
+    if not loose:
         return leaves
-    device = next((next(iter(x.devices())) for x in leaves if isinstance(x, jax.Array) and x.committed),
-                  jax.devices()[0])
-    return jax.device_put(leaves, device)
+    arrays = [x for x in leaves if isinstance(x, jax.Array)]  # (uncommitted ones live on the default device)
+    committed = [x for x in arrays if x.committed]
+    device = next(iter((committed or arrays)[0].devices())) if arrays else jax.devices()[0]
+    put = jax.device_put([leaves[i] for i in loose], device)  # only those not committed yet
+    leaves = list(leaves)
+    for i, x in zip(loose, put):
+        leaves[i] = x
+    return leaves
 
 
 def _replicated(mesh) -> dict:

@@ -414,7 +414,7 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
     pos_axes = jnp.asarray(layout.pos_axes, dtype=jnp.int32)
     wpos, wjoint, axes, substeps = data["wpos"], data["wjoint"], layout.fit_axes, layout.substeps
     mesh = _layout_mesh(layout)
-    frames_wanted, out, fitted = with_frames, [], []
+    out, fitted = [], []
     for b, batch in enumerate(layout.batches):
         qadr, dadr, jadr, settle = batch.qadr, batch.dadr, batch.jadr, batch.settle
         wrot = data["wrot"][b]
@@ -440,7 +440,7 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
             if layout.joints:
                 for k, a in enumerate(jadr):
                     res.append(wjoint * (frames[:, a] - obs_joint[k, 1:]))
-            if not frames_wanted:
+            if not with_frames:
                 return jnp.concatenate(res)
             if layout.fit_ground:  # back in the observations' frame
                 for a in qadr:
@@ -450,11 +450,11 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
         d = data["batches"][b]
         r = sharding.split_rows(one, mesh, (0,) * 7)(d["qpos0"], d["qvel0"], d["ctrl"], d["qfrc"], d["obs_pose"],
                                                      d["obs_joint"], blocks)
-        if frames_wanted:
+        if with_frames:
             r, states = r
             fitted.append(states)
         out.append(r.ravel())
-    return (jnp.concatenate(out), tuple(fitted)) if frames_wanted else jnp.concatenate(out)
+    return (jnp.concatenate(out), tuple(fitted)) if with_frames else jnp.concatenate(out)
 
 
 def _run(fn, *args) -> np.ndarray:
@@ -917,9 +917,11 @@ class SysIdProblem:
         return r[keep], J[keep], layout, states
 
     def fitted(self, theta) -> list[np.ndarray]:
-        """Fitted qpos (frames, nq) of every segment at θ, as :meth:`simulate` gives them, from
-        the residual's own rollouts (the Jacobian's compiled program: no rollout program of
-        its own to compile; the same steps, batched as the residual batches them)."""
+        """Fitted qpos (frames, nq) of every segment at θ (n,), as :meth:`simulate` gives them
+        (MuJoCo generalized positions; the tracked DANOs' poses [m, wxyz] in the observations'
+        frame, also when the ground is fitted), from the residual's own rollouts: the
+        Jacobian's compiled program, so no rollout program of its own to compile; the same
+        steps, batched as the residual batches them (equal to :meth:`simulate` to rounding)."""
         *_, layout, states = self._residuals_jacobian_frames(theta)
         where = {}
         for b, batch in enumerate(layout.batches):
