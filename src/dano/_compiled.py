@@ -26,7 +26,8 @@ called with every argument and result replicated over that mesh (``in_shardings`
 program runs on the same number of devices, across processes too; the static arguments
 must tell the mesh's size (e.g. a layout's shard count), so that its key differs from the
 single-device program's.
-Single-device programs are called with every argument committed to one device, so that a
+Single-device programs in a single process are called with every argument committed to one
+device (across processes committing them hung the two-process identification), so that a
 call on a program's own output (committed) beside fresh inputs runs the same executable
 instead of lowering and compiling it again.
 Called with tracers (inside ``jit``, ``vmap``, ``jacfwd``, ...) or with the cache off, a
@@ -254,7 +255,7 @@ class CachedFunction:
         mesh = None if (self.mesh_of is None or traced) else self.mesh_of(*statics)
         if where is None or traced:
             return self._timed_jit(args, mesh)
-        if mesh is None:
+        if mesh is None and jax.process_count() == 1:  # (across processes JAX places the call itself)
             leaves = _committed(leaves)
         try:
             memory_key = (statics, tree, tuple(_aval(x) for x in leaves), _session())
