@@ -24,7 +24,34 @@ class SimulationDiverged(DanoError):
                          "reduce the time step or check the parameters")
 
 
-def _scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig):
+def _tied(data, *inputs):
+    """``data`` with every leaf made to depend (by adding zero) on every floating-point leaf
+    of ``inputs`` and on data's qpos and qvel: where any of them is batched (``jax.vmap``) or
+    carries a tangent (``jax.jvp``, ``jax.jacfwd``), every leaf of the scan's carry does from
+    the start. JAX's scan rules find which carries are batched or differentiated by a fixed
+    point, transforming the whole step once per round: with the carry as given (only some
+    leaves depending on the inputs) the soap's Jacobian took 3 rounds of differentiation and
+    2 + 3 of batching, about half of its tracing time; tied, one each. The values are
+    unchanged (x + 0; the zero's sign aside)."""
+    floats = [x for x in jax.tree_util.tree_leaves((inputs, data.qpos, data.qvel))
+              if jnp.issubdtype(jnp.result_type(x), jnp.floating)]
+    if not floats:
+        return data
+    zero = sum(jnp.sum(x).astype(jnp.float64 if jax.config.jax_enable_x64 else jnp.float32) for x in floats) * 0.0
+    keep = zero == zero  # (True; False only where an input is NaN, and then it selects the same value)
+
+    def tie(x):
+        x = jnp.asarray(x)
+        if jnp.issubdtype(x.dtype, jnp.floating):
+            return x + zero.astype(x.dtype)
+        return jnp.where(keep, x, x)
+
+    return jax.tree_util.tree_map(tie, data)
+
+
+def _scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig, final_overlaps: bool):
+    data = _tied(data, params, controls, qfrc)
+
     def body(d, inputs):
         ctrl, f = inputs
         d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype), qfrc_applied=f.astype(d.qfrc_applied.dtype))
@@ -32,20 +59,24 @@ def _scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: N
         return d_next, (d_next.qpos, d_next.qvel, info.psi, info.newton_iterations)
 
     d_last, (qpos, qvel, psi, iters) = jax.lax.scan(body, data, (controls, qfrc))
-    psi_last = overlaps(scene, params, d_last)  # each step reported ψ at its start
-    return (d_last, jnp.concatenate([data.qpos[None], qpos]), jnp.concatenate([data.qvel[None], qvel]),
-            jnp.concatenate([psi, psi_last[None]]), iters)
+    if final_overlaps:  # (each step reported ψ at its start)
+        psi = jnp.concatenate([psi, overlaps(scene, params, d_last)[None]])
+    return d_last, jnp.concatenate([data.qpos[None], qpos]), jnp.concatenate([data.qvel[None], qvel]), psi, iters
 
 
-_scan_steps_compiled = cached_jit(_scan_steps, static_argnums=(5,))
+_scan_steps_compiled = cached_jit(_scan_steps, static_argnums=(5, 6))
 
 
-def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig = NewtonConfig()):
+def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig = NewtonConfig(),
+               final_overlaps: bool = True):
     """T steps from MJX ``data`` with controls (T, nu) and applied generalized forces
     (T, nv) per step. Returns (final Data, qpos (T+1, nq), qvel (T+1, nv), psi (T+1, P),
-    Newton iterations (T,)). Jitted; compiled once per scene structure and T, and, with the
-    compilation cache on, traced once per structure across processes (:mod:`dano._compiled`)."""
-    return _scan_steps_compiled(scene, params, data, controls, qfrc, newton)
+    Newton iterations (T,)); ``final_overlaps=False``: psi (T, P), without the final state's
+    (its contact geometry is then not evaluated, nor traced: a third of the tracing of an
+    identification's residual, whose rollouts need no ψ). Jitted; compiled once per scene
+    structure and T, and, with the compilation cache on, traced once per structure across
+    processes (:mod:`dano._compiled`)."""
+    return _scan_steps_compiled(scene, params, data, controls, qfrc, newton, final_overlaps)
 
 
 def _inputs(scene: Scene, data, controls, qfrc, steps: int):
@@ -54,15 +85,17 @@ def _inputs(scene: Scene, data, controls, qfrc, steps: int):
     return ctrl, f
 
 
-def rollout_arrays(scene: Scene, state0, controls, params: SimParams, steps: int, qfrc=None):
+def rollout_arrays(scene: Scene, state0, controls, params: SimParams, steps: int, qfrc=None, *,
+                   overlaps: bool = True):
     """The jitted, differentiable core of :func:`rollout`: returns (qpos (T+1, nq),
     qvel (T+1, nv), psi (T+1, P)) as JAX arrays. state0: a :class:`State` or MJX Data;
     controls (T, nu) or None (hold the data's ctrl: zeros for a State); qfrc (T, nv) or None
-    (hold its qfrc_applied). Use it inside ``jax.jacfwd``."""
+    (hold its qfrc_applied); overlaps=False: psi None (the final state's contact geometry
+    not evaluated: :func:`scan_steps`). Use it inside ``jax.jacfwd``."""
     data = as_data(scene, state0)
     ctrl, f = _inputs(scene, data, controls, qfrc, steps)
-    _, qpos, qvel, psi, _ = scan_steps(scene, params, data, ctrl, f)
-    return qpos, qvel, psi
+    _, qpos, qvel, psi, _ = scan_steps(scene, params, data, ctrl, f, NewtonConfig(), overlaps)
+    return qpos, qvel, (psi if overlaps else None)
 
 
 def _as_array(x, shape, what, dtype):

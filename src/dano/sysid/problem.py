@@ -427,7 +427,8 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
                 qpos0, qvel0 = _to_table(qpos0, qvel0, qadr, dadr, height, R)
                 obs_pose = jax.vmap(lambda p: _poses_to_table(p, height, R))(obs_pose)
             qpos0, qvel0 = _with_offsets(qpos0, qvel0, block, qadr, dadr, axes)
-            qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, batch.steps, qfrc)
+            qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, batch.steps, qfrc,
+                                        overlaps=False)
             states = qpos[settle::substeps]  # states at frames 0..F-1
             frames = states[1:]
             res = []  # components with zero weight are left out (they would dilute σ²)
@@ -1058,7 +1059,8 @@ class SysIdProblem:
             block = jnp.asarray(theta)[offsets[sid] : offsets[sid + 1]].reshape(len(qadr), len(axes))
             qpos0, qvel0 = _with_offsets(qpos0, qvel0, block, qadr, dadr, axes)
             ctrl, qfrc = (jnp.asarray(_pad(np.asarray(data[k]), k, 0, longest)) for k in ("ctrl", "qfrc"))
-            qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, longest, qfrc)
+            qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, longest, qfrc,
+                                        overlaps=False)
             qpos = jnp.asarray(qpos)[settle : settle + steps + 1 : self.substeps]
             if self.fit_ground:  # back in the observations' frame
                 for a in qadr:
