@@ -11,7 +11,7 @@ from ..errors import DanoError
 from ..trajectory import Trajectory
 from .implicit import NewtonConfig
 from .scene import Scene, SimParams
-from .dynamics import State, as_data, overlaps, step_with_info
+from .dynamics import State, as_data, overlaps, step_with_info, tied
 
 
 class SimulationDiverged(DanoError):
@@ -24,34 +24,8 @@ class SimulationDiverged(DanoError):
                          "reduce the time step or check the parameters")
 
 
-def _tied(data, *inputs):
-    """``data`` with every leaf made to depend (by adding zero) on every floating-point leaf
-    of ``inputs`` and on data's qpos and qvel: where any of them is batched (``jax.vmap``) or
-    carries a tangent (``jax.jvp``, ``jax.jacfwd``), every leaf of the scan's carry does from
-    the start. JAX's scan rules find which carries are batched or differentiated by a fixed
-    point, transforming the whole step once per round: with the carry as given (only some
-    leaves depending on the inputs) the soap's Jacobian took 3 rounds of differentiation and
-    2 + 3 of batching, about half of its tracing time; tied, one each. The values are
-    unchanged (x + 0, whatever the inputs hold: non-finite entries count as 0)."""
-    floats = [x for x in jax.tree_util.tree_leaves((inputs, data.qpos, data.qvel))
-              if jnp.issubdtype(jnp.result_type(x), jnp.floating)]
-    if not floats:
-        return data
-    total = sum(jnp.sum(jnp.where(jnp.isfinite(x), x, 0)).astype(data.qpos.dtype) for x in floats)
-    zero = 0.0 * jnp.tanh(total)  # (tanh: finite even where the sum overflows)
-    keep = zero == 0  # (either way the select below gives x: only the dependence matters)
-
-    def tie(x):
-        x = jnp.asarray(x)
-        if jnp.issubdtype(x.dtype, jnp.floating):
-            return x + zero.astype(x.dtype)
-        return jnp.where(keep, x, x)
-
-    return jax.tree_util.tree_map(tie, data)
-
-
 def _scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig, final_overlaps: bool):
-    data = _tied(data, params, controls, qfrc)
+    data = tied(data, params, controls, qfrc, data.qpos, data.qvel)
 
     def body(d, inputs):
         ctrl, f = inputs
