@@ -447,7 +447,10 @@ def test_global_scan_finds_the_basin_and_reports_the_profile(box_setup):
     prof = res.scan["profile"]["sliding_friction"]
     assert prof["values"] == pytest.approx(np.linspace(0, 2, 9).tolist())
     assert prof["values"][int(np.argmin(prof["cost"]))] == 0.5  # the grid point nearest 0.45
-    assert len(res.scan["start_results"]) == 2  # the two best of the scan's points and the far guess
+    # one basin on the scan: one start (its lowest point; the next best is its neighbour, downhill
+    # to it, and the far guess costs more than the points near it)
+    assert len(res.scan["start_results"]) == 1
+    assert res.scan["starts"][0][0] == pytest.approx(0.5)
     assert abs(res.estimates[0] / 0.45 - 1) < 0.01
     assert res.final_cost <= min(r["final_cost"] for r in res.scan["start_results"])
     # a parameter without an upper bound is scanned over [lower, lower + 4 (initial - lower)]
@@ -455,6 +458,32 @@ def test_global_scan_finds_the_basin_and_reports_the_profile(box_setup):
     res = identify(open_ended, scan=5)
     assert np.asarray(res.scan["points"])[:, 0].tolist() == pytest.approx(np.linspace(0, 1.2, 5).tolist())
     assert abs(res.estimates[0] / 0.45 - 1) < 0.01
+
+
+def test_local_starts_are_one_per_basin_of_the_scan():
+    """Multi-level single linkage: a scanned point is a start only if no lower point lies
+    within one grid step (and its diagonals); at most ``starts``, lowest cost first."""
+    from dano.sysid.solve import _basin_starts
+
+    x = np.linspace(0, 1, 11)[:, None]
+    three = np.sin(3 * np.pi * x[:, 0]) + 0.3 * x[:, 0]  # minima at x = 0.5 (-0.85), 0 (0) and 1 (0.3)
+    lo, hi = np.zeros(1), np.ones(1)
+    picked = _basin_starts(x, three, lo, hi, 11, 4)
+    assert [float(x[i, 0]) for i in picked] == pytest.approx([0.5, 0.0, 1.0])
+    assert _basin_starts(x, three, lo, hi, 11, 2) == picked[:2]
+    one = (x[:, 0] - 0.33) ** 2
+    assert _basin_starts(x, one, lo, hi, 11, 3) == [3]
+    with_nan = one.copy()
+    with_nan[3] = np.nan  # a diverging point is never a start; its neighbours then are
+    assert sorted(_basin_starts(x, with_nan, lo, hi, 11, 3)) == [2, 4]
+    # a guess (appended after the grid) lower than every grid point takes the start of its basin
+    guess = np.vstack([x, [[0.31]]])
+    costs = np.append(one, 0.0)
+    assert _basin_starts(guess, costs, lo, hi, 11, 3) == [11]
+    # two parameters: a grid point's eight neighbours count
+    g = np.stack(np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1, 5), indexing="ij"), -1).reshape(-1, 2)
+    bowl = ((g - [0.5, 0.5]) ** 2).sum(1)
+    assert _basin_starts(g, bowl, np.zeros(2), np.ones(2), 5, 2) == [12]
 
 
 def test_ground_tilt_is_identified_with_height_and_friction(box_setup):

@@ -201,9 +201,10 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     power of two ≥ ``scan``²; a parameter without a finite bound is scanned over
     :func:`scan_box`), evaluated in vmapped batches; None (default): :func:`default_scan`
     (15 points for one parameter, 8 × 8 for two, 64 beyond); 0: off (local solve from the
-    initial guess only). The local solver then starts from the ``starts`` best of the scan's
-    points and the given guess (scan points moved off the bounds by 2 % of the box), and the
-    lowest final cost wins.
+    initial guess only). The local solver then starts from at most ``starts`` of the scan's
+    points and the given guess, lowest cost first, each with no lower point near it (one
+    start per basin the scan resolves: :func:`_basin_starts`; scan points moved off the
+    bounds by 2 % of the box), and the lowest final cost wins.
     The result's ``scan`` holds the points, their costs, the starts and the cost profile along
     each parameter.
 
@@ -439,6 +440,31 @@ def _standard_errors(problem: SysIdProblem, fit: LeastSquaresFit,
     return se, notes
 
 
+def _basin_starts(points: np.ndarray, costs: np.ndarray, lo: np.ndarray, hi: np.ndarray, scan: int,
+                  starts: int) -> list[int]:
+    """Indices of at most ``starts`` of the scanned points (K, n) to start local solves from,
+    lowest cost first: only points with no lower-cost point within a critical distance (the
+    rule of multi-level single linkage, Rinnooy Kan & Timmer 1987), so that two starts do not
+    descend the same basin. The distance, in the box scaled to the unit cube: one grid step
+    along each axis and its diagonals for a grid (n ≤ 2), the mean spacing K^(-1/n) of the
+    Sobol points beyond. Non-finite costs are never starts. The soap: 2 starts in one basin
+    before (every start found the same friction), 1 now."""
+    n = points.shape[1]
+    u = (points - lo) / np.where(hi > lo, hi - lo, 1.0)
+    step = 1.0 / max(scan - 1, 1) if n <= 2 else len(points) ** (-1.0 / n)
+    radius = 1.01 * step * (np.sqrt(n) if n <= 2 else 1.0)
+    finite = np.isfinite(costs)
+    chosen: list[int] = []
+    for i in (int(j) for j in np.argsort(costs) if finite[j]):
+        lower = finite & (costs < costs[i])
+        if np.any(lower & (np.linalg.norm(u - u[i], axis=1) <= radius)):
+            continue  # downhill from a lower point: its basin has (or will have) a start
+        chosen.append(i)
+        if len(chosen) == starts:
+            break
+    return chosen
+
+
 def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) -> SysIdResult:
     n = len(problem.parameters)
     if n == 0:
@@ -452,7 +478,7 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
     costs_all = scan_costs(problem, np.vstack([points, guess[None]]))  # the given guess is a candidate too
     costs = costs_all[:-1]
     scan_time = time.perf_counter() - t0
-    order = [int(i) for i in np.argsort(costs_all) if np.isfinite(costs_all[i])][:starts]
+    order = _basin_starts(np.vstack([points, guess[None]]), costs_all, lo, hi, scan, starts)
     if not order:
         raise DanoError("every point of the global scan gives a diverging simulation; check the bounds")
     inset = 0.02 * (hi - lo)  # a start on a bound may never leave it: moved inside
