@@ -448,7 +448,7 @@ def _basin_starts(points: np.ndarray, costs: np.ndarray, lo: np.ndarray, hi: np.
     descend the same basin. The distance, in the box scaled to the unit cube: one grid step
     along each axis and its diagonals for a grid (n ≤ 2), the mean spacing K^(-1/n) of the
     Sobol points beyond. Non-finite costs are never starts. The soap's 15-point scan: the two
-    lowest points (friction 0.714 and 0.571, one basin, both solves ending at 0.517) before;
+    lowest points (friction 0.714 and 0.857, one basin, both solves ending at 0.517) before;
     now 0.714 and 1.857, a shallow second basin on the high-friction plateau (its solve ends
     at 1.728, cost 0.33 against 0.024); an analytic slide: one start instead of two."""
     n = points.shape[1]
