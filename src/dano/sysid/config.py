@@ -40,7 +40,7 @@
     horizons = []                 # continuation, e.g. [0.4]
     scan = 15                     # global start: points per parameter of a scan of the bounds; left out:
                                   # 15 for one parameter, 8 x 8 for two, 64 Sobol points beyond; 0: off
-    starts = 2                    # local solves from the best scan points (the initial guess among them)
+    starts = 2                    # local solves from the scan's points, one per basin (the guess among them)
     profile_points = 32           # verification and interval: a profile through the estimate along each
                                   # parameter (left out: 32 for one or two parameters, 16 beyond; 0: off)
     level = 0.95                  # the interval's level
@@ -286,7 +286,8 @@ class OptionsConfig:
     """Global start: points per parameter of a scan of the bounds, 2 to 64; 0: off; left out: 15 for one
     parameter, 8 × 8 for two, 64 Sobol points beyond."""
     starts: int = 2
-    """Local solves from the best scan points (the initial guess among them), 1 to 16."""
+    """Local solves from the scan's points (the initial guess among them), at most one per basin the scan
+    resolves, lowest cost first, 1 to 16."""
     profile_points: int | None = None
     """Points of a profile through the estimate along each parameter (verification and interval), 8 to 256; 0:
     off; left out: 32 for one or two parameters, 16 beyond."""
