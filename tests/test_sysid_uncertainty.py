@@ -184,25 +184,3 @@ def test_dynamics_recovery_propagates_a_covariance_to_the_principal_moments():
     assert abs(out["alpha_relative_std"] - 0.01) < 1e-12 and abs(out["friction_relative_std"] - 0.01) < 1e-12
     np.testing.assert_allclose(out["moment_relative_error"], 0.0, atol=1e-12)
     assert "moment_relative_std" not in dynamics_recovery(estimates, truth)
-
-
-def test_local_minima_are_counted_as_scipy_finds_peaks():
-    """count_local_minima (written out to spare identification the import of scipy.signal)
-    counts what scipy.signal.find_peaks finds on −cost with the same prominence, on random
-    profiles with flat runs, ties, NaN and inf."""
-    from scipy.signal import find_peaks
-
-    from dano.sysid.uncertainty import count_local_minima
-
-    rng = np.random.default_rng(7)
-    for _ in range(3000):
-        c = rng.normal(size=int(rng.integers(2, 40)))
-        if rng.random() < 0.5:
-            c = np.round(c, 1)
-        if rng.random() < 0.2:
-            c[rng.integers(0, len(c))] = rng.choice([np.nan, np.inf])
-        depth = float(rng.choice([0.0, 1e-3, 0.1, 0.5, 1.0]))
-        filled = np.where(np.isfinite(c), c, np.max(c[np.isfinite(c)], initial=0.0))
-        assert count_local_minima(c, depth) == len(find_peaks(-filled, prominence=depth)[0]), (c, depth)
-    assert count_local_minima(np.array([3.0, 1.0, 2.0, 0.5, 4.0]), 0.5) == 2
-    assert count_local_minima(np.array([3.0, 1.0, 1.2, 0.5, 4.0]), 0.5) == 1  # the ripple is too shallow
