@@ -14,7 +14,9 @@ each traced and lowered program (a :class:`jax.export.Exported`, StableHLO) in
 * the static arguments and the structure of the others: their pytree definitions with
   all static metadata by content (MuJoCo models as their binary MJB, assets, contact
   models, layouts; an object it cannot digest by content makes the call a plain ``jax.jit``
-  call), and every leaf's shape, dtype and weak type.
+  call; dataclass fields marked ``metadata={"cache_key": False}``, labels that no trace
+  reads, such as a scene's name or an asset's provenance, are left out), and every leaf's
+  shape, dtype and weak type.
 
 Values are arguments, never part of the key: problems of the same structure (other
 observations, parameters, initial states) load the program instead of tracing it again.
@@ -180,6 +182,8 @@ def _digest_value(x, h) -> None:
     elif dataclasses.is_dataclass(x):
         h.update(f"dataclass:{type(x).__module__}.{type(x).__qualname__}(".encode())
         for f in dataclasses.fields(x):
+            if f.metadata.get("cache_key") is False:  # a label no trace reads (a name, provenance)
+                continue
             h.update(f"{f.name}=".encode())
             _digest_value(getattr(x, f.name), h)
         h.update(b")")

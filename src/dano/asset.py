@@ -431,7 +431,7 @@ class DanoAsset(_PrincipalInertia):
     mesh_vertices: np.ndarray = dc_field(default_factory=lambda: _frozen(np.zeros((0, 3))))
     mesh_faces: np.ndarray = dc_field(default_factory=lambda: _frozen(np.zeros((0, 3)), np.int64))
     field: Any = None
-    metadata: dict = dc_field(default_factory=dict)
+    metadata: dict = dc_field(default_factory=dict, metadata={"cache_key": False})  # (provenance: not in program keys)
 
     def __post_init__(self):
         faces = np.asarray(self.mesh_faces)

@@ -102,7 +102,7 @@ class SceneInfo:
     qpos_adr: tuple[int, ...]
     dof_adr: tuple[int, ...]
     pairs: tuple[Pair, ...]
-    name: str
+    name: str = dataclasses.field(metadata={"cache_key": False})  # (a label: programs of any name are shared)
 
 
 #: per-DANO parameters of its own dynamics besides α (fields of :class:`SimParams`, one per axis)
