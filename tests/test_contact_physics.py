@@ -160,13 +160,15 @@ def test_per_sample_block_search_gives_the_all_samples_wrench():
     def wrench_and_jacobian(model, st, u):
         return model.wrench(p, st, u), jax.jacfwd(lambda x: model.wrench(p, st, x))(u)
 
+    us = (jnp.zeros(6), jnp.asarray([0.2, -0.1, -0.3, 0.5, 1.0, -2.0]))
+    # the wrench of all samples, the reference (it uses none of the search's counts: one program)
+    reference = [wrench_and_jacobian(PerSample(), full, u) for u in us]
     for model, overflows in ((PerSample(), False), (PerSample(blocks_searched=4), True),
                              (PerSample(max_active=16), True)):
         st = jax.jit(lambda g: model.prepare(g, 0.01))(g)  # noqa: B023  (called at once)
         assert bool(st.overflow) == overflows
         assert int(np.sum(np.asarray(st.active.weight) > 0)) == min(reach, model.max_active) or overflows
-        for u in (jnp.zeros(6), jnp.asarray([0.2, -0.1, -0.3, 0.5, 1.0, -2.0])):
-            expected, expected_jac = wrench_and_jacobian(model, full, u)
+        for u, (expected, expected_jac) in zip(us, reference):
             W, K = wrench_and_jacobian(model, st, u)
             np.testing.assert_allclose(W, expected, rtol=1e-12, atol=1e-12)
             np.testing.assert_allclose(K, expected_jac, rtol=1e-10, atol=1e-9)

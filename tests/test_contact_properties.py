@@ -77,11 +77,20 @@ def cast(tree, dtype):
                                                                                    jnp.floating) else x, tree)
 
 
-@functools.partial(jax.jit, static_argnames=("kind", "model"))
-def evaluate(kind, model, inputs, u):
+@functools.partial(jax.jit, static_argnames=("kind",))
+def evaluate(kind, inputs, u):
+    """ψ, χ, n of the pair and the wrench of each contact model of MODELS, in order (one
+    geometry, one compilation for all the models)."""
     g = PAIR_KINDS[kind].geometry(inputs)
     p = cast(ContactParams(), g.psi.dtype)
-    return g.psi, g.chi, g.normal, model.wrench(p, model.prepare(g, 0.01), u)
+    return g.psi, g.chi, g.normal, tuple(model.wrench(p, model.prepare(g, 0.01), u) for model in MODELS)
+
+
+def per_model(kind, inputs, u):
+    """[(ψ, χ, n, wrench) of each model of MODELS] as float64 numpy arrays."""
+    psi, chi, normal, wrenches = (jax.tree_util.tree_map(lambda x: np.asarray(x, np.float64), y)
+                                  for y in evaluate(kind, inputs, u))
+    return [(psi, chi, normal, w) for w in wrenches]
 
 
 def place(inputs, kind, Ra, offset):
@@ -130,8 +139,14 @@ def test_pair_geometry_and_wrench_properties(tmp_path_factory, kind, field_kind,
     inputs = cast(place(base, kind, Ra, offset), dtype)
     u = jnp.asarray(u, dtype)
     tol = TOL[dtype]
-    for model in MODELS:
-        psi, chi, normal, w = (np.asarray(x, np.float64) for x in evaluate(kind, model, inputs, u))
+    R0_, t0_ = np.asarray(R0), np.asarray(t0)
+    u2 = jnp.concatenate([R0_ @ u[:3], R0_ @ u[3:]]).astype(dtype)
+    direct, whole_moved = per_model(kind, inputs, u), per_model(kind, cast(moved(inputs, R0_, t0_), dtype), u2)
+    if kind == "dano":
+        swap, at_rest, swap_at_rest = (per_model(kind, swapped(inputs), -u), per_model(kind, inputs, 0 * u),
+                                       per_model(kind, swapped(inputs), 0 * u))
+    for m, model in enumerate(MODELS):
+        psi, chi, normal, w = direct[m]
         assert np.all(np.isfinite(w)) and np.isfinite(psi)
         assert psi >= 0
         gap = distance - 0.03 - R_OBJ if kind == "plane" else distance - 2 * R_OBJ - 0.01
@@ -140,10 +155,7 @@ def test_pair_geometry_and_wrench_properties(tmp_path_factory, kind, field_kind,
         if gap > 0.05:  # out of reach within the step (h·|u| < 5 cm): no force either
             assert np.all(w == 0)
         # the whole pair moved and rotated: the same overlap, moved centroid, rotated wrench
-        R0_, t0_ = np.asarray(R0), np.asarray(t0)
-        u2 = jnp.concatenate([R0_ @ u[:3], R0_ @ u[3:]]).astype(dtype)
-        psi2, chi2, normal2, w2 = (np.asarray(x, np.float64)
-                                   for x in evaluate(kind, model, cast(moved(inputs, R0_, t0_), dtype), u2))
+        psi2, chi2, normal2, w2 = whole_moved[m]
         scale_w = max(1.0, np.abs(w).max())
         assert psi2 == pytest.approx(psi, rel=tol, abs=tol * 1e-3)
         if psi > 1e-6:
@@ -152,7 +164,7 @@ def test_pair_geometry_and_wrench_properties(tmp_path_factory, kind, field_kind,
         np.testing.assert_allclose(w2[:3], R0_ @ w[:3], atol=100 * tol * scale_w)
         np.testing.assert_allclose(w2[3:], R0_ @ w[3:], atol=100 * tol * scale_w)
         if kind == "dano":  # B's wrench is minus A's, for the opposite relative twist
-            psi3, chi3, normal3, w3 = (np.asarray(x, np.float64) for x in evaluate(kind, model, swapped(inputs), -u))
+            psi3, chi3, normal3, w3 = swap[m]
             assert psi3 == pytest.approx(psi, rel=tol, abs=tol * 1e-3)
             if psi > 1e-6:
                 np.testing.assert_allclose(chi3, chi, atol=10 * tol)
@@ -160,10 +172,8 @@ def test_pair_geometry_and_wrench_properties(tmp_path_factory, kind, field_kind,
             np.testing.assert_allclose(w3[:3], -w[:3], atol=100 * tol * scale_w)
             # the torque's implicit lever (the centroid advanced over the step) is taken in
             # B's frame, so it agrees to first order in h·u only; at u = 0 exactly
-            _, _, _, w0 = evaluate(kind, model, inputs, 0 * u)
-            _, _, _, w0s = evaluate(kind, model, swapped(inputs), 0 * u)
-            np.testing.assert_allclose(np.asarray(w0s, np.float64), -np.asarray(w0, np.float64),
-                                       atol=100 * tol * scale_w)
+            w0, w0s = at_rest[m][3], swap_at_rest[m][3]
+            np.testing.assert_allclose(w0s, -w0, atol=100 * tol * scale_w)
 
 
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
@@ -180,11 +190,13 @@ def test_forward_gradients_are_finite_at_rest_onset_and_in_flight(tmp_path_facto
     u = jnp.asarray([0.3, -0.1, -0.5, 1.0, 0.5, -2.0], dtype)
     for height in (touch - 0.005, touch, touch + 0.2):  # resting, onset, free flight
         inputs = cast(place(base, kind, Ra, n * height), dtype)
-        for model in MODELS:
-            def f(xa, u_):
-                return jnp.concatenate([jnp.stack(evaluate(kind, model, {**inputs, "xa": xa}, u_)[:1]),
-                                        evaluate(kind, model, {**inputs, "xa": xa}, u_)[3]])
-            J = jax.jacfwd(f, argnums=(0, 1))(inputs["xa"], u)
+
+        def f(xa, u_):  # [ψ, wrench] of each model
+            psi, _, _, wrenches = evaluate(kind, {**inputs, "xa": xa}, u_)
+            return [jnp.concatenate([psi[None], w]) for w in wrenches]
+
+        Js = jax.jacfwd(f, argnums=(0, 1))(inputs["xa"], u)
+        for model, J in zip(MODELS, Js):
             assert all(np.all(np.isfinite(np.asarray(j))) for j in J), (kind, model.name, height)
 
 
@@ -214,12 +226,13 @@ def test_pose_linearised_geometry_has_the_direct_derivatives(tmp_path_factory, k
             t[k] = jnp.asarray(rng.normal(size=np.shape(inputs[k])))
         return t
 
-    direct_jvp = jax.jit(lambda i, t: jax.jvp(PAIR_KINDS[kind].geometry, (i,), (t,)))
-    pose_jvp = jax.jit(lambda i, t: jax.jvp(lambda i_: pose_linearised_geometry(PAIR_KINDS[kind], fixed_b, i_),
-                                            (i,), (t,)))
+    # both JVPs in one program (one compilation)
+    both_jvps = jax.jit(lambda i, t: (jax.jvp(PAIR_KINDS[kind].geometry, (i,), (t,)),
+                                      jax.jvp(lambda i_: pose_linearised_geometry(PAIR_KINDS[kind], fixed_b, i_),
+                                              (i,), (t,))))
     for _ in range(3):
         t = tangent()
-        direct, pose = direct_jvp(inputs, t), pose_jvp(inputs, t)
+        direct, pose = both_jvps(inputs, t)
         for a, b in zip(jax.tree_util.tree_leaves(direct), jax.tree_util.tree_leaves(pose)):
             a, b = np.asarray(a), np.asarray(b)
             np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(a).max()))

@@ -25,10 +25,29 @@ def box():
     return compose([DanoObject("box", asset, (0, 0, HALF[2]))], dt=0.0025)
 
 
-def with_offset(scene, params, offset):
+def with_offset(scene, params, offset, second_moment_scale=(1.0, 1.0, 1.0)):
+    """The centre of mass offset (and the second moments scaled: by default 1, the asset's
+    own; set, so that every rollout here has parameters of one structure)."""
     for a, v in zip("xyz", offset):
         params = scene.set_param(params, f"com_offset_{a}", v, "box")
+    for a, v in zip("xyz", second_moment_scale):
+        params = scene.set_param(params, f"second_moment_scale_{a}", v, "box")
     return params
+
+
+STEPS = 200  # every rollout of the box runs in pieces of this many steps: one compiled program
+
+
+def run(scene, state0, params, steps):
+    """rollout of ``steps`` (a multiple of STEPS) in pieces of STEPS, each continuing from the
+    last one's final MJX Data (the same steps as one rollout); returns (qpos, final qvel)."""
+    assert steps % STEPS == 0
+    qpos = []
+    for k in range(steps // STEPS):
+        traj = rollout(scene, state0, None, params, STEPS)
+        qpos.append(traj.qpos if k == 0 else traj.qpos[1:])
+        state0 = traj.final_data
+    return np.concatenate(qpos), traj.qvel[-1]
 
 
 def test_centre_of_mass_outside_the_footprint_tips_the_box_over(box):
@@ -38,9 +57,9 @@ def test_centre_of_mass_outside_the_footprint_tips_the_box_over(box):
     base = box.default_params(rolling_friction=0.0)
     tilt = {}
     for off in (0.07, 0.13):
-        traj = rollout(box, State(jnp.asarray([0, 0, HALF[2], 1, 0, 0, 0.0]), jnp.zeros(6)), None,
-                       with_offset(box, base, (off, 0, 0)), 600)
-        q = np.asarray(traj.qpos[-1, 3:7])
+        qpos, _ = run(box, State(jnp.asarray([0, 0, HALF[2], 1, 0, 0, 0.0]), jnp.zeros(6)),
+                      with_offset(box, base, (off, 0, 0)), 600)
+        q = np.asarray(qpos[-1, 3:7])
         tilt[off] = np.degrees(2 * np.arccos(min(1.0, abs(q[0]))))
     assert tilt[0.07] < 1.0
     assert abs(tilt[0.13] - 90.0) < 3.0  # now resting on the neighbouring face
@@ -50,13 +69,11 @@ def test_free_flight_moves_the_centre_of_mass_on_a_parabola(box):
     """Ballistics: thrown with spin about an offset centre of mass, the body origin wobbles
     but the centre of mass (body_ipos in the body frame) follows x0 + v t − ½ g t² and the
     kinetic energy of the spin stays constant."""
-    params = with_offset(box, box.default_params(), (0.03, -0.02, 0.01))
-    for a, v in zip("xyz", (1.2, 0.8, 1.0)):
-        params = box.set_param(params, f"second_moment_scale_{a}", v, "box")
+    params = with_offset(box, box.default_params(), (0.03, -0.02, 0.01), (1.2, 0.8, 1.0))
     m = model_with_params(box, params)
     qpos0 = jnp.asarray([0, 0, 1.0, 1, 0, 0, 0])
     qvel0 = jnp.asarray([0.5, -0.2, 2.0, 3.0, -1.0, 4.0])
-    steps, h = 200, box.dt
+    steps, h = STEPS, box.dt
     traj = rollout(box, State(qpos0, qvel0), None, params, steps)
     from dano._mjx import mjx
 
@@ -130,11 +147,11 @@ def test_centre_of_mass_is_identified_from_spinning_slides(box):
     truth = with_offset(box, box.default_params(sliding_friction=0.4, sliding_drag=0.0),  # a Coulomb world
                         (0.015, -0.01, 0.0))
     rest = np.asarray(rollout(box, State(jnp.asarray([0, 0, HALF[2], 1, 0, 0, 0.0]), jnp.zeros(6)), None, truth,
-                              100).qpos[-1])
+                              STEPS).qpos[-1])
     obs = []
     for k, v in enumerate(([1.5, 0.4, 0, 0, 0, 6.0], [-1.0, 1.2, 0, 0, 0, -8.0])):
-        traj = rollout(box, State(jnp.asarray(rest), jnp.asarray(v)), None, truth, 120)
-        obs.append(Observation(time=np.arange(31) * 0.01, poses={"box": np.asarray(traj.qpos[::4])},
+        traj = rollout(box, State(jnp.asarray(rest), jnp.asarray(v)), None, truth, STEPS)  # its first 120 steps
+        obs.append(Observation(time=np.arange(31) * 0.01, poses={"box": np.asarray(traj.qpos[:121:4])},
                                qvel0=np.asarray(v), name=f"slide {k}"))
     fit = [FitParameter("sliding_friction", 0.3, 0.0, 1.0, target="box/ground")]
     fit += [FitParameter(f"com_offset_{a}", 0.0, -0.05, 0.05, target="box") for a in "xy"]

@@ -2,6 +2,7 @@
 differences, image-set reading and its bad input, a small hash-grid field overfitting real
 (MuJoCo-rendered) views, checkpoints that round-trip and resume, σ -> density rules."""
 
+import dataclasses
 import json
 import shutil
 
@@ -25,6 +26,16 @@ BUNNY = str(SHARED / "meshes" / "bunny_lowpoly.obj")
 LEGO = str(SHARED / "nerf" / "lego_100px.npz")
 TINY = FieldConfig(levels=4, features=2, log2_table_size=12, base_resolution=8, max_resolution=48, hidden=16,
                    color_hidden=16)
+# the one-view training runs share one configuration (their step programs are the same: one XLA compilation)
+ONE_VIEW = TrainConfig(minutes=10.0, steps=300, rays_per_step=512, samples_per_ray=64, samples_across=128,
+                       background="random", occupancy_resolution=32, field=TINY, learning_rate=2e-2,
+                       final_learning_rate=2e-3, checkpoint_minutes=100.0)
+
+
+def render_rays_jit(field, origins, directions, options, **kwargs):
+    """render_rays as one program (op by op, its segmented scan compiled hundreds of small
+    ops); the field closed over (its bounds() must be concrete)."""
+    return jax.jit(lambda o, d: render_rays(field, o, d, options, **kwargs))(origins, directions)
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +54,7 @@ def test_uniform_sphere_alpha_and_depth_match_closed_form():
     offsets = np.array([0.0, 0.3, 0.45])
     origins = jnp.asarray(np.stack([offsets, np.zeros(3), np.full(3, 3.0)], axis=1), jnp.float32)
     dirs = jnp.asarray(np.tile([0.0, 0.0, -1.0], (3, 1)), jnp.float32)
-    out = render_rays(field, origins, dirs, RenderOptions.for_bounds(field.bounds(), 2048), background=0.0)
+    out = render_rays_jit(field, origins, dirs, RenderOptions.for_bounds(field.bounds(), 2048), background=0.0)
     chord = 2 * np.sqrt(r * r - offsets ** 2)
     alpha = 1 - np.exp(-sigma * chord)
     depth = 3.0 - chord / 2 + 1 / sigma - chord * np.exp(-sigma * chord) / (1 - np.exp(-sigma * chord))
@@ -59,8 +70,8 @@ def test_budget_cuts_rays_and_marks_them_incomplete():
     dirs = jnp.asarray(np.tile([0.0, 0.0, -1.0], (4, 1)), jnp.float32)
     full = RenderOptions.for_bounds(field.bounds(), 128)
     per_ray = np.ptp(field.bounds()[:, 2]) / full.step  # samples of each ray (its chord is the box's z side)
-    cut = render_rays(field, origins, dirs, RenderOptions(full.step, full.num_samples, budget=int(2.5 * per_ray)))
-    ref = render_rays(field, origins, dirs, full)
+    cut = render_rays_jit(field, origins, dirs, RenderOptions(full.step, full.num_samples, budget=int(2.5 * per_ray)))
+    ref = render_rays_jit(field, origins, dirs, full)
     complete = np.asarray(cut.complete)
     assert complete[:2].all() and not complete[2:].any()
     np.testing.assert_allclose(np.asarray(cut.rgb)[:2], np.asarray(ref.rgb)[:2], atol=1e-6)
@@ -88,7 +99,7 @@ def test_render_gradient_wrt_pose_matches_finite_differences():
                        for k in range(7)], axis=1)
         assert np.abs(jac).max() > 0.1  # the image does depend on the pose
         np.testing.assert_allclose(jac, fd, atol=1e-6 * np.abs(fd).max() + 1e-8, rtol=1e-5)
-        assert np.all(np.isfinite(np.asarray(jax.grad(lambda p: image(p).sum())(x0))))
+        assert np.all(np.isfinite(np.asarray(jax.jit(jax.grad(lambda p: image(p).sum()))(x0))))
 
 
 def test_blender_and_opencv_cameras_give_the_same_rays():
@@ -140,9 +151,7 @@ def test_rendered_views_are_consistent_with_their_cameras(tmp_path, shared):
 
 def test_tiny_field_overfits_one_view_and_checkpoints_round_trip(bunny_views, tmp_path):
     data = load_dataset(bunny_views).subset([0])
-    config = TrainConfig(minutes=10.0, steps=300, rays_per_step=512, samples_per_ray=64, samples_across=128,
-                         background="random", occupancy_resolution=32, field=TINY, learning_rate=2e-2,
-                         final_learning_rate=2e-3, checkpoint_minutes=100.0)
+    config = ONE_VIEW
     out = tmp_path / "field"
     result = train(data, config, heldout=data, out_dir=out)
     first, last = np.mean([r["psnr_train"] for r in result.log[:5]]), result.psnr_heldout
@@ -176,9 +185,7 @@ def test_training_is_the_same_at_any_scale(bunny_views):
     (With σ = exp(h) at every size, the Panda hand's 100 views in metres trained to 16.8 dB
     in 3 minutes, the same views ×10 to 35.1 dB in 1.5; docs/fields-from-images.md.)"""
     data = load_dataset(bunny_views).subset([0])
-    config = TrainConfig(minutes=10.0, steps=120, rays_per_step=512, samples_per_ray=64, samples_across=128,
-                         background="random", occupancy_resolution=32, field=TINY, learning_rate=2e-2,
-                         final_learning_rate=2e-3, checkpoint_minutes=100.0)
+    config = dataclasses.replace(ONE_VIEW, steps=120)
     big = train(data, config, heldout=data)
     small = train(_scaled(data, 0.05), config, heldout=_scaled(data, 0.05))
     assert small.field.config.sigma_unit == pytest.approx(20 * big.field.config.sigma_unit)
@@ -190,7 +197,7 @@ def test_training_is_the_same_at_any_scale(bunny_views):
 def test_field_directory_of_another_version_or_truncated_is_refused(bunny_views, tmp_path):
     data = load_dataset(bunny_views).subset([0])
     out = tmp_path / "field"
-    train(data, TrainConfig(steps=2, rays_per_step=64, field=TINY, occupancy_resolution=8), out_dir=out)
+    train(data, dataclasses.replace(ONE_VIEW, steps=2), out_dir=out)
     meta = json.loads((out / "field.json").read_text())
     other = tmp_path / "other"
     shutil.copytree(out, other)
@@ -276,8 +283,6 @@ def test_train_field_cli_bad_input_leaves_nothing(tmp_path, capsys):
 
 
 def test_command_line_defaults_are_the_library_defaults():
-    import dataclasses
-
     from dano.nerf.train import TrainFieldConfig
 
     defaults = {f.name: f.default for f in dataclasses.fields(TrainFieldConfig)}

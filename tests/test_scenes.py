@@ -19,6 +19,11 @@ def run(name, steps=None):
     return s, rollout(s.scene, s.state0, ctrl, s.params, T)
 
 
+# the bunny drop runs as many steps as the bunny slide's 2.5 s: the same structure (the bunny
+# on the ground, 0.01 s), so one compiled rollout serves the three tests
+SLIDE_STEPS = 250
+
+
 def sliding_distance(v0, mu, drag, g=9.81):
     """Stopping distance under Coulomb friction μ and the paper's viscous drag scaled by the
     normal force m·g (Eq. 9): dv/dt = −g(μ + drag·v), so x = (v0 − (μ/drag)·ln(1 + drag·v0/μ))/(g·drag)."""
@@ -29,6 +34,7 @@ def sliding_distance(v0, mu, drag, g=9.81):
 
 def test_bunny_slide_stops_at_the_coulomb_and_drag_distance():
     s, traj = run("bunny-slide")
+    assert len(traj.time) == SLIDE_STEPS + 1  # its 2.5 s
     p = s.params.contact
     expected = sliding_distance(2.5, float(p.sliding_friction[0]), float(p.sliding_drag[0]))
     assert float(p.sliding_drag[0]) == 0.1  # the paper's default drag, which now acts
@@ -70,10 +76,10 @@ def test_panda_without_menagerie_is_a_clear_error(monkeypatch):
 
 
 def test_trajectory_file_round_trip(tmp_path):
-    s, traj = run("bunny-drop", 50)  # as many steps as the video test: one compilation
+    s, traj = run("bunny-drop", SLIDE_STEPS)
     path = save_trajectory(traj, tmp_path / "t.npz")
     z = np.load(path)
-    assert z["time"].shape == (51,) and z["qpos"].shape == (51, 7) and z["qvel"].shape == (51, 6)
+    assert z["time"].shape == (251,) and z["qpos"].shape == (251, 7) and z["qvel"].shape == (251, 6)
     assert "bunny" in z["body_names"].tolist()
     back = load_trajectory(path)
     np.testing.assert_array_equal(back.qpos, traj.qpos)
@@ -85,11 +91,11 @@ def test_video_is_written(tmp_path):
 
     from dano.viz.video import write_video
 
-    s, traj = run("bunny-drop", 50)
+    s, traj = run("bunny-drop", SLIDE_STEPS)
     path = write_video(s.scene, traj, tmp_path / "drop.mp4", fps=20, width=160, height=120)
     reader = imageio.get_reader(path)
     n = sum(1 for _ in reader)
-    assert n == int(0.5 * 20) + 1
+    assert n == int(2.5 * 20) + 1
     assert [p.name for p in tmp_path.iterdir()] == ["drop.mp4"]
 
 

@@ -52,10 +52,25 @@ def box_scene(tmp_path_factory):
     return scene, qpos, qvel
 
 
+def with_theta(params, theta):
+    """params with sliding friction theta[0] (every pair) and mass scale theta[1]."""
+    return params.replace(contact=params.contact.replace(sliding_friction=jnp.full_like(
+        params.contact.sliding_friction, theta[0])), alpha=theta[1:])
+
+
+def final_state(scene, data, params, theta, steps, overlaps=True):
+    """[qpos, qvel] after ``steps`` steps of a rollout with :func:`with_theta`'s parameters."""
+    qp, qv, _ = rollout_arrays(scene, data, None, with_theta(params, theta), steps, overlaps=overlaps)
+    return jnp.concatenate([qp[-1], qv[-1]])
+
+
 def test_step_is_pure_and_keeps_the_callers_inputs(box_scene):
     scene, qpos, qvel = box_scene
     params = scene.default_params()
-    data = make_data(scene, qpos, qvel, ctrl=[1.0]).replace(qfrc_applied=jnp.full(scene.nv, 0.01))
+    data = make_data(scene, qpos, qvel)
+    # ctrl 1 and a force of 0.01, made from the data's own fields (on their device, as the other
+    # tests' data: the jitted step below is then the one they compile)
+    data = data.replace(ctrl=data.ctrl + 1.0, qfrc_applied=data.qfrc_applied + 0.01)
     jstep = jax.jit(step)
     a, b = jstep(scene, params, data), jstep(scene, params, data)
     assert np.array_equal(np.asarray(a.qpos), np.asarray(b.qpos))
@@ -70,17 +85,19 @@ def test_rollout_in_chunks_continues_act_time_and_ctrl(box_scene):
     scene, qpos, qvel = box_scene
     params = scene.default_params()
     data = make_data(scene, qpos, qvel, ctrl=[1.0])
-    whole = rollout(scene, data, None, params, 40)
+    # (chunks of unequal length; 30 steps, as the other rollouts of this file: one compilation)
+    whole = rollout(scene, data, None, params, 30)
     first = rollout(scene, data, None, params, 20)
-    second = rollout(scene, first.final_data, None, params, 20)
+    second = rollout(scene, first.final_data, None, params, 10)
     np.testing.assert_allclose(second.qpos[-1], whole.qpos[-1], atol=1e-12)
     np.testing.assert_allclose(np.asarray(second.final_data.act), np.asarray(whole.final_data.act), atol=1e-14)
-    assert float(second.final_data.time) == pytest.approx(40 * scene.dt)
+    assert float(second.final_data.time) == pytest.approx(30 * scene.dt)
     # progress reporting runs in chunks too, each continuing from the last one's Data; 390
     # steps do not divide into 20 equal chunks (19 of 20 steps, the compilation of `first`,
-    # and one of 10): no extra steps, the right final time
+    # and one of 10, that of `second`): no extra steps, the right final time; its first 30
+    # steps (across a chunk boundary) are the whole rollout's
     chunked = rollout(scene, data, None, params, 390, progress=lambda *a: None)
-    np.testing.assert_allclose(chunked.qpos[:41], whole.qpos, atol=1e-12)
+    np.testing.assert_allclose(chunked.qpos[:31], whole.qpos, atol=1e-12)
     assert chunked.qpos.shape[0] == 391
     assert float(chunked.final_data.time) == pytest.approx(390 * scene.dt)
 
@@ -105,13 +122,11 @@ def test_rollout_ties_its_carry_without_changing_a_value(box_scene):
     np.testing.assert_allclose(np.asarray(qp2), np.asarray(qp), rtol=1e-13, atol=1e-15)
     np.testing.assert_allclose(np.asarray(qv2), np.asarray(qv), rtol=1e-13, atol=1e-15)
 
-    def final(mu, overlaps):
-        p = params.replace(contact=params.contact.replace(sliding_friction=jnp.full_like(
-            params.contact.sliding_friction, mu)))
-        return rollout_arrays(scene, data, None, p, 30, overlaps=overlaps)[0][-1]
-
-    np.testing.assert_allclose(np.asarray(jax.jacfwd(final)(0.3, False)), np.asarray(jax.jacfwd(final)(0.3, True)),
-                               rtol=1e-12, atol=1e-14)
+    # the Jacobian of the final state along sliding friction and mass scale
+    theta = jnp.asarray([0.3, float(params.alpha[0])])
+    J = {o: np.asarray(jax.jacfwd(lambda th, o=o: final_state(scene, data, params, th, 30, o))(theta))
+         for o in (False, True)}
+    np.testing.assert_allclose(J[False], J[True], rtol=1e-12, atol=1e-14)
 
 
 def test_step_vmaps_over_data_and_params(box_scene):

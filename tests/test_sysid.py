@@ -71,8 +71,9 @@ def test_windows_and_fd_jacobians(box_setup):
     _, scene, z = box_setup
     truth = scene.default_params(sliding_friction=0.45, sliding_drag=0.0)  # a Coulomb world, as identified
     rest = rollout(scene, State(jnp.asarray([0, 0, z, 1, 0, 0, 0.0]), jnp.zeros(6)), None, truth, 200).qpos[-1]
-    traj = rollout(scene, State(jnp.asarray(rest), jnp.asarray([2.0, 0.5, 0, 0, 0, 0.0])), None, truth, 120)
-    obs = Observation(time=traj.time[::4], poses={"box": traj.qpos[::4, :7]})  # 31 frames at 100 Hz
+    # as many steps as the first rollout (one compiled rollout), of which the first 116 are observed
+    traj = rollout(scene, State(jnp.asarray(rest), jnp.asarray([2.0, 0.5, 0, 0, 0, 0.0])), None, truth, 200)
+    obs = Observation(time=traj.time[:117:4], poses={"box": traj.qpos[:117:4, :7]})  # 30 frames at 100 Hz
     fit = [FitParameter("sliding_friction", 0.2, 0.0, 2.0)]
     # nuisance initial velocities absorb semi-implicit Euler's ½·a·h velocity lag
     whole = SysIdProblem(scene, [obs], fit, substeps=4, fit_velocity="xy")
@@ -84,7 +85,7 @@ def test_windows_and_fd_jacobians(box_setup):
     assert abs(b.estimates[0] / 0.45 - 1) < 0.005
     assert abs(c.estimates[0] / b.estimates[0] - 1) < 1e-3
     windows = SysIdProblem(scene, [obs], fit, substeps=4, window=15, fit_velocity="xy")
-    assert [(s.start, s.frames) for s in windows.segments] == [(0, 16), (15, 16)]
+    assert [(s.start, s.frames) for s in windows.segments] == [(0, 16), (15, 15)]
     a = identify(windows)
     assert abs(a.estimates[0] / 0.45 - 1) < 0.02
 
@@ -133,16 +134,17 @@ def test_windows_start_from_measured_velocities(box_setup, tmp_path):
 
 def test_fitted_trajectories_are_the_residuals_own_rollouts(box_setup):
     """identify's fitted trajectories come from the Jacobian's program (no rollout program of
-    their own): windows of three lengths batched and padded, a nuisance velocity per window;
-    the same qpos as simulating each window on its own (problem.simulate)."""
+    their own): windows of two lengths batched and padded, a nuisance velocity per window;
+    the same qpos as simulating each window on its own (problem.simulate). (The structure of
+    test_windows_and_fd_jacobians' windows: its compiled program serves both.)"""
     _, scene, z = box_setup
     t, poses = analytic_slide(0.45, z=z)
     problem = SysIdProblem(scene, [Observation(time=t[:29], poses={"box": poses[:29]})],
-                           [FitParameter("sliding_friction", 0.3, 0, 1)], substeps=4, window=10, fit_velocity="x")
-    assert [seg.frames for seg in problem.segments] == [11, 11, 9]
-    theta = problem.initial() + np.r_[0.1, 0.05, -0.05, 0.02]
+                           [FitParameter("sliding_friction", 0.3, 0, 1)], substeps=4, window=15, fit_velocity="xy")
+    assert [seg.frames for seg in problem.segments] == [16, 14]
+    theta = problem.initial() + np.r_[0.1, 0.05, -0.05, 0.02, 0.03]
     fitted, simulated = problem.fitted(theta), problem.simulate(theta)
-    assert [f.shape for f in fitted] == [s.shape for s in simulated] == [(11, 7), (11, 7), (9, 7)]
+    assert [f.shape for f in fitted] == [s.shape for s in simulated] == [(16, 7), (14, 7)]
     for f, s in zip(fitted, simulated):
         np.testing.assert_allclose(f, s, atol=1e-12)
 
@@ -273,10 +275,13 @@ def test_too_few_frames_and_bad_bounds(box_setup):
 
 
 def test_windows_fold_a_short_remainder(box_setup):
+    # 29 intervals in windows of 14: a 1-interval remainder folded into the last window (a batch of
+    # two windows padded to 15 intervals, as test_trajectories_of_different_lengths_... batches: one
+    # compiled rollout for both)
     _, scene, _ = box_setup
-    problem = SysIdProblem(scene, [obs_ok(frames=6)], [FitParameter("sliding_friction", 0.3, 0, 1)], substeps=4,
-                           window=2)
-    assert [(s.start, s.frames) for s in problem.segments] == [(0, 3), (2, 4)]
+    problem = SysIdProblem(scene, [obs_ok(frames=30)], [FitParameter("sliding_friction", 0.3, 0, 1)], substeps=4,
+                           window=14)
+    assert [(s.start, s.frames) for s in problem.segments] == [(0, 15), (14, 16)]
     r = np.asarray(problem.residual_function()(jnp.asarray(problem.initial())))
     assert r.shape == (problem.num_residuals,) and np.all(np.isfinite(r))
 
@@ -413,15 +418,15 @@ def test_trajectory_in_millimetres_is_refused(tmp_path, capsys):
 
 
 def test_trajectories_of_different_lengths_share_one_compiled_rollout(box_setup):
-    """Segments of 30 and 22 frames: one batch padded to the longest (one scan in the
+    """Segments of 16 and 12 frames: one batch padded to the longest (one scan in the
     traced residual, so one compilation), and exactly the residuals of the two alone."""
     _, scene, z = box_setup
     t, poses = analytic_slide(0.45, z=z)
     fit = [FitParameter("sliding_friction", 0.2, 0.0, 2.0)]
     kw = dict(weights=Weights((1.0, 1.0, 0.0), 0.3), substeps=4, base_params=scene.default_params(sliding_drag=0.0),
               fit_velocity="x")
-    long = Observation(time=t, poses={"box": poses}, qvel0=np.r_[2.0, 0, 0, 0, 0, 0])
-    short = Observation(time=t[:22], poses={"box": poses[:22]}, qvel0=np.r_[1.9, 0, 0, 0, 0, 0])
+    long = Observation(time=t[:16], poses={"box": poses[:16]}, qvel0=np.r_[2.0, 0, 0, 0, 0, 0])
+    short = Observation(time=t[:12], poses={"box": poses[:12]}, qvel0=np.r_[1.9, 0, 0, 0, 0, 0])
     both = SysIdProblem(scene, [long, short], fit, **kw)
     theta = jnp.asarray([0.3, 0.05, -0.02])
     fun = both.residual_function()
@@ -454,7 +459,9 @@ def test_global_scan_finds_the_basin_and_reports_the_profile(box_setup):
     assert abs(res.estimates[0] / 0.45 - 1) < 0.01
     assert res.final_cost <= min(r["final_cost"] for r in res.scan["start_results"])
     # a parameter without an upper bound is scanned over [lower, lower + 4 (initial - lower)]
-    open_ended = SysIdProblem(scene, [obs], [FitParameter("sliding_friction", 0.3, 0.0, np.inf)], substeps=4)
+    open_ended = SysIdProblem(scene, [obs], [FitParameter("sliding_friction", 0.3, 0.0, np.inf)],
+                              weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=4,
+                              base_params=scene.default_params(sliding_drag=0.0))  # (one compilation for both)
     res = identify(open_ended, scan=5)
     assert np.asarray(res.scan["points"])[:, 0].tolist() == pytest.approx(np.linspace(0, 1.2, 5).tolist())
     assert abs(res.estimates[0] / 0.45 - 1) < 0.01

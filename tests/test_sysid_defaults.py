@@ -88,19 +88,24 @@ def test_rotations_are_weighed_by_size_and_drag_is_neutral(box):
     assert np.asarray(given.base_params.contact.sliding_drag).tolist() == [0.1] and not given.notes
 
 
-def test_problems_of_one_structure_share_one_compilation(box):
+def test_problems_of_one_structure_share_one_compilation():
     """Two data sets of the same lengths (different values, another initial guess): the second
-    problem's residual and Jacobian reuse the first's compilation."""
-    make = lambda seed: SysIdProblem(box, analytic_slides(seed, 0.05, 2, noise=0.001),  # noqa: E731
+    problem's residual and Jacobian reuse the first's compilation. (The structure of
+    interval_coverage's problems: its scene, 4 slides of 20 frames, 2 substeps, initial
+    positions fitted; in a run of the whole file the first problem loads that program.)"""
+    asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
+                  name="box")
+    scene = compose([DanoObject("box", asset, (0, 0, 0.05))], dt=0.005)
+    make = lambda seed: SysIdProblem(scene, analytic_slides(seed, 0.05, 4, noise=0.001),  # noqa: E731
                                      [FitParameter("sliding_friction", 0.2 + seed / 10, 0.0, 2.0)],
-                                     weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=4)
+                                     weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=2, fit_position="xy")
     first, second = make(0), make(1)
     first.residuals_and_jacobian(first.initial())
     counts, compiled = dict(_residuals_and_jacobian_jit.counts), _residuals_and_jacobian_jit._cache_size()
     r, J = second.residuals_and_jacobian(second.initial())
     assert dict(_residuals_and_jacobian_jit.counts) == counts  # nothing traced, loaded or compiled again
     assert _residuals_and_jacobian_jit._cache_size() == compiled
-    assert r.shape == (second.num_residuals,) and J.shape == (second.num_residuals, 1)
+    assert r.shape == (second.num_residuals,) and J.shape == (second.num_residuals, 1 + 4 * 2)  # μ, 4 × (x, y)
     assert np.all(np.isfinite(J)) and np.any(J != 0)
 
 

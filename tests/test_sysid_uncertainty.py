@@ -23,7 +23,9 @@ def box():
     return compose([DanoObject("box", asset, (0, 0, 0.05))], dt=0.0025)
 
 
-def slide_problem(scene, upper=2.0, trajectories=2):
+def slide_problem(scene, upper=2.0, trajectories=8):
+    # 8 trajectories of 20 frames: the structure of bootstrap_coverage's problems (the same box,
+    # weights and base parameters), so that the file compiles its residual and scan programs once
     obs = analytic_slides(0, 0.05, trajectories, noise=0.002)
     return SysIdProblem(scene, obs, [FitParameter("sliding_friction", 0.2, 0.0, upper)],
                         weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=4,
@@ -120,7 +122,7 @@ def test_residual_noise_follows_the_residual_layout_and_gives_the_cramer_rao_bou
     assert np.array_equal(changed, np.isclose(sd, 2e-3) & (problem.residual_observations() == 1))
     np.testing.assert_allclose(diff[changed], -2e-3, rtol=1e-9)  # -√w_y · 1 mm
     # the bound at the truth vs a fit's σ²(JᵀJ)⁻¹ on data with that noise
-    noisy = SysIdProblem(box, _clean_slides(3e-3, seed=1, trajectories=4),
+    noisy = SysIdProblem(box, _clean_slides(3e-3, seed=1, trajectories=8),  # (slide_problem's structure)
                          [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], weights=Weights((1.0, 1.0, 0.0), 0.0),
                          substeps=4, base_params=problem.base_params)
     fit = identify(noisy)

@@ -142,7 +142,9 @@ def test_contact_linearisation_matches_central_differences(push_task):
     from dano.trajopt.ilqr import Multipliers
 
     lam = Multipliers(*(jnp.zeros(s) for s in fns.sizes(jnp.asarray(task.x0), jnp.asarray(task.U_plain), task.params)))
-    F = np.asarray(fns.expand(jnp.asarray(X), jnp.asarray(task.U_plain), lam, jnp.asarray(1.0), task.params)[0])
+    # (the penalty in the solver's dtype, as solve passes it: the CLI test's solve then reuses this expansion)
+    mu = jnp.asarray(1.0, X.dtype)
+    F = np.asarray(fns.expand(jnp.asarray(X), jnp.asarray(task.U_plain), lam, mu, task.params)[0])
     step = jax.jit(lambda z: pr.dynamics(z[:pr.nx], z[pr.nx:], 0, task.params))
     from dano.sim import overlaps
 
@@ -174,13 +176,27 @@ def _data(task, x):
 
 
 @pytest.mark.slow
-def test_push_sphere_cli_reaches_both_goals(tmp_path, capsys):
+def test_push_sphere_cli_reaches_both_goals(tmp_path, capsys, monkeypatch, push_task):
     """The paper's push-and-slide (Fig. 7) through the command line: the bunny ends 1.0 unit
     sideways of the plain push, the sphere at its goal, both within 0.02 (the aim)."""
+    from dano.experiments.push import TASKS, PushSphereConfig
+
+    # the command line builds the task with the builder of TASKS; for the default
+    # configuration that is the module's task, built by the same builder with the same
+    # configuration (its problem's compiled pieces then shared with the test above)
+    build, config_cls = TASKS["push-sphere"]
+    asked = []
+
+    def cached_build(cfg):
+        asked.append(cfg)
+        return push_task if cfg == PushSphereConfig() else build(cfg)
+
+    monkeypatch.setitem(TASKS, "push-sphere", (cached_build, config_cls))
     out = tmp_path / "push"
     code = main(["trajopt", "push-sphere", "--json", "--out-dir", str(out), "--quiet"])
     cap = capsys.readouterr()
     assert code == 0, cap.err
+    assert asked == [PushSphereConfig()]
     rep = json.loads(cap.out)
     for key in ("bunny_final_error", "pusher_final_error", "max_constraint_violation", "iterations", "converged",
                 "wall_time_s", "compile_time_s"):
