@@ -2,6 +2,8 @@
 process loads the traced program instead of tracing it, with bit-identical results; another
 structure traces anew; tracers get plain jax.jit; a damaged file is traced again."""
 
+import dataclasses
+import hashlib
 import json
 import os
 import subprocess
@@ -115,3 +117,48 @@ def test_a_call_on_its_own_output_compiles_once(tmp_path, monkeypatch):
         np.testing.assert_allclose(out["sum"], [2, 8, 14])
     finally:
         _compiled.set_directory(None)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Scaled:
+    """A static argument with a label that no trace reads (left out of the program's key)."""
+
+    scale: float
+    label: str = dataclasses.field(default="", metadata={"cache_key": False})
+
+
+def _scaled(s, x):
+    return s.scale * x
+
+
+def _digest(x) -> bytes:
+    h = hashlib.sha256()
+    _compiled._digest_value(x, h)
+    return h.digest()
+
+
+def test_labels_are_not_in_the_key(tmp_path, monkeypatch):
+    """Fields marked cache_key=False (a scene's name, an asset's provenance) are left out of the
+    key: a problem built from a TOML, a saved config or a loaded .dano under another name loads
+    the program instead of tracing it again; the values that a trace reads stay in the key."""
+    monkeypatch.delenv("DANO_EXPORT_CACHE", raising=False)
+    _compiled.set_directory(tmp_path)
+    try:
+        f = cached_jit(_scaled, static_argnums=(0,))
+        a = f(_Scaled(2.0, "first"), jnp.arange(3.0))
+        b = f(_Scaled(2.0, "second"), jnp.arange(3.0))
+        assert f.counts["traced"] == 1 and np.array_equal(a, b)
+        f(_Scaled(3.0, "first"), jnp.arange(3.0))  # another value that the trace reads
+        assert f.counts["traced"] == 2
+    finally:
+        _compiled.set_directory(None)
+    from dano.asset import build
+    from dano.fields import BoxField
+    from dano.sim import DanoObject, compose
+
+    asset = build(BoxField((0.05, 0.05, 0.05)), mass=0.3, num_samples=64, mesh_resolution=0, name="box")
+    renamed = dataclasses.replace(asset, metadata={**asset.metadata, "source": "elsewhere.obj"})
+    one, two = (compose([DanoObject("box", a, (0, 0, 0.05))], dt=0.01, name=n)
+                for a, n in ((asset, "one"), (renamed, "two")))
+    assert one.info.name != two.info.name and _digest(one.info) == _digest(two.info)
+    assert _digest(asset) == _digest(renamed) != _digest(asset.scaled(2.0))
