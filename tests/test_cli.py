@@ -112,6 +112,7 @@ def test_parse_errors_exit_non_zero(capsys):
     assert main(["frobnicate"]) != 0
 
 
+@pytest.mark.slow  # end to end, 23 s cold (the README's install command runs the demo too)
 def test_demo_and_console_script(tmp_path):
     beside = Path(sys.executable).with_name("dano")  # the venv's script, even if not on PATH
     exe = str(beside) if beside.exists() else shutil.which("dano")
@@ -131,6 +132,7 @@ def test_demo_and_console_script(tmp_path):
     assert res.returncode == 0 and res.stdout.startswith("dano ")
 
 
+@pytest.mark.slow  # a benchmark suite: 11 s cold
 def test_energy_benchmark_json_contract(capsys, tmp_path):
     # `dano bench --suite energy --json --drops N` prints the keys others script against
     out = tmp_path / "energy.json"
@@ -144,6 +146,7 @@ def test_energy_benchmark_json_contract(capsys, tmp_path):
     assert "drops" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # a benchmark suite: 41 s cold
 def test_sim_benchmark_keys_and_interleaved_ratios(monkeypatch):
     # the sim suite's keys (benchmarks/README.md) with a few steps; its ratios are medians of
     # the ratios within each round of interleaved timings

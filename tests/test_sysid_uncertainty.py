@@ -69,6 +69,7 @@ def test_disagreeing_local_minima_are_reported(box):
     assert len(notes) == 1 and "scan saw a lower cost" in notes[0]
 
 
+@pytest.mark.slow  # many seeds: 12 s
 def test_bootstrap_over_trajectories_covers_the_truth_in_most_seeds():
     """Analytic Coulomb slides (μ = 0.45, not simulated by dano), 8 per data set, 3 mm noise
     in every frame including the first (so each trajectory carries its own offset): the
