@@ -197,7 +197,7 @@ FILE_SECONDS = {"test_sysid.py": (100, 121), "test_grasp.py": (1, 155), "test_sh
                 "test_contact_properties.py": (121, 0), "test_trajopt_panda.py": (1, 116),
                 "test_step_api.py": (109, 0), "test_own_object_doc.py": (0, 109), "test_cli.py": (2, 75),
                 "test_trajopt.py": (8, 68), "test_sim_gradients.py": (76, 0), "test_sysid_defaults.py": (1, 71),
-                "test_contact_physics.py": (72, 0), "test_scenes.py": (45, 26), "test_nerf.py": (64, 0),
+                "test_contact_physics.py": (72, 0), "test_scenes.py": (71, 0), "test_nerf.py": (64, 0),
                 "test_tracking.py": (34, 29), "test_sysid_uncertainty.py": (50, 12), "test_sim_physics.py": (56, 0),
                 "test_sysid_real_cube.py": (2, 43), "test_inertial_params.py": (21, 20),
                 "test_sim_bad_input.py": (40, 0), "test_sysid_rough.py": (0, 35), "test_float32.py": (33, 0),

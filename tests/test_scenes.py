@@ -57,7 +57,6 @@ def test_two_bunnies_touch_each_other():
     assert b[-1, 0] - b[0, 0] > 0.1  # the second bunny was pushed by the first
 
 
-@pytest.mark.slow  # the Panda scene end to end: 26 s cold on one worker of the 2-core machine
 def test_panda_pushes_bunny(menagerie):
     s, traj = run("panda-push-bunny")
     b, _ = traj.dano_pose("bunny")
