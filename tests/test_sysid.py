@@ -193,12 +193,14 @@ def test_quaternion_residual_is_sign_invariant():
     del rng
 
 
-def test_real_soap_video():
+def test_real_soap_video(monkeypatch):
     """The paper's soap: a physically plausible friction and a tight fit. The band [0.3, 0.9]
     is what a bar of soap on a table can have; the references (video fit 0.61, tilted plane
     0.75) are reported next to the result, not asserted. Its wall time is a benchmark
-    (``dano bench --suite sysid``), not a test assert."""
+    (``dano bench --suite sysid``), not a test assert. Its two local starts run side by side
+    (threads); one after the other they give the same answers, bit for bit."""
     from dano.experiments import run_sysid
+    from dano.sysid import solve
 
     problem, result, report = run_sysid("soap")
     r = report["report"]
@@ -208,10 +210,17 @@ def test_real_soap_video():
     assert r["num_residuals"] == 2 * 32  # zero-weight components (z, orientation) are left out
     sens = r["length_scale_sensitivity"]["sliding_friction_at_length_scale"]
     assert sens["0.9"] < sens["1.0"] < sens["1.1"]  # friction grows with the assumed length scale
-    # the study beside the result is optional (dano sysid soap --no-sensitivity): the same answer
+    assert len(r["scan"]["start_results"]) == 2
+    # the study beside the result is optional (dano sysid soap --no-sensitivity): the same answer,
+    # here with the starts run one after the other
+    ran = []
+    monkeypatch.setattr(solve, "side_by_side", lambda calls, warm=None: ran.append(len(calls)) or [
+        solve._or_error(c) for c in calls])
     _, _, without = run_sysid("soap", sensitivity=False)
+    assert ran == [2]
     assert "length_scale_sensitivity" not in without["report"] and without["config"]["sensitivity"] is False
     assert without["report"]["sliding_friction"] == r["sliding_friction"]
+    assert without["report"]["scan"]["start_results"] == r["scan"]["start_results"]
 
 
 @pytest.mark.slow
@@ -547,3 +556,30 @@ def test_ground_height_is_identified_with_friction(box_setup):
     pushed, _ = pusher_scene()  # a pusher on slide joints: a shifted ground would move relative to it
     with pytest.raises(DanoError, match="DANOs on the ground only"):
         SysIdProblem(pushed, [obs], [FitParameter("sliding_friction", 0.2, 0.0, 2.0)], fit_ground=True)
+
+
+def test_side_by_side_keeps_the_order_and_returns_errors_in_place():
+    """Calls run in threads give their results in the calls' order, a DanoError in its call's
+    place; the warm-up runs first, alone; any other exception propagates."""
+    import threading
+    import time as _time
+
+    from dano.sysid.solve import side_by_side
+
+    log = []
+
+    def call(k, delay):
+        def run():
+            log.append(("start", k, threading.get_ident()))
+            _time.sleep(delay)
+            if k == 2:
+                raise DanoError("start 2 diverges")
+            return k * k
+        return run
+
+    out = side_by_side([call(k, d) for k, d in enumerate((0.05, 0.0, 0.01, 0.0))],
+                       warm=lambda: log.append(("warm", None, threading.get_ident())))
+    assert out[:2] == [0, 1] and isinstance(out[2], DanoError) and out[3] == 9
+    assert log[0][0] == "warm" and sorted(k for kind, k, _ in log[1:]) == [0, 1, 2, 3]
+    with pytest.raises(ZeroDivisionError):
+        side_by_side([lambda: 1 / 0, lambda: 1])

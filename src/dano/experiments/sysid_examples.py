@@ -27,7 +27,7 @@ from ..sim.scenes import resting_height
 from ..sysid.config import solver_options
 from ..sysid.outputs import estimates_report
 from ..sysid.problem import FitParameter, Observation, SEGMENT_NUISANCE_PREFIXES, SysIdProblem, Weights
-from ..sysid.solve import identify, scan_costs
+from ..sysid.solve import identify, scan_costs, side_by_side
 from ..sysid.uncertainty import cramer_rao
 
 # ../shared/README.md: the soap video is 120 frames/s; the paper Froude-scaled time by
@@ -567,8 +567,13 @@ def soap_sensitivity(friction: float) -> dict:
     """The soap's friction identified again with the assumed real length per scene unit
     scaled by 0.9 and 1.1, from ``friction`` (no scan, no profile: the sensitivity of the
     local answer), and the elasticity d ln μ / d ln L."""
-    sens = {str(scale): float(identify(soap_problem(length_scale=scale, substeps=4, initial_friction=friction),
-                                       scan=0, profile_points=0).estimates[0]) for scale in (0.9, 1.1)}
+    scales = (0.9, 1.1)  # the two identifications side by side (:func:`~dano.sysid.solve.side_by_side`)
+    fits = side_by_side([lambda s=s: identify(soap_problem(length_scale=s, substeps=4, initial_friction=friction),
+                                              scan=0, profile_points=0) for s in scales])
+    for fit in fits:
+        if isinstance(fit, DanoError):
+            raise fit
+    sens = {str(s): float(fit.estimates[0]) for s, fit in zip(scales, fits)}
     return {
         "sliding_friction_at_length_scale": {"0.9": sens["0.9"], "1.0": friction, "1.1": sens["1.1"]},
         "elasticity_dlnmu_dlnL": float((np.log(sens["1.1"]) - np.log(sens["0.9"])) / (np.log(1.1) - np.log(0.9))),
