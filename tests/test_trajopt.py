@@ -2,6 +2,7 @@
 infeasible constraints, receding horizon under model error, the linearisation of the
 contact dynamics against finite differences, and the paper's push-sphere task end to end."""
 
+import dataclasses
 import json
 
 import jax
@@ -92,6 +93,37 @@ def test_warm_start_from_a_converged_solution_reports_converged():
     controls_only = solve(pr, np.zeros(2), sol.controls)
     assert controls_only.status == "converged" and controls_only.max_violation <= 1e-4, controls_only.log
     assert controls_only.cost == pytest.approx(sol.cost, rel=1e-2)
+
+
+def test_keyed_problems_share_exported_programs(tmp_path):
+    """A problem with a key keeps its solver programs on disk (dano._compiled): another
+    problem object with an equal key reuses them, bounds that differ (added to the key by the
+    solver) or another key trace anew; the answers are those of the unkeyed problem."""
+    from dano import _compiled
+    from dano.trajopt.ilqr import _CACHED
+
+    def swing(u_max, key):
+        return dataclasses.replace(_swing_up(u_max, 40), key=key)
+
+    _compiled.set_directory(tmp_path)
+    try:
+        forward = _CACHED["forward"]
+        before = forward.counts.copy()
+        plain = solve(_swing_up(8.0, 40), np.zeros(2), np.zeros((40, 1)))
+        assert forward.counts == before  # no key: plain jax.jit
+        first = solve(swing(8.0, ("pendulum", 1)), np.zeros(2), np.zeros((40, 1)))
+        assert forward.counts["traced"] == before["traced"] + 1
+        again = solve(swing(8.0, ("pendulum", 1)), np.zeros(2), np.zeros((40, 1)))
+        assert forward.counts["traced"] == before["traced"] + 1 and forward.counts["reused"] > before["reused"]
+        solve(swing(7.0, ("pendulum", 1)), np.zeros(2), np.zeros((40, 1)))  # other bounds: other programs
+        solve(swing(8.0, ("pendulum", 2)), np.zeros(2), np.zeros((40, 1)))
+        assert forward.counts["traced"] == before["traced"] + 3
+        assert len(list(tmp_path.glob("*.jaxexp"))) >= 3
+    finally:
+        _compiled.set_directory(None)
+    for sol in (first, again):
+        assert sol.status == plain.status and sol.iterations == plain.iterations
+        np.testing.assert_allclose(np.asarray(sol.controls), np.asarray(plain.controls), rtol=1e-9, atol=1e-12)
 
 
 def test_receding_horizon_recovers_from_model_error():

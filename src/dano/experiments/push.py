@@ -214,11 +214,15 @@ def _params(scene, config: PushConfig):
 
 
 def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mass: float, start, force,
-                        goal_of) -> PushTask:
+                        goal_of, keyed: bool = False) -> PushTask:
     """A floating sphere (``radius`` [m], ``mass`` [kg], gravity compensated, touching only
     the DANO) at ``start`` (3,) [m] behind the DANO ``name`` resting at the origin; the plain
     push: ``force`` (3,) [N] for 25 of every 60 steps, then the same braking. ``goal_of(X_plain,
-    object_q, pusher_q)`` gives (object goal (2,), pusher goal (3,) or None)."""
+    object_q, pusher_q)`` gives (object goal (2,), pusher goal (3,) or None). ``keyed``: the
+    problems get a key (:class:`~dano.trajopt.Problem`), so that their solver programs are
+    kept on disk. Only for a task whose goals are fixed (push-sphere): the goals are constants
+    of the programs, and exporting costs a cold run about 4 s more, which a new goal would
+    pay every time."""
     z = resting_height(asset) + 0.001
     spec = mujoco.MjSpec()
     add_ground(spec)
@@ -243,7 +247,10 @@ def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mas
     U_plain[:half, :3] = force
     U_plain[half:2 * half, :3] = -np.asarray(force)
     stage_cost = _stage_cost(config, scene.nq, u_ref)
-    plain = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6)
+    # what the problems' functions read: their key (the solver's programs are kept on disk)
+    key = ("dano.experiments.push.sphere_pusher", scene, dofs, float(config.state_weight),
+           float(config.control_weight), u_ref) if keyed else None
+    plain = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, key=key)
     X_plain = np.asarray(rollout(plain, x0, U_plain, params))
     object_goal, pusher_goal = goal_of(X_plain, object_q, pusher)
     og = jnp.asarray(object_goal)
@@ -256,7 +263,10 @@ def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mas
         def terminal(x, p):
             return jnp.concatenate([x[object_q][:2] - og, x[pusher] - pg])
 
-    problem = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, terminal_equality=terminal)
+    terminal_key = ((int(ba), int(ba) + 3), np.asarray(object_goal, dtype=float),
+                    None if pusher_goal is None else ((int(pa), int(pa) + 3), np.asarray(pusher_goal, dtype=float)))
+    problem = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, terminal_equality=terminal,
+                      key=None if key is None else key + (terminal_key,))
     return PushTask(scene, params, problem, x0, U_plain, X_plain, np.asarray(object_goal), pusher_goal, object_q,
                     "qfrc", dofs, u_ref, config)
 
@@ -268,7 +278,7 @@ def push_sphere_task(config: PushSphereConfig = PushSphereConfig()) -> PushTask:
         return X_plain[-1, bunny_q][:2] + side, np.r_[X_plain[-1, pusher][:2] + side, SPHERE_START[2]]
 
     return _sphere_pusher_task(config, load_builtin("bunny"), "bunny", SPHERE_RADIUS, SPHERE_MASS, SPHERE_START,
-                               (PLAIN_FORCE, 0.0, 0.0), goals)
+                               (PLAIN_FORCE, 0.0, 0.0), goals, keyed=True)
 
 
 # the paper's sphere and push relative to its bunny (longest extent 1.004, mass 3.22)

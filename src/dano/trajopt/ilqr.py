@@ -24,6 +24,7 @@ Python so that it can report progress and stop early.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -32,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._compiled import cached_jit, compile_seconds
 from ..errors import DanoError
 from .problem import Problem
 
@@ -226,36 +228,6 @@ class _Compiled:
             Vxx = jax.hessian(fT)(xT) + JgT.T @ (IgT[:, None] * JgT) + mu * JhT.T @ JhT
             return F, lz, lzz, Vx, Vxx
 
-        def backward(F, lz, lzz, Vx, Vxx, rho):
-            nx = Vx.shape[0]
-            eye = jnp.eye(nx, dtype=Vx.dtype)
-
-            def body(carry, inp):
-                Vx, Vxx = carry
-                Ft, lzt, lzzt = inp
-                A, B = Ft[:, :nx], Ft[:, nx:]
-                Qx = lzt[:nx] + A.T @ Vx
-                Qu = lzt[nx:] + B.T @ Vx
-                Qxx = lzzt[:nx, :nx] + A.T @ Vxx @ A
-                Quu = lzzt[nx:, nx:] + B.T @ Vxx @ B
-                Qux = lzzt[nx:, :nx] + B.T @ Vxx @ A
-                Vreg = Vxx + rho * eye
-                Quu_r = lzzt[nx:, nx:] + B.T @ Vreg @ B
-                Qux_r = lzzt[nx:, :nx] + B.T @ Vreg @ A
-                Quu_r = 0.5 * (Quu_r + Quu_r.T)
-                L = jnp.linalg.cholesky(Quu_r)
-                ok = jnp.all(jnp.isfinite(L))
-                sol = jax.scipy.linalg.cho_solve((L, True), jnp.concatenate([Qu[:, None], Qux_r], axis=1))
-                k, K = -sol[:, 0], -sol[:, 1:]
-                Vx_n = Qx + K.T @ Quu @ k + K.T @ Qu + Qux.T @ k
-                Vxx_n = Qxx + K.T @ Quu @ K + K.T @ Qux + Qux.T @ K
-                Vxx_n = 0.5 * (Vxx_n + Vxx_n.T)
-                dv = jnp.stack([k @ Qu, 0.5 * k @ Quu @ k])
-                return (Vx_n, Vxx_n), (K, k, dv, ok)
-
-            _, (K, k, dv, ok) = jax.lax.scan(body, (Vx, Vxx), (F, lz, lzz), reverse=True)
-            return K, k, jnp.sum(dv, axis=0), jnp.all(ok) & jnp.all(jnp.isfinite(K)) & jnp.all(jnp.isfinite(k))
-
         def duals(X, U, lam: Multipliers, mu, p):
             gi, ge, gT, hT = constraint_values(X, U, p)
             return Multipliers(jnp.maximum(lam.inequality + mu * gi, 0), lam.equality + mu * ge,
@@ -264,22 +236,86 @@ class _Compiled:
         def sizes(x0, U, p):  # shapes only: traced, never compiled
             return tuple(a.shape for a in jax.eval_shape(lambda: constraint_values(rollout(x0, U, p), U, p)))
 
-        self.forward = jax.jit(forward)
-
-        def evaluate(x0, U, lam, mu, p):
-            """(X, cost, merit, violation) of the open-loop rollout: the forward pass with no
-            feedback and no step (u = U exactly), so it shares that pass's compilation."""
-            X0 = jnp.zeros((U.shape[0] + 1, x0.shape[0]), x0.dtype)
-            K0 = jnp.zeros((U.shape[0], U.shape[1], x0.shape[0]), x0.dtype)
-            X, _, cost, merit_, viol = self.forward(x0, X0, U, K0, jnp.zeros_like(U), 0.0, lam, mu, p)
-            return X, cost, merit_, viol
-
-        evaluate._cache_size = self.forward._cache_size  # (solve counts compilations by it)
-        self.evaluate = evaluate
-        self.expand = jax.jit(expand)
-        self.backward = jax.jit(backward)
-        self.duals = jax.jit(duals)
+        # the traced pieces: jitted per problem object, or, for a problem with a key, exported
+        # programs kept on disk by dano._compiled (loaded by later processes, not traced again)
+        self.raw = {"forward": forward, "expand": expand, "duals": duals}
+        if pr.key is None:
+            self.forward, self.expand, self.duals = (jax.jit(f) for f in (forward, expand, duals))
+        else:
+            # the key's functions with what the problem itself adds to every trace
+            optional = (pr.inequality, pr.equality, pr.terminal_inequality, pr.terminal_equality)
+            bounds = tuple(None if b is None else np.asarray(b, dtype=float) for b in (pr.u_lower, pr.u_upper))
+            keyed = _Keyed((pr.key, pr.horizon, pr.nx, pr.nu, bounds, tuple(f is None for f in optional)), pr)
+            self.forward, self.expand, self.duals = (functools.partial(_CACHED[name], keyed)
+                                                     for name in ("forward", "expand", "duals"))
+        self.backward = _CACHED_BACKWARD
         self.sizes = sizes
+
+    def evaluate(self, x0, U, lam, mu, p):
+        """(X, cost, merit, violation) of the open-loop rollout: the forward pass with no
+        feedback and no step (u = U exactly), so it shares that pass's compilation."""
+        X0 = jnp.zeros((U.shape[0] + 1, x0.shape[0]), x0.dtype)
+        K0 = jnp.zeros((U.shape[0], U.shape[1], x0.shape[0]), x0.dtype)
+        X, _, cost, merit_, viol = self.forward(x0, X0, U, K0, jnp.zeros_like(U), 0.0, lam, mu, p)
+        return X, cost, merit_, viol
+
+
+@dataclass(frozen=True, eq=False)
+class _Keyed:
+    """A problem with its key: the key (by content) names the exported programs, the problem
+    (left out of the key) traces them the first time."""
+
+    key: Any
+    problem: Problem = dataclasses.field(metadata={"cache_key": False})
+
+
+def _piece(name: str):
+    def run(keyed: _Keyed, *args):
+        return _compiled(keyed.problem).raw[name](*args)
+
+    run.__name__ = run.__qualname__ = f"ilqr_{name}"  # (the exported program's name, in its key)
+    return cached_jit(run, static_argnums=(0,))
+
+
+_CACHED = {name: _piece(name) for name in ("forward", "expand", "duals")}
+
+
+def _backward(F, lz, lzz, Vx, Vxx, rho):
+    """The Riccati backward pass over the expansion (F, lz, lzz, Vx, Vxx) with state
+    regularisation ρ: gains K (T, nu, nx), feed-forward k (T, nu), the expected merit change
+    terms (2,) and whether every Q_uu was positive definite. It depends on the problem only
+    through its sizes: one program for every problem of the same sizes."""
+    nx = Vx.shape[0]
+    eye = jnp.eye(nx, dtype=Vx.dtype)
+
+    def body(carry, inp):
+        Vx, Vxx = carry
+        Ft, lzt, lzzt = inp
+        A, B = Ft[:, :nx], Ft[:, nx:]
+        Qx = lzt[:nx] + A.T @ Vx
+        Qu = lzt[nx:] + B.T @ Vx
+        Qxx = lzzt[:nx, :nx] + A.T @ Vxx @ A
+        Quu = lzzt[nx:, nx:] + B.T @ Vxx @ B
+        Qux = lzzt[nx:, :nx] + B.T @ Vxx @ A
+        Vreg = Vxx + rho * eye
+        Quu_r = lzzt[nx:, nx:] + B.T @ Vreg @ B
+        Qux_r = lzzt[nx:, :nx] + B.T @ Vreg @ A
+        Quu_r = 0.5 * (Quu_r + Quu_r.T)
+        L = jnp.linalg.cholesky(Quu_r)
+        ok = jnp.all(jnp.isfinite(L))
+        sol = jax.scipy.linalg.cho_solve((L, True), jnp.concatenate([Qu[:, None], Qux_r], axis=1))
+        k, K = -sol[:, 0], -sol[:, 1:]
+        Vx_n = Qx + K.T @ Quu @ k + K.T @ Qu + Qux.T @ k
+        Vxx_n = Qxx + K.T @ Quu @ K + K.T @ Qux + Qux.T @ K
+        Vxx_n = 0.5 * (Vxx_n + Vxx_n.T)
+        dv = jnp.stack([k @ Qu, 0.5 * k @ Quu @ k])
+        return (Vx_n, Vxx_n), (K, k, dv, ok)
+
+    _, (K, k, dv, ok) = jax.lax.scan(body, (Vx, Vxx), (F, lz, lzz), reverse=True)
+    return K, k, jnp.sum(dv, axis=0), jnp.all(ok) & jnp.all(jnp.isfinite(K)) & jnp.all(jnp.isfinite(k))
+
+
+_CACHED_BACKWARD = cached_jit(_backward)
 
 
 def _compiled(problem: Problem) -> _Compiled:
@@ -314,26 +350,19 @@ def solve(problem: Problem, x0, U0, params=None, options: ILQRConfig = ILQRConfi
     of convergence (its ``status`` says why it stopped). Raises DanoError for inputs of
     the wrong shape or non-finite inputs, or if the initial rollout is not finite.
     """
-    start = time.perf_counter()
+    start, started = time.perf_counter(), time.time()
     fns = _compiled(problem)
     x0, U = _check_inputs(problem, x0, U0)
-    compile_s = 0.0
 
-    def timed(fn, *args):
-        nonlocal compile_s
-        before = fn._cache_size()
-        t0 = time.perf_counter()
-        out = jax.block_until_ready(fn(*args))
-        if fn._cache_size() > before:
-            compile_s += time.perf_counter() - t0
-        return out
+    def ready(fn, *args):  # (compiling is counted by dano._compiled.compile_seconds)
+        return jax.block_until_ready(fn(*args))
 
     if multipliers is None:
         shapes = fns.sizes(x0, U, params)
         multipliers = Multipliers(*(jnp.zeros(s, x0.dtype) for s in shapes))
     lam = multipliers
     mu = jnp.asarray(options.penalty_initial if penalty is None else penalty, x0.dtype)
-    X, cost, merit, viol = timed(fns.evaluate, x0, U, lam, mu, params)
+    X, cost, merit, viol = ready(fns.evaluate, x0, U, lam, mu, params)
     if not np.isfinite(float(merit)):
         raise DanoError("the initial rollout or its cost is not finite; check x0, the initial controls and the "
                         "dynamics")
@@ -348,10 +377,10 @@ def solve(problem: Problem, x0, U0, params=None, options: ILQRConfig = ILQRConfi
     expansion = None
     while it < options.max_iterations:
         if expansion is None:  # the expansion changes only when the trajectory, λ or μ do
-            expansion = timed(fns.expand, X, U, lam, mu, params)
+            expansion = ready(fns.expand, X, U, lam, mu, params)
         # backward pass, raising the regularisation until Q_uu is positive definite
         while True:
-            K_new, k, dV, ok = timed(fns.backward, *expansion, jnp.asarray(rho, x0.dtype))
+            K_new, k, dV, ok = ready(fns.backward, *expansion, jnp.asarray(rho, x0.dtype))
             if bool(ok) or rho >= options.regularization_max:
                 break
             rho = max(rho * 10.0, options.regularization_min * 1e2)
@@ -361,7 +390,7 @@ def solve(problem: Problem, x0, U0, params=None, options: ILQRConfig = ILQRConfi
         accepted, step = False, 0.0
         if bool(ok):
             for alpha in options.line_search:
-                Xn, Un, cost_n, merit_n, viol_n = timed(fns.forward, x0, X, U, K_new, k, alpha, lam, mu, params)
+                Xn, Un, cost_n, merit_n, viol_n = ready(fns.forward, x0, X, U, K_new, k, alpha, lam, mu, params)
                 expected = -(alpha * float(dV[0]) + alpha**2 * float(dV[1]))
                 actual = float(merit) - float(merit_n)
                 if np.isfinite(float(merit_n)) and (actual >= 1e-4 * expected if expected > 0 else actual >= 0):
@@ -394,7 +423,7 @@ def solve(problem: Problem, x0, U0, params=None, options: ILQRConfig = ILQRConfi
         if float(mu) >= options.penalty_max or _stagnant(violations + [float(viol)]):
             status = "infeasible"
             break
-        lam = timed(fns.duals, X, U, lam, mu, params)
+        lam = ready(fns.duals, X, U, lam, mu, params)
         if float(viol) > options.penalty_keep * last_violation:  # too slow: stiffen the penalty
             mu = jnp.minimum(mu * options.penalty_scaling, options.penalty_max)
         violations.append(float(viol))
@@ -403,9 +432,10 @@ def solve(problem: Problem, x0, U0, params=None, options: ILQRConfig = ILQRConfi
         inner = 0
         rho = options.regularization_initial
         expansion = None
-        _, cost, merit, viol = timed(fns.evaluate, x0, U, lam, mu, params)
+        _, cost, merit, viol = ready(fns.evaluate, x0, U, lam, mu, params)
     return Solution(X, U, K, lam, float(cost), float(viol), float(mu), it, status == "converged", status,
-                    {k: np.asarray(v) for k, v in log.items()}, time.perf_counter() - start, compile_s)
+                    {k: np.asarray(v) for k, v in log.items()}, time.perf_counter() - start,
+                    compile_seconds(started))
 
 
 def _stagnant(violations: list[float], rounds: int = 5) -> bool:

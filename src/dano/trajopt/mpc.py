@@ -54,7 +54,8 @@ def shifted(problem: Problem) -> Problem:
             lambda x, pk: problem.terminal_inequality(x, pk[0])),
         terminal_equality=None if problem.terminal_equality is None else (
             lambda x, pk: problem.terminal_equality(x, pk[0])),
-        u_lower=problem.u_lower, u_upper=problem.u_upper)
+        u_lower=problem.u_lower, u_upper=problem.u_upper,
+        key=None if problem.key is None else ("dano.trajopt.mpc.shifted", problem.key))
 
 
 @dataclass(frozen=True)

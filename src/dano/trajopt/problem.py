@@ -36,6 +36,16 @@ class Problem:
     terminal_inequality ≤ 0 and terminal_equality = 0 at x_T, u_lower ≤ u_t ≤ u_upper.
     nx, nu: state and control sizes. The solver's compiled functions are kept on the
     problem: every solve with the same problem reuses them.
+
+    key: None, or a value that names the problem's functions and everything they close
+    over (the solver adds the horizon, sizes, bounds and which constraints are given), digested by content (numbers, strings, arrays, tuples, dicts, dataclasses such as
+    scenes; e.g. ``("my-push", scene, goal, weights)``): problems with equal keys must have the
+    same functions. With a key and the compilation cache on (:func:`dano.enable_compilation_cache`,
+    as the command line does), the solver's programs are kept on disk (:mod:`dano._compiled`):
+    another process, or another problem with an equal key, loads them instead of tracing them
+    again (``dano trajopt push-sphere`` warm: 25.3 s -> 18.8 s, medians of three alternating
+    runs on the 2-core VM; a cold run about 4 s more for the export). A key that misses
+    something the functions read gives another problem's programs: leave it None when unsure.
     """
 
     dynamics: Callable[..., jax.Array]
@@ -50,6 +60,7 @@ class Problem:
     terminal_equality: Callable[..., jax.Array] | None = None
     u_lower: Any = None
     u_upper: Any = None
+    key: Any = None
 
     def __post_init__(self):
         if int(self.horizon) < 1:
