@@ -168,16 +168,16 @@ def test_contact_linearisation_matches_central_differences(push_task):
     against central differences of the step in float64, at stages of the plain push with
     the sphere touching the bunny and with it free, away from contact onsets."""
     task = push_task
-    pr = task.problem
-    X = np.asarray(rollout(pr, task.x0, task.U_plain, task.params))
+    pr, p = task.problem, task.problem_params()  # (p = (params, goal): the goal is a parameter)
+    X = np.asarray(rollout(pr, task.x0, task.U_plain, p))
     fns = _compiled(pr)
     from dano.trajopt.ilqr import Multipliers
 
-    lam = Multipliers(*(jnp.zeros(s) for s in fns.sizes(jnp.asarray(task.x0), jnp.asarray(task.U_plain), task.params)))
+    lam = Multipliers(*(jnp.zeros(s) for s in fns.sizes(jnp.asarray(task.x0), jnp.asarray(task.U_plain), p)))
     # (the penalty in the solver's dtype, as solve passes it: the CLI test's solve then reuses this expansion)
     mu = jnp.asarray(1.0, X.dtype)
-    F = np.asarray(fns.expand(jnp.asarray(X), jnp.asarray(task.U_plain), lam, mu, task.params)[0])
-    step = jax.jit(lambda z: pr.dynamics(z[:pr.nx], z[pr.nx:], 0, task.params))
+    F = np.asarray(fns.expand(jnp.asarray(X), jnp.asarray(task.U_plain), lam, mu, p)[0])
+    step = jax.jit(lambda z: pr.dynamics(z[:pr.nx], z[pr.nx:], 0, p))
     from dano.sim import overlaps
 
     psi = np.asarray(jax.jit(jax.vmap(lambda x: overlaps(task.scene, task.params, _data(task, x))))(X[:-1]))

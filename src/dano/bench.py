@@ -419,7 +419,7 @@ def bench_trajopt(repeats: int = 3) -> dict:
     iteration, compile time); with ``$MENAGERIE_ROOT``, a full solve of push-panda too."""
     task = push_sphere_task(PushSphereConfig())
     fns = _compiled(task.problem)
-    x0, U, p = jnp.asarray(task.x0), jnp.asarray(task.U_plain), task.params
+    x0, U, p = jnp.asarray(task.x0), jnp.asarray(task.U_plain), task.problem_params()
     lam = Multipliers(*(jnp.zeros(s, x0.dtype) for s in fns.sizes(x0, U, p)))
     mu = jnp.asarray(10.0, x0.dtype)
     X = fns.evaluate(x0, U, lam, mu, p)[0]

@@ -182,7 +182,9 @@ class PushTask:
     guess U_plain (T, nu) (the plain push) and its states X_plain (T + 1, nx), bunny_goal
     (2,) x–y [m], pusher_goal (3,) [m] or None, bunny_qpos (slice of qpos), apply ("ctrl"
     or "qfrc") and control_dofs (the qvel indices a "qfrc" control acts on), u_ref (nu,)
-    the control scale of the cost, the config."""
+    the control scale of the cost, the config; goal: None, or the goals (object x–y, then the
+    pusher's x y z where it has one) that the problem reads from its parameters
+    (:meth:`problem_params`), so that one compiled solver serves every goal."""
 
     scene: object
     params: object
@@ -197,6 +199,13 @@ class PushTask:
     control_dofs: np.ndarray | None
     u_ref: np.ndarray
     config: PushConfig
+    goal: np.ndarray | None = None
+
+    def problem_params(self, params=None):
+        """The problem's parameters p: ``(params, goal)`` where the task has a goal
+        parameter, else ``params`` (default: the task's SimParams)."""
+        params = self.params if params is None else params
+        return params if self.goal is None else (params, jnp.asarray(self.goal))
 
 
 def _stage_cost(config: PushConfig, nq: int, u_ref):
@@ -214,19 +223,20 @@ def _params(scene, config: PushConfig):
 
 
 def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mass: float, start, force,
-                        goal_of, keyed: bool = False) -> PushTask:
+                        goal_of) -> PushTask:
     """A floating sphere (``radius`` [m], ``mass`` [kg], gravity compensated, touching only
     the DANO) at ``start`` (3,) [m] behind the DANO ``name`` resting at the origin; the plain
     push: ``force`` (3,) [N] for 25 of every 60 steps, then the same braking. ``goal_of(X_plain,
-    object_q, pusher_q)`` gives (object goal (2,), pusher goal (3,) or None). ``keyed``: the
-    problems get a key (:class:`~dano.trajopt.Problem`), so that their solver programs are
-    kept on disk. Only for a task whose goals are fixed (push-sphere): the goals are constants
-    of the programs, and exporting costs a cold run about 4 s more, which a new goal would
-    pay every time."""
+    object_q, pusher_q)`` gives (object goal (2,), pusher goal (3,) or None). The goals are
+    the constrained problem's parameters (``p = (params, goal)``), not constants of its
+    programs, and both problems have a key (:class:`~dano.trajopt.Problem`): their solver
+    programs are kept on disk and serve every goal."""
     z = resting_height(asset) + 0.001
     spec = mujoco.MjSpec()
     add_ground(spec)
-    body = spec.worldbody.add_body(name="pusher", pos=list(start), gravcomp=1.0)
+    # the model does not hold the start (the state does: initial_state below), so that one scene,
+    # and so one set of compiled programs, serves every goal
+    body = spec.worldbody.add_body(name="pusher", pos=[0.0, 0.0, radius], gravcomp=1.0)
     body.add_freejoint(name="pusher_free")
     # contype 2: no MuJoCo contact with the ground (conaffinity 1); DANO contact with the object
     body.add_geom(name="pusher", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[radius, 0, 0], mass=mass,
@@ -249,26 +259,26 @@ def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mas
     stage_cost = _stage_cost(config, scene.nq, u_ref)
     # what the problems' functions read: their key (the solver's programs are kept on disk)
     key = ("dano.experiments.push.sphere_pusher", scene, dofs, float(config.state_weight),
-           float(config.control_weight), u_ref) if keyed else None
+           float(config.control_weight), u_ref)
     plain = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, key=key)
     X_plain = np.asarray(rollout(plain, x0, U_plain, params))
     object_goal, pusher_goal = goal_of(X_plain, object_q, pusher)
-    og = jnp.asarray(object_goal)
-    if pusher_goal is None:
-        def terminal(x, p):
-            return x[object_q][:2] - og
-    else:
-        pg = jnp.asarray(pusher_goal)
+    goal = np.r_[np.asarray(object_goal, dtype=float), [] if pusher_goal is None else pusher_goal]
 
-        def terminal(x, p):
-            return jnp.concatenate([x[object_q][:2] - og, x[pusher] - pg])
+    def terminal(x, pg):  # pg = (params, goal)
+        g = pg[1]
+        if pusher_goal is None:
+            return x[object_q][:2] - g
+        return jnp.concatenate([x[object_q][:2] - g[:2], x[pusher] - g[2:]])
 
-    terminal_key = ((int(ba), int(ba) + 3), np.asarray(object_goal, dtype=float),
-                    None if pusher_goal is None else ((int(pa), int(pa) + 3), np.asarray(pusher_goal, dtype=float)))
-    problem = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, terminal_equality=terminal,
-                      key=None if key is None else key + (terminal_key,))
+    def goal_dynamics(x, u, t, pg):
+        return dynamics(x, u, t, pg[0])
+
+    problem = Problem(goal_dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, terminal_equality=terminal,
+                      key=key + ("goal parameter", (int(ba), int(ba) + 3),
+                                 None if pusher_goal is None else (int(pa), int(pa) + 3)))
     return PushTask(scene, params, problem, x0, U_plain, X_plain, np.asarray(object_goal), pusher_goal, object_q,
-                    "qfrc", dofs, u_ref, config)
+                    "qfrc", dofs, u_ref, config, goal)
 
 
 def push_sphere_task(config: PushSphereConfig = PushSphereConfig()) -> PushTask:
@@ -278,7 +288,7 @@ def push_sphere_task(config: PushSphereConfig = PushSphereConfig()) -> PushTask:
         return X_plain[-1, bunny_q][:2] + side, np.r_[X_plain[-1, pusher][:2] + side, SPHERE_START[2]]
 
     return _sphere_pusher_task(config, load_builtin("bunny"), "bunny", SPHERE_RADIUS, SPHERE_MASS, SPHERE_START,
-                               (PLAIN_FORCE, 0.0, 0.0), goals, keyed=True)
+                               (PLAIN_FORCE, 0.0, 0.0), goals)
 
 
 # the paper's sphere and push relative to its bunny (longest extent 1.004, mass 3.22)
@@ -451,9 +461,11 @@ def model_error_run(task: PushTask, solution: Solution, callback=None) -> ModelE
     mu_world = cfg.sliding_friction * (1.0 + cfg.model_error)
     world_params = task.params.replace(contact=task.params.contact.replace(
         sliding_friction=jnp.full_like(task.params.contact.sliding_friction, mu_world)))
-    X_open = np.asarray(rollout(task.problem, task.x0, solution.controls, world_params))
-    world = jax.jit(lambda x, u: task.problem.dynamics(x, u, 0, world_params))
-    rh = receding_horizon(task.problem, task.x0, world, solution.controls, task.params, every=cfg.replan_every,
+    world_p = task.problem_params(world_params)
+    X_open = np.asarray(rollout(task.problem, task.x0, solution.controls, world_p))
+    world = jax.jit(lambda x, u: task.problem.dynamics(x, u, 0, world_p))
+    rh = receding_horizon(task.problem, task.x0, world, solution.controls, task.problem_params(),
+                          every=cfg.replan_every,
                           options=dataclasses.replace(solver_options(cfg), max_iterations=cfg.replan_iterations),
                           first=solution, callback=callback)
     return ModelErrorResult(mu_world, X_open, rh)
@@ -469,7 +481,8 @@ def task_names() -> tuple[str, ...]:
 
 def solve_task(task: PushTask, callback=None) -> Solution:
     """Solve a built task from its plain push."""
-    return solve(task.problem, task.x0, task.U_plain, task.params, solver_options(task.config), callback=callback)
+    return solve(task.problem, task.x0, task.U_plain, task.problem_params(), solver_options(task.config),
+                 callback=callback)
 
 
 def unknown_task(name: str) -> DanoError:
