@@ -248,7 +248,10 @@ class _Compiled:
             keyed = _Keyed((pr.key, pr.horizon, pr.nx, pr.nu, bounds, tuple(f is None for f in optional)), pr)
             self.forward, self.expand, self.duals = (functools.partial(_CACHED[name], keyed)
                                                      for name in ("forward", "expand", "duals"))
-        self.backward = _CACHED_BACKWARD
+        # (a problem's pieces are all exported or all plain jit: an exported program's outputs
+        # are committed to a device, and a plain jit call on a mix of committed and uncommitted
+        # arguments compiles again: the Panda's expansion twice, +100 s cold)
+        self.backward = _JIT_BACKWARD if pr.key is None else _CACHED_BACKWARD
         self.sizes = sizes
 
     def evaluate(self, x0, U, lam, mu, p):
@@ -316,6 +319,7 @@ def _backward(F, lz, lzz, Vx, Vxx, rho):
 
 
 _CACHED_BACKWARD = cached_jit(_backward)
+_JIT_BACKWARD = jax.jit(_backward)
 
 
 def _compiled(problem: Problem) -> _Compiled:
