@@ -182,8 +182,8 @@ class PushTask:
     guess U_plain (T, nu) (the plain push) and its states X_plain (T + 1, nx), bunny_goal
     (2,) x–y [m], pusher_goal (3,) [m] or None, bunny_qpos (slice of qpos), apply ("ctrl"
     or "qfrc") and control_dofs (the qvel indices a "qfrc" control acts on), u_ref (nu,)
-    the control scale of the cost, the config; goal: None, or the goals (object x–y, then the
-    pusher's x y z where it has one) that the problem reads from its parameters
+    the control scale of the cost, the config; goal_parameter: whether the problem reads the
+    goals (bunny_goal, then pusher_goal where there is one) from its parameters
     (:meth:`problem_params`), so that one compiled solver serves every goal."""
 
     scene: object
@@ -199,13 +199,17 @@ class PushTask:
     control_dofs: np.ndarray | None
     u_ref: np.ndarray
     config: PushConfig
-    goal: np.ndarray | None = None
+    goal_parameter: bool = False
 
     def problem_params(self, params=None):
-        """The problem's parameters p: ``(params, goal)`` where the task has a goal
-        parameter, else ``params`` (default: the task's SimParams)."""
+        """The problem's parameters p: ``(params, goal)`` where the task has a goal parameter
+        (goal (2,) or (5,) [m]: bunny_goal, then pusher_goal), else ``params`` (default: the
+        task's SimParams)."""
         params = self.params if params is None else params
-        return params if self.goal is None else (params, jnp.asarray(self.goal))
+        if not self.goal_parameter:
+            return params
+        goals = [self.bunny_goal] + ([] if self.pusher_goal is None else [self.pusher_goal])
+        return params, jnp.asarray(np.concatenate(goals), dtype=float)
 
 
 def _stage_cost(config: PushConfig, nq: int, u_ref):
@@ -263,8 +267,6 @@ def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mas
     plain = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, key=key)
     X_plain = np.asarray(rollout(plain, x0, U_plain, params))
     object_goal, pusher_goal = goal_of(X_plain, object_q, pusher)
-    goal = np.r_[np.asarray(object_goal, dtype=float), [] if pusher_goal is None else pusher_goal]
-
     def terminal(x, pg):  # pg = (params, goal)
         g = pg[1]
         if pusher_goal is None:
@@ -278,7 +280,7 @@ def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mas
                       key=key + ("goal parameter", (int(ba), int(ba) + 3),
                                  None if pusher_goal is None else (int(pa), int(pa) + 3)))
     return PushTask(scene, params, problem, x0, U_plain, X_plain, np.asarray(object_goal), pusher_goal, object_q,
-                    "qfrc", dofs, u_ref, config, goal)
+                    "qfrc", dofs, u_ref, config, goal_parameter=True)
 
 
 def push_sphere_task(config: PushSphereConfig = PushSphereConfig()) -> PushTask:

@@ -38,9 +38,10 @@ class Problem:
     problem: every solve with the same problem reuses them.
 
     key: None, or a value that names the problem's functions and everything they close
-    over (the solver adds the horizon, sizes, bounds and which constraints are given), digested by content (numbers, strings, arrays, tuples, dicts, dataclasses such as
-    scenes; e.g. ``("my-push", scene, goal, weights)``): problems with equal keys must have the
-    same functions. With a key and the compilation cache on (:func:`dano.enable_compilation_cache`,
+    over (the solver adds the horizon, sizes, bounds and which constraints are given),
+    digested by content (numbers, strings, arrays, tuples, dicts, dataclasses such as scenes;
+    e.g. ``("my-push", scene, weights)``): problems with equal keys must have the same
+    functions. With a key and the compilation cache on (:func:`dano.enable_compilation_cache`,
     as the command line does), the solver's programs are kept on disk (:mod:`dano._compiled`):
     another process, or another problem with an equal key, loads them instead of tracing them
     again (``dano trajopt push-sphere`` warm: 27.7 s -> 21.4 s, medians of three alternating
