@@ -24,7 +24,8 @@ class Trajectory:
     (mass units) at each state; body_names (nbody,); dano_names (D,) with qpos_adr/dof_adr
     (D,): where each DANO's free joint sits in qpos/qvel; pair_names (P,); metadata:
     JSON-able dict; final_data: the MJX Data after the last step (simulations only; not
-    saved), to continue from with act, time and warm starts intact.
+    saved), to continue from with act, time and warm starts intact (its state fields:
+    :data:`dano.sim.rollout.CARRIED_FIELDS`; ``mjx.forward`` gives the rest for that state).
     """
 
     time: np.ndarray
