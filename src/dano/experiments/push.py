@@ -393,13 +393,20 @@ def push_panda_task(config: PushPandaConfig = PushPandaConfig()) -> PushTask:
     bunny_goal = start[:2] + config.goal_distance * np.array([np.cos(angle), np.sin(angle)])
     m = scene.mj_model
     lo, hi = jnp.asarray(m.jnt_range[:7, 0]), jnp.asarray(m.jnt_range[:7, 1])
-    bg = jnp.asarray(bunny_goal)
-    problem = Problem(dynamics, _stage_cost(config, nq, PANDA_TORQUE), lambda x, p: 0.0, T, len(x0), 7,
+
+    def goal_dynamics(x, u, t, pg):  # pg = (params, goal): the goal is a parameter, as in push-sphere
+        return dynamics(x, u, t, pg[0])
+
+    # what the problem's functions read (the joint limits are the scene's): its key, so that the
+    # solver's programs are kept on disk and serve every goal
+    key = ("dano.experiments.push.panda", scene, "ctrl", float(config.state_weight), float(config.control_weight),
+           PANDA_TORQUE, (int(ba), int(ba) + 3))
+    problem = Problem(goal_dynamics, _stage_cost(config, nq, PANDA_TORQUE), lambda x, p: 0.0, T, len(x0), 7,
                       inequality=lambda x, u, t, p: jnp.concatenate([x[:7] - hi, lo - x[:7]]),
-                      terminal_equality=lambda x, p: x[bunny_q][:2] - bg,
-                      u_lower=-PANDA_TORQUE, u_upper=PANDA_TORQUE)
+                      terminal_equality=lambda x, pg: x[bunny_q][:2] - pg[1],
+                      u_lower=-PANDA_TORQUE, u_upper=PANDA_TORQUE, key=key)
     return PushTask(scene, params, problem, x0, U_plain, X_plain, bunny_goal, None, bunny_q, "ctrl", None,
-                    PANDA_TORQUE.copy(), config)
+                    PANDA_TORQUE.copy(), config, goal_parameter=True)
 
 
 def solver_options(config: PushConfig) -> ILQRConfig:
