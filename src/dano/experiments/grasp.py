@@ -312,6 +312,9 @@ def optimise_approach(task: GraspTask) -> ApproachPlan:
     def dynamics(x, u, t, p):
         return step(x, jnp.concatenate([u, open_grip.astype(u.dtype)]), t, p)
 
+    def target_dynamics(x, u, t, pt):  # pt = (params, target): the target is a parameter
+        return dynamics(x, u, t, pt[0])
+
     m, site = scene.model, mujoco.mj_name2id(scene.mj_model, mujoco.mjtObj.mjOBJ_SITE, "grip")
 
     def grip_height(x):
@@ -324,11 +327,18 @@ def optimise_approach(task: GraspTask) -> ApproachPlan:
     def stage_cost(x, u, t, p):
         return 0.5 * jnp.sum(x[nq:nq + 7] ** 2) + 0.5 * jnp.sum((u / tau) ** 2)
 
-    problem = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 7,
-                      inequality=lambda x, u, t, p: jnp.concatenate(
-                          [x[:7] - hi, lo - x[:7], (z_pre - APPROACH_CLEARANCE - grip_height(x))[None]]),
-                      terminal_equality=lambda x, p: jnp.concatenate([x[:7] - jnp.asarray(q_pre), x[nq:nq + 7]]),
-                      u_lower=-PANDA_TORQUE, u_upper=PANDA_TORQUE)
+    # the pre-grasp joint angles and height are the problem's parameters (target (8,) = q_pre,
+    # z_pre), not constants of its programs, and the problem has a key naming what its
+    # functions read (the joint limits are the scene's): the solver's programs are kept on
+    # disk and serve every grasp
+    target = jnp.asarray(np.r_[q_pre, z_pre])
+    key = ("dano.experiments.grasp.approach", scene, "ctrl", int(site), float(APPROACH_CLEARANCE), PANDA_TORQUE,
+           np.asarray(open_grip))
+    problem = Problem(target_dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 7,
+                      inequality=lambda x, u, t, pt: jnp.concatenate(
+                          [x[:7] - hi, lo - x[:7], (pt[1][7] - APPROACH_CLEARANCE - grip_height(x))[None]]),
+                      terminal_equality=lambda x, pt: jnp.concatenate([x[:7] - pt[1][:7], x[nq:nq + 7]]),
+                      u_lower=-PANDA_TORQUE, u_upper=PANDA_TORQUE, key=key)
     # the initial guess: the scripted approach (PD tracking of the joint interpolation)
     q_ref = joint_reference(np.stack([HOME, q_pre]), np.arange(T) * APPROACH_DT)
 
@@ -339,7 +349,7 @@ def optimise_approach(task: GraspTask) -> ApproachPlan:
 
     _, (X0, U0) = jax.jit(lambda x: jax.lax.scan(pd, x, jnp.asarray(q_ref)))(jnp.asarray(x0))
     X0, U0 = np.asarray(X0), np.asarray(U0)
-    sol = solve(problem, x0, U0, params, ILQRConfig(max_iterations=cfg.approach_iterations))
+    sol = solve(problem, x0, U0, (params, target), ILQRConfig(max_iterations=cfg.approach_iterations))
     X, U = np.asarray(sol.states), np.asarray(sol.controls)
     heights = np.asarray(jax.jit(jax.vmap(grip_height))(jnp.asarray(X)))
     starts = np.concatenate([x0[None], X0[:-1]])  # the stage costs' states x_0 … x_{T−1}
