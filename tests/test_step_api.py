@@ -92,6 +92,9 @@ def test_rollout_in_chunks_continues_act_time_and_ctrl(box_scene):
     np.testing.assert_allclose(second.qpos[-1], whole.qpos[-1], atol=1e-12)
     np.testing.assert_allclose(np.asarray(second.final_data.act), np.asarray(whole.final_data.act), atol=1e-14)
     assert float(second.final_data.time) == pytest.approx(30 * scene.dt)
+    # the loop carries the state fields only (CARRIED_FIELDS): the final Data holds the last state
+    np.testing.assert_array_equal(np.asarray(whole.final_data.qpos), whole.qpos[-1])
+    np.testing.assert_array_equal(np.asarray(whole.final_data.qvel), whole.qvel[-1])
     # progress reporting runs in chunks too, each continuing from the last one's Data; 390
     # steps do not divide into 20 equal chunks (19 of 20 steps, the compilation of `first`,
     # and one of 10, that of `second`): no extra steps, the right final time; its first 30

@@ -53,12 +53,14 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from .._compiled import cached_jit, compile_seconds
 from .._config import check_ranges
 from .._mjx import mjx
 from ..data import load_builtin
 from ..errors import DanoError
 from ..sim import DanoObject, NewtonConfig, compose, make_data, step
 from ..sim.dynamics import tied
+from ..sim.rollout import carried
 from ..sim.scene import add_ground
 from ..sim.scenes import initial_state, menagerie_panda, resting_height
 from ..trajopt.ilqr import ILQRConfig, solve
@@ -490,38 +492,49 @@ def _schedules(task: GraspTask):
     return knots, q_ref, qd_ref, ramp, ff
 
 
-def simulate(task: GraspTask, forces, newton=None) -> tuple[list[GraspRun], float]:
-    """Simulate the grasp with each grip force per finger in ``forces`` [N] (one compiled
-    rollout, vmapped over the forces); newton: the step's NewtonConfig (default: the
-    step's defaults). Returns (runs, compile time [s])."""
-    newton = newton or NewtonConfig()
-    scene, params = task.scene, task.params
+def _grasp_rollouts(scene, params, x0, q_ref, qd_ref, ramp, ff, forces, newton: NewtonConfig):
+    """States (F, T + 1, nx) and controls (F, T, nu) of the grasp with each grip force of
+    ``forces`` (F,) [N] (the schedules: :func:`_schedules`)."""
     nq = scene.nq
-    knots, q_ref, qd_ref, ramp, ff = _schedules(task)
 
     def one(force):
-        grip = jnp.where(jnp.asarray(ramp) < 0, -OPEN_FORCE, jnp.asarray(ramp) * force)
+        grip = jnp.where(ramp < 0, -OPEN_FORCE, ramp * force)
+        data = make_data(scene, x0[:nq], x0[nq:])
 
-        def body(d, inp):  # MJX Data carried: time and the constraint solver's warm start go on
+        def body(state, inp):  # MuJoCo's state carried: time and the constraint solver's warm start go on
             qr, qdr, g, tff = inp
+            d = data.replace(**state)
             arm = arm_torque(d.qpos[:7], d.qvel[:7], qr, qdr, tff)
             u = jnp.concatenate([arm, g[None]]).astype(d.ctrl.dtype)
             d = step(scene, params, d.replace(ctrl=u), newton)
-            return d, (jnp.concatenate([d.qpos, d.qvel]), u)
+            return carried(d), (jnp.concatenate([d.qpos, d.qvel]), u)
 
-        x0 = jnp.asarray(task.x0)
         # the carry tied to the (batched) force: vmap's scan rule then batches the step once
         # instead of in rounds (tracing 7.4 -> 4.7 s for the grasp's 10 ms scene)
-        d0 = tied(make_data(scene, x0[:nq], x0[nq:]), force)
-        _, (X, U) = jax.lax.scan(body, d0, (jnp.asarray(q_ref), jnp.asarray(qd_ref), grip, jnp.asarray(ff)))
+        _, (X, U) = jax.lax.scan(body, tied(carried(data), force), (q_ref, qd_ref, grip, ff))
         return jnp.concatenate([x0[None], X.astype(x0.dtype)]), U
 
-    f = jnp.asarray(forces, dtype=jnp.asarray(task.x0).dtype)
-    t0 = time.perf_counter()
-    compiled = jax.jit(jax.vmap(one)).lower(f).compile()
-    compile_s = time.perf_counter() - t0
-    X, U = compiled(f)
+    return jax.vmap(one)(forces)
+
+
+# kept on disk per scene (dano._compiled): a later run loads the program instead of tracing it
+_grasp_rollouts_compiled = cached_jit(_grasp_rollouts, static_argnums=(8,))
+
+
+def simulate(task: GraspTask, forces, newton=None) -> tuple[list[GraspRun], float]:
+    """Simulate the grasp with each grip force per finger in ``forces`` [N] (one compiled
+    rollout, vmapped over the forces); newton: the step's NewtonConfig (default: the
+    step's defaults). Returns (runs, compile time [s]: tracing, or loading the program
+    from disk, and compiling)."""
+    newton = newton or NewtonConfig()
+    knots, q_ref, qd_ref, ramp, ff = _schedules(task)
+    x0 = jnp.asarray(task.x0)
+    f = jnp.asarray(forces, dtype=x0.dtype)
+    since = time.time()
+    X, U = _grasp_rollouts_compiled(task.scene, task.params, x0, *(jnp.asarray(a, x0.dtype) for a in (q_ref, qd_ref)),
+                                    jnp.asarray(ramp, x0.dtype), jnp.asarray(ff, x0.dtype), f, newton)
     X, U = np.asarray(X), np.asarray(U)
+    compile_s = compile_seconds(since)
     hold = int(round(knots[-2] / task.config.dt))
     return [_measure(task, X[k], U[k], float(v), hold) for k, v in enumerate(forces)], compile_s
 

@@ -34,18 +34,23 @@ CARRIED_FIELDS = ("time", "qpos", "qvel", "act", "history", "qacc_warmstart", "p
                   "xfrc_applied", "eq_active", "mocap_pos", "mocap_quat", "userdata", "qacc", "act_dot")
 
 
+def carried(data) -> dict:
+    """The fields of MJX ``data`` that a loop of steps carries (:data:`CARRIED_FIELDS`, those
+    this MJX has), by name; ``data.replace(**carried(d))`` continues from ``d``."""
+    return {n: getattr(data, n) for n in CARRIED_FIELDS if hasattr(data, n)}
+
+
 def _scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig, final_overlaps: bool):
-    names = [n for n in CARRIED_FIELDS if hasattr(data, n)]
-    carried = tied({n: getattr(data, n) for n in names}, params, controls, qfrc, data.qpos, data.qvel)
+    state0 = tied(carried(data), params, controls, qfrc, data.qpos, data.qvel)
 
     def body(state, inputs):
         ctrl, f = inputs
         d = data.replace(**state)
         d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype), qfrc_applied=f.astype(d.qfrc_applied.dtype))
         d_next, info = step_with_info(scene, params, d, newton)
-        return {n: getattr(d_next, n) for n in names}, (d_next.qpos, d_next.qvel, info.psi, info.newton_iterations)
+        return carried(d_next), (d_next.qpos, d_next.qvel, info.psi, info.newton_iterations)
 
-    last, (qpos, qvel, psi, iters) = jax.lax.scan(body, carried, (controls, qfrc))
+    last, (qpos, qvel, psi, iters) = jax.lax.scan(body, state0, (controls, qfrc))
     d_last = data.replace(**last)
     if final_overlaps:  # (each step reported ψ at its start)
         psi = jnp.concatenate([psi, overlaps(scene, params, d_last)[None]])
