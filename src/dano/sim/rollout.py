@@ -27,9 +27,9 @@ class SimulationDiverged(DanoError):
 #: the MJX Data fields a rollout's loop carries from step to step: MuJoCo's state and inputs
 #: (mjSTATE_INTEGRATION: time, qpos, qvel, act, warm start, controls, applied forces, mocap,
 #: equality flags, user data) and the step's qacc and act_dot. A step computes every other
-#: field (positions, inertias, forces, contacts, ...) afresh from these; carried, XLA would
-#: compute each of them every step (and, under ``jacfwd``, their tangents) only to overwrite
-#: them: 23 of the bunny drop's 204 operations per step, 8 % of its time.
+#: field (positions, inertias, forces, contacts, ...) afresh from these; carried, XLA computed
+#: each of them every step only to overwrite it (23 of the bunny drop's 204 operations per
+#: step; a 10,000-step drop, alternating runs: 28.2–28.6 → 24.5–25.2 µs per step).
 CARRIED_FIELDS = ("time", "qpos", "qvel", "act", "history", "qacc_warmstart", "plugin_state", "ctrl", "qfrc_applied",
                   "xfrc_applied", "eq_active", "mocap_pos", "mocap_quat", "userdata", "qacc", "act_dot")
 
