@@ -531,8 +531,8 @@ def simulate(task: GraspTask, forces, newton=None) -> tuple[list[GraspRun], floa
     x0 = jnp.asarray(task.x0)
     f = jnp.asarray(forces, dtype=x0.dtype)
     since = time.time()
-    X, U = _grasp_rollouts_compiled(task.scene, task.params, x0, *(jnp.asarray(a, x0.dtype) for a in (q_ref, qd_ref)),
-                                    jnp.asarray(ramp, x0.dtype), jnp.asarray(ff, x0.dtype), f, newton)
+    X, U = _grasp_rollouts_compiled(task.scene, task.params, x0,
+                                    *(jnp.asarray(a, x0.dtype) for a in (q_ref, qd_ref, ramp, ff)), f, newton)
     X, U = np.asarray(X), np.asarray(U)
     compile_s = compile_seconds(since)
     hold = int(round(knots[-2] / task.config.dt))

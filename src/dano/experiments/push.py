@@ -267,6 +267,7 @@ def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mas
     plain = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, key=key)
     X_plain = np.asarray(rollout(plain, x0, U_plain, params))
     object_goal, pusher_goal = goal_of(X_plain, object_q, pusher)
+
     def terminal(x, pg):  # pg = (params, goal)
         g = pg[1]
         if pusher_goal is None:

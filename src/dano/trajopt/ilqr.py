@@ -233,8 +233,9 @@ class _Compiled:
             return Multipliers(jnp.maximum(lam.inequality + mu * gi, 0), lam.equality + mu * ge,
                                jnp.maximum(lam.terminal_inequality + mu * gT, 0), lam.terminal_equality + mu * hT)
 
-        def sizes(x0, U, p):  # shapes only: traced, never compiled
-            return tuple(a.shape for a in jax.eval_shape(lambda: constraint_values(rollout(x0, U, p), U, p)))
+        def sizes(x0, U, p):  # shapes only: the constraints traced on states of the rollout's shape, never compiled
+            X = jax.ShapeDtypeStruct((U.shape[0] + 1, x0.shape[0]), x0.dtype)  # (the dynamics need no trace)
+            return tuple(a.shape for a in jax.eval_shape(lambda X: constraint_values(X, U, p), X))
 
         # the traced pieces: jitted per problem object, or, for a problem with a key, exported
         # programs kept on disk by dano._compiled (loaded by later processes, not traced again)
