@@ -18,7 +18,17 @@ def test_sets_the_flag_when_imported_first():
                          env={"PATH": "/usr/bin:/bin", "JAX_PLATFORMS": "cpu"}, timeout=300)
     assert res.returncode == 0, res.stderr
     assert "--xla_cpu_use_fusion_emitters=false" in res.stdout
+    assert "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=" in res.stdout
     assert "RuntimeWarning" not in res.stderr
+
+
+def test_keeps_the_users_own_backend_options():
+    code = "import os, dano, dano.sim; print(os.environ['XLA_FLAGS'])"
+    own = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=0"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={"PATH": "/usr/bin:/bin", "JAX_PLATFORMS": "cpu", "XLA_FLAGS": own}, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.count("xla_backend_extra_options") == 1 and own in res.stdout
 
 
 def test_fusion_flag_only_for_a_jaxlib_that_knows_it(monkeypatch):

@@ -283,3 +283,58 @@ def test_newton_options_reject_counts_out_of_range(bad):
 
     with pytest.raises(DanoError, match=f"NewtonOptions.{next(iter(bad))} must be an integer"):
         NewtonOptions(**bad)
+
+
+def test_dense_solve_matches_lapack_with_pivoting_and_gradients():
+    """The step's unrolled LU (NewtonConfig.linear_solver="unrolled") solves to LAPACK's
+    accuracy, pivots where the first column is tiny, and differentiates like jnp.linalg.solve
+    in both modes."""
+    from dano.sim.implicit import dense_solve
+
+    rng = np.random.default_rng(0)
+    solve = jax.jit(dense_solve)
+    for n in (1, 2, 6, 13):
+        for trial in range(20):
+            A = rng.standard_normal((n, n))
+            if trial % 2:
+                A[:, 0] *= 1e-9  # without row exchanges the first pivot would be ~1e-9
+            b = rng.standard_normal(n)
+            x = np.asarray(solve(A, b))
+            backward = np.linalg.norm(A @ x - b) / (np.linalg.norm(A) * np.linalg.norm(x) + np.linalg.norm(b))
+            assert backward < 1e-14, (n, trial, backward)
+    A, b = jnp.asarray(rng.standard_normal((6, 6))), jnp.asarray(rng.standard_normal(6))
+    for argnums in (0, 1):
+        ours = jax.grad(lambda A, b: jnp.sum(jnp.sin(dense_solve(A, b))), argnums)(A, b)
+        ref = jax.grad(lambda A, b: jnp.sum(jnp.sin(jnp.linalg.solve(A, b))), argnums)(A, b)
+        np.testing.assert_allclose(ours, ref, rtol=1e-10, atol=1e-12)
+    assert not np.any(np.isfinite(np.asarray(dense_solve(jnp.zeros((3, 3)), jnp.ones(3)))))  # singular: not silent
+
+
+def test_unrolled_rollout_has_no_lapack_call_and_agrees_with_lapack():
+    """linear_solver="unrolled" removes the step's only LAPACK call (what lets XLA compile the
+    rollout into one kernel on the CPU) and changes the bunny drop only by rounding; "auto"
+    picks it for rollouts of at least UNROLLED_MIN_STEPS steps."""
+    from dano.errors import DanoError
+    from dano.sim import NewtonConfig
+    from dano.sim.implicit import UNROLLED_MIN_STEPS, resolve_linear_solver
+    from dano.sim.scenes import load_scene
+
+    setup = load_scene("bunny-drop")
+    sc, s0, p = setup.scene, setup.state0, setup.params
+    runs = {}
+    for solver in ("lapack", "unrolled"):
+        fn = jax.jit(lambda s, p, solver=solver: rollout_arrays(sc, s, None, p, 300,
+                                                                newton=NewtonConfig(linear_solver=solver)))
+        assert ("lapack" in fn.lower(s0, p).as_text()) == (solver == "lapack")
+        runs[solver] = [np.asarray(a) for a in fn(s0, p)[:2]]
+    assert np.ptp(runs["lapack"][0][:, 2]) > 0.01  # it fell and landed
+    for ours, ref in zip(runs["unrolled"], runs["lapack"]):
+        np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-8)
+
+    auto = NewtonConfig()
+    assert resolve_linear_solver(auto, sc, UNROLLED_MIN_STEPS).linear_solver == "unrolled"
+    assert resolve_linear_solver(auto, sc, UNROLLED_MIN_STEPS - 1).linear_solver == "lapack"
+    lapack = NewtonConfig(linear_solver="lapack")
+    assert resolve_linear_solver(lapack, sc, 10 * UNROLLED_MIN_STEPS) is lapack
+    with pytest.raises(DanoError, match="linear_solver must be"):
+        NewtonConfig(linear_solver="lu")

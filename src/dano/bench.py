@@ -36,7 +36,8 @@ from .experiments.sysid_examples import (PUSH_TRUTH, analytic_slides, contactnet
 from .experiments.tracking_curves import tracking_colour, tracking_success_curve
 from .fields import BoxField, SphereField, mesh_field
 from .nerf import TrainConfig, load_dataset, train
-from .sim import DanoObject, SimParams, State, compose, rollout_arrays
+from .sim import DanoObject, NewtonConfig, SimParams, State, compose, rollout_arrays
+from .sim.implicit import resolve_linear_solver
 from .sim.scenes import load_scene
 from .sysid import FitParameter, SysIdProblem, Weights, identify
 from .trajopt.ilqr import Multipliers, _compiled
@@ -112,7 +113,9 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
       one jitted ``lax.scan``, centroid contact model; steps/s and compile time;
       ``bunny_drop_per_sample`` the same with the per-sample model
       (``ratio_per_sample_over_centroid_time``); ``bunny_drop_float32`` the centroid model
-      in float32;
+      in float32; ``bunny_drop_lapack`` the centroid model with its Newton systems solved by
+      LAPACK (``NewtonConfig(linear_solver="lapack")``: the rollout is then not compiled
+      into one kernel; ``ratio_lapack_over_default_time``);
     * ``mujoco_c_convex_hull``: what a user would otherwise pick: MuJoCo C (``mujoco.rollout``,
       no Python loop) simulating the same bunny as a convex-hull mesh collider from the same
       state; ``ratio_dano_over_mujoco_c`` compares steps/s;
@@ -154,11 +157,15 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     state0 = np.empty(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS))
     mujoco.mj_getState(m, d, state0, mujoco.mjtState.mjSTATE_FULLPHYSICS)
 
+    # the same drop with the Newton systems solved by LAPACK: what the step costs when XLA
+    # cannot compile the rollout into one kernel (NewtonConfig.linear_solver)
+    lapack = NewtonConfig(linear_solver="lapack")
     # timed round after round, so that the machine's load falls on all of them alike
     stats, rounds = _time_interleaved({
         "bunny_drop": lambda: jax.block_until_ready(rollout_arrays(sc, s0, None, p, steps)),
         "bunny_drop_per_sample": lambda: jax.block_until_ready(rollout_arrays(ps.scene, s0, None, ps.params, steps)),
         "bunny_drop_float32": lambda: jax.block_until_ready(rollout_arrays(sc32, s32, None, p32, steps)),
+        "bunny_drop_lapack": lambda: jax.block_until_ready(rollout_arrays(sc, s0, None, p, steps, newton=lapack)),
         "mujoco_c_convex_hull": lambda: mujoco.rollout.rollout(m, d, state0[None], nstep=mujoco_steps),
     }, repeats)
     for name, r in stats.items():
@@ -176,6 +183,10 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
         a / b for a, b in zip(rounds["bunny_drop_per_sample"], rounds["bunny_drop"]))
     out["ratio_dano_over_mujoco_c"] = statistics.median(
         c / (t / steps) for c, t in zip(c_step, rounds["bunny_drop"]))
+    out["bunny_drop"]["linear_solver"] = resolve_linear_solver(NewtonConfig(), sc, steps).linear_solver
+    out["bunny_drop_lapack"]["linear_solver"] = "lapack"
+    out["ratio_lapack_over_default_time"] = statistics.median(
+        a / b for a, b in zip(rounds["bunny_drop_lapack"], rounds["bunny_drop"]))
 
     if os.environ.get("MENAGERIE_ROOT"):
         ps = load_scene("panda-push-bunny")

@@ -9,7 +9,7 @@ import numpy as np
 from .._compiled import cached_jit
 from ..errors import DanoError
 from ..trajectory import Trajectory
-from .implicit import NewtonConfig
+from .implicit import NewtonConfig, resolve_linear_solver
 from .scene import Scene, SimParams
 from .dynamics import State, as_data, overlaps, step_with_info, tied
 
@@ -71,7 +71,9 @@ def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: Ne
     then not evaluated, nor traced: a third of the tracing of an identification's residual,
     whose rollouts need no ψ). Jitted; compiled once per scene
     structure and T, and, with the compilation cache on, traced once per structure across
-    processes (:mod:`dano._compiled`)."""
+    processes (:mod:`dano._compiled`). ``newton.linear_solver="auto"`` is resolved here for
+    T steps (:func:`~dano.sim.implicit.resolve_linear_solver`)."""
+    newton = resolve_linear_solver(newton, scene, controls.shape[0])
     return _scan_steps_compiled(scene, params, data, controls, qfrc, newton, final_overlaps)
 
 
@@ -82,15 +84,16 @@ def _inputs(scene: Scene, data, controls, qfrc, steps: int):
 
 
 def rollout_arrays(scene: Scene, state0, controls, params: SimParams, steps: int, qfrc=None, *,
-                   overlaps: bool = True):
+                   overlaps: bool = True, newton: NewtonConfig = NewtonConfig()):
     """The jitted, differentiable core of :func:`rollout`: returns (qpos (T+1, nq),
     qvel (T+1, nv), psi (T+1, P)) as JAX arrays. state0: a :class:`State` or MJX Data;
     controls (T, nu) or None (hold the data's ctrl: zeros for a State); qfrc (T, nv) or None
     (hold its qfrc_applied); overlaps=False: psi None (the final state's contact geometry
-    not evaluated: :func:`scan_steps`). Use it inside ``jax.jacfwd``."""
+    not evaluated: :func:`scan_steps`); newton: the step's solver settings. Use it inside
+    ``jax.jacfwd``."""
     data = as_data(scene, state0)
     ctrl, f = _inputs(scene, data, controls, qfrc, steps)
-    _, qpos, qvel, psi, _ = scan_steps(scene, params, data, ctrl, f, NewtonConfig(), overlaps)
+    _, qpos, qvel, psi, _ = scan_steps(scene, params, data, ctrl, f, newton, overlaps)
     return qpos, qvel, (psi if overlaps else None)
 
 
@@ -173,6 +176,7 @@ def rollout(
     size = steps if progress is None else -(-steps // min(20, steps))
     bounds = [(start, min(start + size, steps)) for start in range(0, steps, size)]
     parts, iters = [], []
+    newton = resolve_linear_solver(newton, scene, steps)  # on the whole rollout, not a chunk
     for k, (start, stop) in enumerate(bounds):
         data, qpos, qvel, psi, it = scan_steps(scene, params, data, ctrl[start:stop], f[start:stop], newton)
         arrs = [np.asarray(x) for x in (qpos, qvel, psi)]
