@@ -223,6 +223,34 @@ def test_real_soap_video(monkeypatch):
     assert without["report"]["scan"]["start_results"] == r["scan"]["start_results"]
 
 
+def test_soap_command_runs_its_study_beside_the_plot_and_writes_all_or_nothing(tmp_path, monkeypatch, capsys):
+    """``dano sysid soap`` runs the length-scale study while it draws the fit: the same
+    report as run_example's, all three files; a study that fails leaves no file."""
+    import json
+
+    from dano.cli import main
+    from dano.errors import DanoError
+    from dano.experiments import run_sysid, sysid_examples
+
+    _, _, ref = run_sysid("soap")
+    assert main(["sysid", "soap", "--json", "--out", str(tmp_path / "out")]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    written = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["config.json", "fit.png", "result.json"]
+    for report in (printed, written):
+        assert report["length_scale_sensitivity"] == ref["report"]["length_scale_sensitivity"]
+        assert report["sliding_friction"] == ref["report"]["sliding_friction"]
+    assert json.loads((tmp_path / "out" / "config.json").read_text())["sensitivity"] is True
+
+    def fails(friction):
+        raise DanoError("the study failed")
+
+    monkeypatch.setattr(sysid_examples, "soap_sensitivity", fails)
+    assert main(["sysid", "soap", "--out", str(tmp_path / "bad")]) == 1
+    assert "the study failed" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists() or not any((tmp_path / "bad").iterdir())
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("noise, tolerance", [(False, 0.005), (True, 0.015)])
 def test_bunny_pushes_recover_mass_scale_and_friction(noise, tolerance):

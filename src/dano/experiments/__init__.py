@@ -19,7 +19,9 @@ Fig. 8), :mod:`.energy` (random drops and the energy check), :mod:`.tracking_cur
 
 from __future__ import annotations
 
+import functools
 import importlib
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Callable
@@ -106,7 +108,7 @@ def is_experiment(verb: str, name: str) -> bool:
 
 def run_sysid(name: str, **options):
     """Run a built-in identification: ``soap``, ``bunny-pushes``, ``bunny-dynamics``
-    (options ``jacobian``, ``noise``, ``sensitivity``) or ``contactnets-cube`` (options of
+    (options ``jacobian``, ``noise``, ``sensitivity``, ``defer_studies``: :func:`~dano.experiments.sysid_examples.run_example`) or ``contactnets-cube`` (options of
     :class:`~dano.experiments.sysid_examples.ContactNetsConfig`). Returns (problem, result,
     {"report", "config"}) as :func:`dano.sysid.config.run`."""
     exp = get("sysid", name)
@@ -135,7 +137,7 @@ class SysIdCommandConfig:
     """bunny-pushes, bunny-dynamics: observations without the 1 mm / 0.5 deg pose noise."""
     no_sensitivity: bool = False
     """soap: leave out the length-scale sensitivity study (two more identifications beside the result, about
-    1 s warm; JSON key length_scale_sensitivity)."""
+    0.4 s warm, run while the fit is drawn; JSON key length_scale_sensitivity)."""
     data: Path | None = None
     """contactnets-cube: the ContactNets tosses (.npz of toss_<n> arrays, (T, 13) each; not shipped with dano,
     e.g. shared/data/real/contactnets_cube/tosses_100_299.npz)."""
@@ -215,23 +217,33 @@ def _sysid_command(config: SysIdCommandConfig, run, write_outputs):
         problem, result, out = run_sysid(c.config, data=c.data, tosses=c.tosses, start=c.start,
                                          contact_model=c.contact_model, bootstrap=c.bootstrap)
     elif is_experiment("sysid", c.config):
+        # the studies beside the result (the soap's length-scale sensitivity) run while the fit is drawn
         problem, result, out = run_sysid(c.config, jacobian=c.jacobian, noise=not c.no_noise,
-                                         sensitivity=not c.no_sensitivity)
+                                         sensitivity=not c.no_sensitivity, defer_studies=True)
     else:
         if Path(c.config).suffix.lower() not in (".toml", ".json") and not Path(c.config).exists():
             raise DanoError(f"unknown identification {c.config!r}: give a TOML file, a saved config.json or one of "
                             f"{', '.join(names('sysid'))}")
         problem, result, out = run(c.config, jacobian=c.jacobian)
-    report, nonfinite = json_safe(out["report"])
-    notes = list(report.get("warnings", result.warnings))
-    if nonfinite:
-        notes.append(f"not finite (written as null): {', '.join(nonfinite)}; the data do not determine these (check "
-                     "that positions are in metres and that the motion excites the parameters)")
-    report["warnings"] = notes
     name = c.config if c.config == "contactnets-cube" else config.config
     out_dir = c.out_dir or Path(f"sysid-{Path(name).stem}")
-    if jax.process_index() == 0:  # a multi-process run (docs/scaling.md): every process has the result
-        write_outputs(out_dir, report, out["config"], problem, result)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        pending = {key: pool.submit(study) for key, study in out.get("studies", {}).items()}
+
+        @functools.cache
+        def final_report() -> dict:
+            raw = {**out["report"], **{key: f.result() for key, f in pending.items()}}
+            report, nonfinite = json_safe(raw)
+            notes = list(report.get("warnings", result.warnings))
+            if nonfinite:
+                notes.append(f"not finite (written as null): {', '.join(nonfinite)}; the data do not determine these "
+                             "(check that positions are in metres and that the motion excites the parameters)")
+            report["warnings"] = notes
+            return report
+
+        if jax.process_index() == 0:  # a multi-process run (docs/scaling.md): every process has the result
+            write_outputs(out_dir, final_report, out["config"], problem, result)
+        report = final_report()
     return problem, result, report, out_dir
 
 

@@ -583,7 +583,7 @@ def soap_sensitivity(friction: float) -> dict:
 
 
 def run_example(name: str, *, jacobian: str | None = None, noise: bool = True,
-                sensitivity: bool = True) -> tuple[SysIdProblem, object, dict]:
+                sensitivity: bool = True, defer_studies: bool = False) -> tuple[SysIdProblem, object, dict]:
     """Run a built-in identification: ``soap`` (the paper's real soap video), ``bunny-pushes``
     (α and friction from 10 simulated pushes) or ``bunny-dynamics`` (the same with the centre
     of mass and inertia unknown). Returns (problem, result, {"report", "config"}) as
@@ -592,6 +592,9 @@ def run_example(name: str, *, jacobian: str | None = None, noise: bool = True,
     ``noise``: the paper's pose noise (1 mm, 0.5°) on the pushes' observations.
     ``sensitivity``: the soap's length-scale study (:func:`soap_sensitivity`: two more
     identifications beside the result; False leaves it and its key out).
+    ``defer_studies``: the studies beside the result are not run but returned, as
+    {"studies": {report key: function of no argument}} in the third element, for the caller
+    to run (the command line runs them while it draws the fit) and add to the report.
     Raises DanoError for another name."""
     extra: dict = {}
     noise_levels = (1e-3, 0.5) if noise else (0.0, 0.0)
@@ -627,10 +630,14 @@ def run_example(name: str, *, jacobian: str | None = None, noise: bool = True,
     if name == "bunny-dynamics":
         report["recovery"] = dynamics_recovery(dict(zip(result.labels, result.estimates)), extra["truth"])
         report["recovery"]["cramer_rao"] = _push_dynamics_bound(problem, extra["truth"])
+    studies = {}
     if name == "soap":
         if sensitivity:
-            report["length_scale_sensitivity"] = soap_sensitivity(report["sliding_friction"])
+            studies["length_scale_sensitivity"] = functools.partial(soap_sensitivity, report["sliding_friction"])
         report["paper_reference"] = {"video_identification": 0.61, "tilted_plane": 0.75}
+    if defer_studies:
+        return problem, result, {"report": report, "config": resolved, "studies": studies}
+    report.update({key: study() for key, study in studies.items()})
     return problem, result, {"report": report, "config": resolved}
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from contextlib import ExitStack
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -61,15 +62,18 @@ def fit_plot(problem, result, path, max_trajectories: int = 4) -> Path:
     return plot_sysid(series, result.cost_history, path, profiles=profiles, title=title)
 
 
-def write_outputs(out_dir: str | Path, report: dict, resolved: dict, problem, result) -> list[Path]:
+def write_outputs(out_dir: str | Path, report: dict | Callable[[], dict], resolved: dict, problem,
+                  result) -> list[Path]:
     """``result.json`` (``report``), ``config.json`` (``resolved``, loadable again by
     ``dano sysid``) and ``fit.png`` (:func:`fit_plot`) in ``out_dir``: all three or none.
+    ``report`` may be a function of no argument returning it: it is called after the fit is
+    drawn, so that work it waits for (studies beside the result) runs meanwhile.
     Returns the paths written."""
     out_dir = Path(out_dir)
     names = ("result.json", "config.json", "fit.png")
     with ExitStack() as stack:
         paths = {n: stack.enter_context(atomic_path(out_dir / n)) for n in names}
-        paths["result.json"].write_text(json.dumps(report, indent=2))
-        paths["config.json"].write_text(json.dumps(resolved, indent=2, default=str))
         fit_plot(problem, result, paths["fit.png"])
+        paths["config.json"].write_text(json.dumps(resolved, indent=2, default=str))
+        paths["result.json"].write_text(json.dumps(report() if callable(report) else report, indent=2))
     return [out_dir / n for n in names]
