@@ -313,7 +313,7 @@ def test_dense_solve_matches_lapack_with_pivoting_and_gradients():
 def test_unrolled_rollout_has_no_lapack_call_and_agrees_with_lapack():
     """linear_solver="unrolled" removes the step's only LAPACK call (what lets XLA compile the
     rollout into one kernel on the CPU) and changes the bunny drop only by rounding; "auto"
-    picks it for rollouts of at least UNROLLED_MIN_STEPS steps."""
+    picks it for rollouts of at least UNROLLED_MIN_STEPS steps with the centroid model."""
     from dano.errors import DanoError
     from dano.sim import NewtonConfig
     from dano.sim.implicit import UNROLLED_MIN_STEPS, resolve_linear_solver
@@ -336,5 +336,7 @@ def test_unrolled_rollout_has_no_lapack_call_and_agrees_with_lapack():
     assert resolve_linear_solver(auto, sc, UNROLLED_MIN_STEPS - 1).linear_solver == "lapack"
     lapack = NewtonConfig(linear_solver="lapack")
     assert resolve_linear_solver(lapack, sc, 10 * UNROLLED_MIN_STEPS) is lapack
+    per_sample = load_scene("bunny-drop", contact_model="per_sample").scene  # its rollout is not one kernel
+    assert resolve_linear_solver(auto, per_sample, UNROLLED_MIN_STEPS).linear_solver == "lapack"
     with pytest.raises(DanoError, match="linear_solver must be"):
         NewtonConfig(linear_solver="lu")

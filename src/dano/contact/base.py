@@ -197,7 +197,12 @@ class ContactModel(Protocol):
     at χ, *at the end of the step*: the contact geometry advanced by the step of length h
     with that velocity (to first order), so that the step is implicit in the contact force.
     The step solves for the velocity with Newton's method and differentiates ``wrench``
-    with respect to u in forward mode."""
+    with respect to u in forward mode.
+
+    A model may set ``single_kernel_rollout = True`` (a class attribute; False if absent)
+    where XLA's CPU compiler turns a rollout of its step into one kernel once the Newton
+    solve calls no LAPACK: only then does ``NewtonConfig.linear_solver="auto"`` choose the
+    unrolled solve (:func:`dano.sim.implicit.resolve_linear_solver`)."""
 
     name: str
 

@@ -40,6 +40,8 @@ class Centroid:
     separates) and Newton's method converges."""
 
     name: ClassVar[str] = "centroid"
+    #: a rollout of its step compiles into one XLA kernel on the CPU (docs/simulation.md, Speed)
+    single_kernel_rollout: ClassVar[bool] = True
     drag: str = "normal_force"
 
     def __post_init__(self):

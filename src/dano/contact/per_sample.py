@@ -83,6 +83,10 @@ class PerSample:
     A flat face of a finely sampled box can hold more and then runs at full cost."""
 
     name: ClassVar[str] = "per_sample"
+    #: no: XLA makes YNNPACK fusions of its sums over samples, and its all-samples fallback's
+    #: Newton loop reads more than the one-kernel threshold (docs/simulation.md, Speed); the
+    #: unrolled solve measured 36.7 µs per step against LAPACK's 36.3 µs
+    single_kernel_rollout: ClassVar[bool] = False
     drag: str = "normal_force"
     max_active: int = 128
     blocks_searched: int = 48

@@ -67,8 +67,9 @@ class NewtonConfig:
     (:func:`dense_solve`: an LU in plain operations, with no LAPACK call, so that on the CPU XLA compiles a rollout
     of the step into one kernel: the bunny drop's step 20.2 -> 7.3 µs, its compile 1.5 -> 3.6 s) or ``auto``
     (``unrolled`` for a rollout of at least :data:`UNROLLED_MIN_STEPS` steps on the CPU of a scene without MuJoCo
-    constraints and with at most :data:`UNROLLED_LU_MAX` degrees of freedom, where the faster steps repay the
-    longer compile; ``lapack`` otherwise, and for single steps). Derivatives always use LAPACK."""
+    constraints, with at most :data:`UNROLLED_LU_MAX` degrees of freedom and contact models whose rollout compiles
+    into one kernel (``single_kernel_rollout``: the centroid model, not the per-sample one), where the faster steps
+    repay the longer compile; ``lapack`` otherwise, and for single steps). Derivatives always use LAPACK."""
 
     def __post_init__(self):
         if self.geometry_tangents not in ("direct", "pose"):
@@ -184,6 +185,7 @@ def resolve_linear_solver(newton: NewtonConfig, scene, steps: int) -> NewtonConf
     if newton.linear_solver != "auto":
         return newton
     unrolled = (steps >= UNROLLED_MIN_STEPS and not scene.has_constraints and scene.nv <= UNROLLED_LU_MAX
+                and bool(scene.groups) and all(getattr(g.model, "single_kernel_rollout", False) for g in scene.groups)
                 and jax.default_backend() == "cpu")
     return dataclasses.replace(newton, linear_solver="unrolled" if unrolled else "lapack")
 
