@@ -18,7 +18,9 @@ two flags), each only when the user has not set it and only when it can still ta
   7.3 µs instead of 20.2 µs (:attr:`dano.sim.NewtonConfig.linear_solver`). A loop that
   calls LAPACK stays as it was: with the flag alone, the bunny drop's rollout compiled in
   1.53–1.55 s (1.51–1.54 s without) and stepped as fast; the Panda scene stepped in 247 µs
-  (237 µs without, one run each).
+  (237 µs without, one run each). Other backends ignore it: XLA keeps ``xla_``-prefixed
+  extra options to itself (it passes only the others on to LLVM), and only the CPU compiler
+  reads this one.
 * ``MUJOCO_GL=egl`` when no display is set and MuJoCo is not imported yet: headless
   machines render through EGL.
 
