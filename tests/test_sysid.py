@@ -193,13 +193,17 @@ def test_quaternion_residual_is_sign_invariant():
     del rng
 
 
-def test_real_soap_video(monkeypatch):
+def test_real_soap_video(monkeypatch, tmp_path, capsys):
     """The paper's soap: a physically plausible friction and a tight fit. The band [0.3, 0.9]
     is what a bar of soap on a table can have; the references (video fit 0.61, tilted plane
     0.75) are reported next to the result, not asserted. Its wall time is a benchmark
     (``dano bench --suite sysid``), not a test assert. Its two local starts run side by side
     (threads); one after the other they give the same answers, bit for bit."""
-    from dano.experiments import run_sysid
+    import json
+
+    from dano.cli import main
+    from dano.errors import DanoError
+    from dano.experiments import run_sysid, sysid_examples
     from dano.sysid import solve
 
     problem, result, report = run_sysid("soap")
@@ -211,6 +215,25 @@ def test_real_soap_video(monkeypatch):
     sens = r["length_scale_sensitivity"]["sliding_friction_at_length_scale"]
     assert sens["0.9"] < sens["1.0"] < sens["1.1"]  # friction grows with the assumed length scale
     assert len(r["scan"]["start_results"]) == 2
+    # ``dano sysid soap`` runs the length-scale study while it draws the fit: the same report, all
+    # three files; a study that fails leaves no file
+    assert main(["sysid", "soap", "--json", "--out", str(tmp_path / "out")]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    written = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["config.json", "fit.png", "result.json"]
+    for out in (printed, written):
+        assert out["length_scale_sensitivity"] == r["length_scale_sensitivity"]
+        assert out["sliding_friction"] == r["sliding_friction"]
+    assert json.loads((tmp_path / "out" / "config.json").read_text())["sensitivity"] is True
+
+    def fails(friction):
+        raise DanoError("the study failed")
+
+    with monkeypatch.context() as m:
+        m.setattr(sysid_examples, "soap_sensitivity", fails)
+        assert main(["sysid", "soap", "--out", str(tmp_path / "bad")]) == 1
+    assert "the study failed" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists() or not any((tmp_path / "bad").iterdir())
     # the study beside the result is optional (dano sysid soap --no-sensitivity): the same answer,
     # here with the starts run one after the other
     ran = []
@@ -221,34 +244,6 @@ def test_real_soap_video(monkeypatch):
     assert "length_scale_sensitivity" not in without["report"] and without["config"]["sensitivity"] is False
     assert without["report"]["sliding_friction"] == r["sliding_friction"]
     assert without["report"]["scan"]["start_results"] == r["scan"]["start_results"]
-
-
-def test_soap_command_runs_its_study_beside_the_plot_and_writes_all_or_nothing(tmp_path, monkeypatch, capsys):
-    """``dano sysid soap`` runs the length-scale study while it draws the fit: the same
-    report as run_example's, all three files; a study that fails leaves no file."""
-    import json
-
-    from dano.cli import main
-    from dano.errors import DanoError
-    from dano.experiments import run_sysid, sysid_examples
-
-    _, _, ref = run_sysid("soap")
-    assert main(["sysid", "soap", "--json", "--out", str(tmp_path / "out")]) == 0
-    printed = json.loads(capsys.readouterr().out)
-    written = json.loads((tmp_path / "out" / "result.json").read_text())
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["config.json", "fit.png", "result.json"]
-    for report in (printed, written):
-        assert report["length_scale_sensitivity"] == ref["report"]["length_scale_sensitivity"]
-        assert report["sliding_friction"] == ref["report"]["sliding_friction"]
-    assert json.loads((tmp_path / "out" / "config.json").read_text())["sensitivity"] is True
-
-    def fails(friction):
-        raise DanoError("the study failed")
-
-    monkeypatch.setattr(sysid_examples, "soap_sensitivity", fails)
-    assert main(["sysid", "soap", "--out", str(tmp_path / "bad")]) == 1
-    assert "the study failed" in capsys.readouterr().err
-    assert not (tmp_path / "bad").exists() or not any((tmp_path / "bad").iterdir())
 
 
 @pytest.mark.slow
