@@ -130,6 +130,10 @@ def test_demo_and_console_script(tmp_path):
     assert np.load(tmp_path / "bunny-drop.npz")["qpos"].shape == (501, 7)
     res = subprocess.run([sys.executable, "-m", "dano.cli", "--version"], capture_output=True, text=True)
     assert res.returncode == 0 and res.stdout.startswith("dano ")
+    # the console script exits with main's code (cli.console_main), an error as one line
+    res = subprocess.run([exe, "sysid", "no-such-problem"], capture_output=True, text=True, timeout=600)
+    assert res.returncode == 1 and res.stderr.startswith("error: unknown identification 'no-such-problem'")
+    assert "Traceback" not in res.stderr
 
 
 @pytest.mark.slow  # a benchmark suite: 11 s cold

