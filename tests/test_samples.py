@@ -95,7 +95,9 @@ def test_scene_samples_come_in_compact_blocks_and_keep_every_sample():
         np.testing.assert_array_equal(P[real][order_s], points[k][order])
         np.testing.assert_array_equal(W[real][order_s], weights[k][order])
         np.testing.assert_array_equal(Nn[real][order_s], normals[k][order])
-        np.testing.assert_allclose(np.asarray(s.wp[k, :3]), (P * W[:, None]).T)
+        np.testing.assert_allclose(np.asarray(s.wp[k]), np.vstack([(P * W[:, None]).T, W]))
+        np.testing.assert_allclose(np.asarray(s.wpp[k, [0, 3, 5]]), [W * P[:, 0] ** 2, W * P[:, 0] * P[:, 1],
+                                                                   W * P[:, 1] * P[:, 2]])
     # blocks of neighbours: a block spans far less than the cloud (random order: about all of it)
     blocks = np.asarray(s.points[0]).T[:1000].reshape(-1, SAMPLE_BLOCK, 3)
     span = np.median(np.ptp(blocks, axis=1).max(axis=1))

@@ -126,10 +126,10 @@ def cross_columns(a: jax.Array, b: jax.Array) -> jax.Array:
 
 
 def weighted_centroid(wp: jax.Array, occ: jax.Array, alpha, x, R):
-    """ψ and χ of one side as one matrix–vector product: wp = [w·p; w; ...] (≥ 4, N) body
-    frame, occ (N,). Returns (ψ, lever (3,) body frame, χ (3,) world); the lever is 0 when
-    ψ = 0."""
-    s = wp[:4] @ occ
+    """ψ and χ of one side as one matrix–vector product: wp = [w·p; w] (4, N) body frame
+    (:class:`~dano.contact.samples.Samples`), occ (N,). Returns (ψ, lever (3,) body frame,
+    χ (3,) world); the lever is 0 when ψ = 0."""
+    s = wp @ occ
     psi0 = s[3]
     lever = s[:3] / jnp.where(psi0 > 0, psi0, 1.0)
     return alpha * psi0, lever, x + R @ lever

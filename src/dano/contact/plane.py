@@ -31,14 +31,13 @@ class PlaneKind:
         n = inp["Rb"][:, 2]
         height = (R.T @ n) @ s.points + jnp.dot(n, x - inp["xb"])
         depth = -height / s.radius
-        # (only the four rows it needs: 4.5 % off the bunny drop's step and 6 % off its 200-step
-        # Jacobian, measured side by side against the product with all ten rows)
-        s0 = inp["alpha"] * (s.wp[:4] @ occupancy(depth))  # [Σw·o·p; Σw·o]
-        s1 = inp["alpha"] * (s.wp @ occupancy_slope(depth))  # the same with o', and Σw·o'·p·pᵀ
+        slope = occupancy_slope(depth)
+        s0 = inp["alpha"] * (s.wp @ occupancy(depth))  # [Σw·o·p; Σw·o]
+        s1 = inp["alpha"] * (s.wp @ slope)  # the same with o'
+        q = inp["alpha"] * (s.wpp @ slope)  # Σw·o'·p·pᵀ
         psi, d0 = s0[3], s1[3]
         lever = s0[:3] / jnp.where(psi > 0, psi, 1.0)
         d1 = s1[:3]
-        q = s1[4:]
         d2 = jnp.array([[q[0], q[3], q[4]], [q[3], q[1], q[5]], [q[4], q[5], q[2]]])
         chi = x + R @ lever
         first = R @ (d1 - d0 * lever)  # Σ w·o'·(x_i − χ), world

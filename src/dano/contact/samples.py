@@ -33,9 +33,11 @@ class Samples:
 
     points: (D, 3, N) contact points, body frame (object axes, origin at the centre of
     mass) [m]; normals: (D, 3, N) outward unit normals, body frame; weights: (D, N) w_i per
-    unit mass scale [kg/α] (paper: φ_i/Σφ·m); wp: (D, 10, N) [w·p; w; w·p_x², w·p_y², w·p_z²,
-    w·p_x·p_y, w·p_x·p_z, w·p_y·p_z], the weighted moments whose sums give the overlap, its
-    centroid and their rates in one product; radius: (D,) sample radius r [m], the depth over which a sample's
+    unit mass scale [kg/α] (paper: φ_i/Σφ·m); wp: (D, 4, N) [w·p; w] and wpp: (D, 6, N)
+    [w·p_x², w·p_y², w·p_z², w·p_x·p_y, w·p_x·p_z, w·p_y·p_z], the weighted moments whose
+    sums give the overlap, its centroid and their rates in matrix–vector products (two
+    arrays, not one of ten rows: a product with the first four rows of one array copied
+    them in every step, 2 µs of the bunny drop's 10); radius: (D,) sample radius r [m], the depth over which a sample's
     occupancy rises from 0 to 1; com: (D, 3) centre of mass, object frame [m];
     rho_ref: (D,) interior (full-occupancy) density of each DANO's field, 1 without one.
     """
@@ -44,6 +46,7 @@ class Samples:
     normals: jax.Array
     weights: jax.Array
     wp: jax.Array
+    wpp: jax.Array
     radius: jax.Array
     com: jax.Array
     rho_ref: jax.Array
@@ -76,8 +79,8 @@ class Samples:
         Nn = np.stack([pad(v, 3).T for v in normals]) if normals else np.zeros((0, 3, 0))
         W = np.stack([pad(w, 1) for w in weights]) if weights else np.zeros((0, 0))
         x, y, z = P[:, 0], P[:, 1], P[:, 2]
-        WP = np.concatenate([P * W[:, None, :], W[:, None, :],
-                             np.stack([x * x, y * y, z * z, x * y, x * z, y * z], axis=1) * W[:, None, :]], axis=1)
+        WP = np.concatenate([P * W[:, None, :], W[:, None, :]], axis=1)
+        WPP = np.stack([x * x, y * y, z * z, x * y, x * z, y * z], axis=1) * W[:, None, :]
         f = jnp.asarray
-        return Samples(f(P), f(Nn), f(W), f(WP), f(np.asarray(radius, dtype=np.float64)),
+        return Samples(f(P), f(Nn), f(W), f(WP), f(WPP), f(np.asarray(radius, dtype=np.float64)),
                        f(np.asarray(com, dtype=np.float64).reshape(-1, 3)), f(np.asarray(rho_ref, dtype=np.float64)))
