@@ -137,7 +137,7 @@ class SysIdCommandConfig:
     """bunny-pushes, bunny-dynamics: observations without the 1 mm / 0.5 deg pose noise."""
     no_sensitivity: bool = False
     """soap: leave out the length-scale sensitivity study (two more identifications beside the result, about
-    0.4 s warm, run while the fit is drawn; JSON key length_scale_sensitivity)."""
+    0.1 s warm, run while the fit is drawn; JSON key length_scale_sensitivity)."""
     data: Path | None = None
     """contactnets-cube: the ContactNets tosses (.npz of toss_<n> arrays, (T, 13) each; not shipped with dano,
     e.g. shared/data/real/contactnets_cube/tosses_100_299.npz)."""

@@ -175,7 +175,8 @@ def _residual(models, h, pr: ImplicitProblem, v):
 #: systems up to this size are solved by :func:`dense_solve`'s unrolled LU; larger ones by LAPACK
 UNROLLED_LU_MAX = 16
 #: rollouts of at least this many steps use the unrolled LU (``linear_solver="auto"``): it
-#: costs about 2 s more compiling once and saves about 13 µs per step (bunny drop, 2-core CPU)
+#: costs about 2 s more compiling once and saves 9–13 µs per step (bunny drop, 2-core CPU;
+#: 9 since the weighted moments are two arrays), repaid by the compilation cache's reuse
 UNROLLED_MIN_STEPS = 10_000
 
 

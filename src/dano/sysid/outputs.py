@@ -4,9 +4,9 @@ result folder (``result.json``, ``config.json``, ``fit.png``: all three or none)
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
