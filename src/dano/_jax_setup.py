@@ -21,8 +21,10 @@ two flags), each only when the user has not set it and only when it can still ta
   (237 µs without, one run each). Other backends ignore it: XLA keeps ``xla_``-prefixed
   extra options to itself (it passes only the others on to LLVM), and only the CPU compiler
   reads this one.
-* ``MUJOCO_GL=egl`` when no display is set and MuJoCo is not imported yet: headless
-  machines render through EGL.
+* ``MUJOCO_GL`` when no display is set, the user has not set it and MuJoCo is not
+  imported yet: headless machines render through EGL (``egl``), or OSMesa where there is
+  no libEGL, and where there is neither, ``disable`` (MuJoCo then imports and simulates;
+  rendering says it cannot create an OpenGL context): :func:`headless_gl_backend`.
 
 Explicit switches (the ``dano`` command line turns both on):
 
@@ -83,8 +85,23 @@ if not _STARTED_BEFORE_US and "xla_cpu_use_fusion_emitters" not in os.environ.ge
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + FUSION_FLAG).strip()
 if not _STARTED_BEFORE_US and "xla_backend_extra_options" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + SMALL_LOOP_FLAG).strip()
-if not os.environ.get("DISPLAY") and "mujoco" not in sys.modules:
-    os.environ.setdefault("MUJOCO_GL", "egl")
+def headless_gl_backend() -> str:
+    """MuJoCo's OpenGL back-end for a machine without a display: ``egl`` where the system
+    has libEGL, else ``osmesa`` where it has libOSMesa, else ``disable``. PyOpenGL does not
+    fail cleanly when told to use EGL without libEGL: ``import mujoco`` itself then raised
+    AttributeError ('NoneType' object has no attribute 'eglQueryString'), seen on a GPU
+    machine with CUDA but no OpenGL libraries (2026-11-25); with ``disable`` MuJoCo imports
+    and simulates, and only rendering fails, with dano's message naming MUJOCO_GL."""
+    import ctypes.util
+
+    for backend, library in (("egl", "EGL"), ("osmesa", "OSMesa")):
+        if ctypes.util.find_library(library):
+            return backend
+    return "disable"
+
+
+if not os.environ.get("DISPLAY") and "mujoco" not in sys.modules and "MUJOCO_GL" not in os.environ:
+    os.environ["MUJOCO_GL"] = headless_gl_backend()
 
 
 def check_xla_flags() -> bool:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+import json
 import os
 import platform
 import statistics
@@ -36,7 +37,8 @@ from .experiments.sysid_examples import (PUSH_TRUTH, analytic_slides, contactnet
 from .experiments.tracking_curves import tracking_colour, tracking_success_curve
 from .fields import BoxField, SphereField, mesh_field
 from .nerf import TrainConfig, load_dataset, train
-from .sim import DanoObject, NewtonConfig, SimParams, State, compose, rollout_arrays
+from .sim import DanoObject, NewtonConfig, SimParams, State, compose, rollout_arrays, scan_steps
+from .sim.dynamics import as_data
 from .sim.implicit import resolve_linear_solver
 from .sim.scenes import load_scene
 from .sysid import FitParameter, SysIdProblem, Weights, identify
@@ -105,6 +107,28 @@ def _steps_per_second(fn, steps: int, repeats: int) -> dict:
     return r
 
 
+def _hull_model(sc):
+    """A MuJoCo model of ``sc``'s first DANO (the bunny-drop's bunny) as the convex hull of its
+    samples on a plane, same mass, inertia, friction and time step: what a user would
+    otherwise simulate. Returns (MjModel, hull vertex count)."""
+    import mujoco
+    import trimesh
+
+    bunny = sc.assets[0]
+    hull = trimesh.convex.convex_hull(bunny.points)
+    spec = mujoco.MjSpec()
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05])
+    spec.add_mesh(name="hull", uservert=hull.vertices.ravel().tolist(), userface=hull.faces.ravel().tolist())
+    body = spec.worldbody.add_body(name="bunny")
+    body.add_freejoint()
+    J = bunny.inertia
+    body.mass, body.ipos, body.explicitinertial = bunny.mass, [0, 0, 0], True
+    body.fullinertia = [J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2]]
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname="hull", density=0, friction=[0.1, 0.005, 0.0001])
+    spec.option.timestep = sc.dt
+    return spec.compile(), int(len(hull.vertices))
+
+
 def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) -> dict:
     """Simulation speed (CPU or GPU, float64), all measured in this one run (the default
     step counts keep every timing above 0.2 s on the 2-core CPU):
@@ -127,8 +151,8 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     * ``jacfwd_200``: forward-mode Jacobian of a 200-step bunny rollout w.r.t. 2 parameters
       (sliding friction, mass scale α).
     """
+    import mujoco
     import mujoco.rollout
-    import trimesh
 
     out: dict = {}
     setup = load_scene("bunny-drop")
@@ -139,19 +163,7 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     s32 = State(jnp.asarray(s0.qpos, jnp.float32), jnp.asarray(s0.qvel, jnp.float32))
 
     # MuJoCo C with the bunny as a convex hull of its samples
-    bunny = sc.assets[0]
-    hull = trimesh.convex.convex_hull(bunny.points)
-    spec = mujoco.MjSpec()
-    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05])
-    spec.add_mesh(name="hull", uservert=hull.vertices.ravel().tolist(), userface=hull.faces.ravel().tolist())
-    body = spec.worldbody.add_body(name="bunny")
-    body.add_freejoint()
-    J = bunny.inertia
-    body.mass, body.ipos, body.explicitinertial = bunny.mass, [0, 0, 0], True
-    body.fullinertia = [J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2]]
-    body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname="hull", density=0, friction=[0.1, 0.005, 0.0001])
-    spec.option.timestep = sc.dt
-    m = spec.compile()
+    m, hull_vertices = _hull_model(sc)
     d = mujoco.MjData(m)
     d.qpos[:], d.qvel[:] = np.asarray(s0.qpos), np.asarray(s0.qvel)
     state0 = np.empty(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS))
@@ -176,7 +188,7 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
         out[name] = r
     out["bunny_drop"].update(num_samples=sc.assets[0].num_samples, contact_model="centroid")
     out["bunny_drop_per_sample"]["contact_model"] = "per_sample"
-    out["mujoco_c_convex_hull"]["hull_vertices"] = int(len(hull.vertices))
+    out["mujoco_c_convex_hull"]["hull_vertices"] = hull_vertices
     c_step = [t / mujoco_steps for t in rounds["mujoco_c_convex_hull"]]
     # ratios: medians over the rounds of the ratio within each round
     out["ratio_per_sample_over_centroid_time"] = statistics.median(
@@ -353,6 +365,112 @@ def bench_batched(repeats: int = 3, steps: int = 200, batches: tuple[int, ...] |
     return out
 
 
+#: batch sizes of the scaling suite: on a GPU up to 262,144 drops, on a CPU a few small ones
+SCALING_BATCHES = {"gpu": (1024, 4096, 16384, 32768, 65536, 131072, 262144), "cpu": (16, 64, 256)}
+
+
+def _cast(tree, dtype):
+    return jax.tree_util.tree_map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
+
+
+def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats: int = 2,
+                  linear_solver: str = "auto") -> dict:
+    """One point of the scaling suite, in this process: ``batch`` bunny drops of ``steps``
+    steps (the batched suite's initial states, seeded by ``batch``) vmapped in one jitted
+    program on the default device, in ``dtype`` (float32 or float64): ``engine`` "dano" (the
+    paper bunny, 5000 samples, centroid contact model) or "mjx" (plain MJX, the same bunny as
+    the convex hull of its samples, :func:`_hull_model`). Returns :func:`_time`'s dict with
+    env-steps/s and the device's peak memory (``peak_bytes``: XLA's allocator statistics where
+    the device keeps them, else None; ``max_rss_bytes``: the process's peak resident memory);
+    for dano also the Newton iterations (B, T) of one further run: ``iterations_mean`` per
+    env-step, ``loop_trips`` (the sum over steps of the batch's largest count: what the
+    vmapped Newton loop runs), ``typical_env_trips`` (the median env's sum), ``envs_at_max``
+    (envs that used all ``max_iterations`` in some step) and ``non_finite_envs``;
+    ``linear_solver``: :attr:`~dano.sim.NewtonConfig.linear_solver` of dano's steps."""
+    import resource
+
+    if dtype == "float64" or engine == "dano":  # plain MJX in float32 runs as MJX users run it: 64-bit mode off
+        enable_float64()
+    dt = jnp.dtype(dtype)
+    setup = load_scene("bunny-drop")
+    sc, s0, p = setup.scene, setup.state0, setup.params
+    qpos, qvel = (x.astype(dt) for x in _drops(batch, sc, s0))
+    out: dict = {"engine": engine, "dtype": dtype, "batch": batch, "steps": steps, "backend": jax.default_backend()}
+    if engine == "dano":
+        scd, pd = sc.astype(dt), _cast(p, dt)
+        newton = resolve_linear_solver(NewtonConfig(linear_solver=linear_solver), scd, steps)
+        out["linear_solver"] = newton.linear_solver
+        ctrl, f = jnp.zeros((steps, scd.nu), dt), jnp.zeros((steps, scd.nv), dt)
+
+        def roll(q, v):
+            _, qs, vs, _, iters = scan_steps(scd, pd, as_data(scd, State(q, v)), ctrl, f, newton, False)
+            return qs[-1], vs[-1], iters
+
+        run = jax.jit(jax.vmap(roll))
+    elif engine == "mjx":
+        from ._mjx import mjx
+
+        m, out["hull_vertices"] = _hull_model(sc)
+        mx = _cast(mjx.put_model(m), dt)
+        d0 = _cast(mjx.make_data(mx), dt)
+
+        def roll(q, v):
+            d = jax.lax.scan(lambda d, _: (mjx.step(mx, d), None), d0.replace(qpos=q, qvel=v), None, length=steps)[0]
+            return d.qpos, d.qvel, jnp.zeros((steps,), dt)
+
+        run = jax.jit(jax.vmap(roll))
+    else:
+        raise DanoError(f"unknown engine {engine!r}: dano or mjx")
+    r = _time(lambda: jax.block_until_ready(run(qpos, qvel)), repeats)
+    qf, vf, iters = (np.asarray(x) for x in run(qpos, qvel))
+    r.update(out, env_steps_per_s=batch * steps / r["median_s"], compile_s=max(r["first_s"] - r["median_s"], 0.0))
+    finite = np.isfinite(qf).all(1) & np.isfinite(vf).all(1)
+    r["non_finite_envs"] = int((~finite).sum())
+    if engine == "dano":
+        r.update(iterations_mean=float(iters.mean()), loop_trips=int(iters.max(0).sum()),
+                 typical_env_trips=float(np.median(iters.sum(1))),
+                 envs_at_max=int((iters >= NewtonConfig().max_iterations).any(1).sum()))
+    stats = jax.local_devices()[0].memory_stats() or {}
+    r["peak_bytes"] = stats.get("peak_bytes_in_use")
+    r["max_rss_bytes"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    return r
+
+
+def bench_scaling(repeats: int = 2, steps: int = 200, batches: tuple[int, ...] | None = None,
+                  dtypes: tuple[str, ...] = ("float32", "float64"), engines: tuple[str, ...] = ("dano", "mjx"),
+                  timeout_s: float = 300.0) -> dict:
+    """Batched bunny drops at growing B, dano against plain MJX on the bunny's convex hull, in
+    float32 and float64 (:func:`scaling_point`), each point in a fresh Python process on one
+    device, so that a point that runs longer than ``timeout_s`` (seconds, compile included)
+    is reported (``timed_out_s``) and the table goes on. Default B:
+    :data:`SCALING_BATCHES` of the backend. Keys ``{engine}_{dtype}_{B}``; ratios
+    ``ratio_dano_over_mjx_{dtype}_{B}`` of env-steps/s."""
+    batches = batches or SCALING_BATCHES["gpu" if jax.default_backend() == "gpu" else "cpu"]
+    out: dict = {"steps": steps, "batches": list(batches), "timeout_s": timeout_s}
+    for b in batches:
+        for dtype in dtypes:
+            for engine in engines:
+                code = ("import json, dano.bench as b; "
+                        f"print('RESULT ' + json.dumps(b.scaling_point({engine!r}, {dtype!r}, {b}, {steps}, {repeats})))")
+                t0 = time.perf_counter()
+                try:
+                    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                                          timeout=timeout_s)
+                except subprocess.TimeoutExpired:
+                    r = {"timed_out_s": timeout_s}
+                else:
+                    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+                    r = json.loads(lines[-1][7:]) if lines else {"error": proc.stderr.strip().splitlines()[-5:]}
+                r["wall_s"] = time.perf_counter() - t0
+                out[f"{engine}_{dtype}_{b}"] = r
+                print(f"scaling {engine} {dtype} B={b}: " + (f"{r['env_steps_per_s']:.4g} env-steps/s"
+                      if "env_steps_per_s" in r else str(r)), file=sys.stderr, flush=True)
+            d, m = out.get(f"dano_{dtype}_{b}", {}), out.get(f"mjx_{dtype}_{b}", {})
+            if "env_steps_per_s" in d and "env_steps_per_s" in m:
+                out[f"ratio_dano_over_mjx_{dtype}_{b}"] = d["env_steps_per_s"] / m["env_steps_per_s"]
+    return out
+
+
 def _device_counts(available: int) -> list[int]:
     """1, 2, 4, … below ``available``, then ``available``."""
     counts, n = [], 1
@@ -522,7 +640,7 @@ def bench_tracking(repeats: int = 1, curve: bool = True, colour_minutes: float =
 
 
 SUITES = {"build": bench_build, "sim": bench_sim, "sysid": bench_sysid, "latency": bench_latency,
-          "batched": bench_batched, "sharded": bench_sharded,
+          "batched": bench_batched, "scaling": bench_scaling, "sharded": bench_sharded,
           "trajopt": bench_trajopt, "energy": bench_energy, "nerf": bench_nerf, "tracking": bench_tracking}
 
 
@@ -542,7 +660,8 @@ class BenchConfig:
     """print one JSON object."""
     suite: tuple[str, ...] = ()
     """suites to run (default all): build, sim, sysid, latency (time to first result of five commands, cold and
-    warm compilation cache), batched, sharded (batches split over 1, 2, 4, ... devices:
+    warm compilation cache), batched, scaling (dano and plain MJX, float32 and float64, B up to 262,144 on a GPU,
+    each point in its own process), sharded (batches split over 1, 2, 4, ... devices:
     correctness and overhead), trajopt, energy, nerf (fields from images; needs the shared data, see
     benchmarks/README.md), tracking."""
     devices: int | None = None
@@ -568,6 +687,11 @@ class BenchConfig:
     dano)."""
     cube_tosses: int = 10
     """sysid suite: tosses of that run."""
+    batches: tuple[int, ...] = ()
+    """batch sizes of the batched and scaling suites (default: per backend, benchmarks/README.md)."""
+    scaling_timeout: float = 300.0
+    """scaling suite: seconds one point (one engine, dtype and batch, in its own process, compile included) may
+    run before it is reported as timed out."""
     out: Annotated[Path | None, tyro.conf.arg(aliases=("-o",))] = None
     """also write the JSON here."""
 
@@ -587,6 +711,10 @@ class BenchConfig:
             raise DanoError(f"--cube-tosses must be 2 to 200, got {self.cube_tosses}")
         if self.devices is not None:
             sharding.check_devices(self.devices, "--devices")
+        if any(not 1 <= b <= 10_000_000 for b in self.batches):
+            raise DanoError(f"--batches must be 1 to 10000000 each, got {list(self.batches)}")
+        if not 1 <= self.scaling_timeout <= 86_400:
+            raise DanoError(f"--scaling-timeout must be 1 to 86400 s, got {self.scaling_timeout}")
 
 
 def bench_command(config: BenchConfig) -> dict:
@@ -603,4 +731,6 @@ def _bench_command(config: BenchConfig) -> dict:
                                   "cube_tosses": config.cube_tosses},
                         "nerf": {"minutes": config.nerf_minutes, "loop_minutes": config.nerf_loop_minutes,
                                  "eval_at": tuple(m for m in (1.0, 3.0) if m < config.nerf_minutes)},
-                        "tracking": {"colour_minutes": config.tracking_colour_minutes}})
+                        "tracking": {"colour_minutes": config.tracking_colour_minutes},
+                        "batched": {"batches": tuple(config.batches) or None},
+                        "scaling": {"batches": tuple(config.batches) or None, "timeout_s": config.scaling_timeout}})
