@@ -389,7 +389,7 @@ def fuzz_bench(capsys, option, value):
         assert run_cli(capsys, "bench", args, folder, [out]) in (1, 2)
 
 
-S_BENCH = dict(option=st.sampled_from(["drops", "repeats", "suite", "contact-model"]),
+S_BENCH = dict(option=st.sampled_from(["drops", "repeats", "suite", "contact-model", "batches", "scaling-timeout"]),
                value=st.sampled_from(["0", "-3", "1e9", "x", "", "10000000", "simulation"]))
 
 

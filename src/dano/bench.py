@@ -442,7 +442,8 @@ def bench_scaling(repeats: int = 2, steps: int = 200, batches: tuple[int, ...] |
     """Batched bunny drops at growing B, dano against plain MJX on the bunny's convex hull, in
     float32 and float64 (:func:`scaling_point`), each point in a fresh Python process on one
     device, so that a point that runs longer than ``timeout_s`` (seconds, compile included)
-    is reported (``timed_out_s``) and the table goes on. Default B:
+    is reported (``timed_out_s``) and the table goes on; each compiles afresh (no persistent
+    compilation cache: a cached program would hide a compile that differs). Default B:
     :data:`SCALING_BATCHES` of the backend. Keys ``{engine}_{dtype}_{B}``; ratios
     ``ratio_dano_over_mjx_{dtype}_{B}`` of env-steps/s."""
     batches = batches or SCALING_BATCHES["gpu" if jax.default_backend() == "gpu" else "cpu"]
@@ -688,7 +689,8 @@ class BenchConfig:
     cube_tosses: int = 10
     """sysid suite: tosses of that run."""
     batches: tuple[int, ...] = ()
-    """batch sizes of the batched and scaling suites (default: per backend, benchmarks/README.md)."""
+    """batch sizes of the batched and scaling suites, each 1 to 1048576 (default: per backend,
+    benchmarks/README.md)."""
     scaling_timeout: float = 300.0
     """scaling suite: seconds one point (one engine, dtype and batch, in its own process, compile included) may
     run before it is reported as timed out."""
@@ -711,8 +713,8 @@ class BenchConfig:
             raise DanoError(f"--cube-tosses must be 2 to 200, got {self.cube_tosses}")
         if self.devices is not None:
             sharding.check_devices(self.devices, "--devices")
-        if any(not 1 <= b <= 10_000_000 for b in self.batches):
-            raise DanoError(f"--batches must be 1 to 10000000 each, got {list(self.batches)}")
+        if any(not 1 <= b <= 1_048_576 for b in self.batches):
+            raise DanoError(f"--batches must be 1 to 1048576 each, got {list(self.batches)}")
         if not 1 <= self.scaling_timeout <= 86_400:
             raise DanoError(f"--scaling-timeout must be 1 to 86400 s, got {self.scaling_timeout}")
 
