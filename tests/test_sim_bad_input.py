@@ -124,6 +124,24 @@ def test_simulate_options_refused_before_any_work(args, message, tmp_path, capsy
     assert list(tmp_path.iterdir()) == []
 
 
+def test_an_mp4_without_ffmpeg_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    # seen on a machine whose imageio-ffmpeg had no binary: "internal error ... please report
+    # it" after the whole simulation; now one line before it, and a .gif still works
+    import imageio_ffmpeg
+
+    def missing():
+        raise RuntimeError("No ffmpeg exe could be found")
+
+    monkeypatch.setattr(imageio_ffmpeg, "get_ffmpeg_exe", missing)
+    code, _, err = run(capsys, "simulate", "bunny-drop", "--video", tmp_path / "v.mp4", "--out", tmp_path / "t.npz",
+                       "--quiet")
+    assert code == 1 and "writing .mp4 needs ffmpeg" in err and "or write a .gif" in err
+    assert list(tmp_path.iterdir()) == []
+    from dano.sim.run import check_video_path
+
+    check_video_path(tmp_path / "v.gif")
+
+
 def test_a_repeated_multi_value_flag_is_a_usage_error(tmp_path, capsys):
     code, _, err = run(capsys, "simulate", "scene.xml", "--object", "builtin:bunny@0,0,1", "--object",
                        "builtin:bunny_lowpoly@1,0,1")

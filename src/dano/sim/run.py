@@ -31,7 +31,7 @@ from ..contact import CONTACT_MODELS
 from ..data import load_asset
 from ..errors import DanoError
 from ..trajectory import Trajectory, save_trajectory
-from ..viz.video import camera_id, write_video
+from ..viz.video import camera_id, check_video_writer, write_video
 from .rollout import rollout
 from .dynamics import State
 from .scene import DanoObject, Scene, SimParams
@@ -240,9 +240,10 @@ def simulate(config: SimulateConfig, progress=None) -> SimulationRun:
 
 
 def check_video_path(video: str | Path | None) -> None:
-    """Raises DanoError unless ``video`` is None or ends in .mp4 or .gif (checked before a run)."""
-    if video is not None and Path(video).suffix.lower() not in (".mp4", ".gif"):
-        raise DanoError(f"--video {video}: must be .mp4 or .gif")
+    """Raises DanoError unless ``video`` is None or an .mp4 or .gif that can be written
+    (:func:`~dano.viz.video.check_video_writer`; checked before a run)."""
+    if video is not None:
+        check_video_writer(video, f"--video {video}")
 
 
 @dataclass(frozen=True)

@@ -82,15 +82,34 @@ def write_video(scene, traj, path: str | Path, fps: float = 30.0, width: int = 6
     return write_frames(render_frames(scene, traj, fps, width, height, progress, camera), path, fps)
 
 
+def check_video_writer(path: str | Path, what: str | None = None) -> None:
+    """Raises DanoError (naming ``what``, default the path) unless ``path`` ends in .mp4 or
+    .gif and, for .mp4, an ffmpeg executable is found (imageio-ffmpeg's own, or
+    ``IMAGEIO_FFMPEG_EXE``). Cheap: callers check before a run, so that a missing encoder
+    does not show only after the simulation (it was an "internal error" then)."""
+    what = what or str(path)
+    suffix = Path(path).suffix.lower()
+    if suffix not in (".mp4", ".gif"):
+        raise DanoError(f"{what}: must be .mp4 or .gif")
+    if suffix == ".mp4":
+        try:
+            import imageio_ffmpeg
+
+            imageio_ffmpeg.get_ffmpeg_exe()
+        except (ImportError, RuntimeError) as exc:
+            raise DanoError(f"{what}: writing .mp4 needs ffmpeg, which was not found ({exc}); install imageio-ffmpeg "
+                            "or set IMAGEIO_FFMPEG_EXE to an ffmpeg executable, or write a .gif") from exc
+
+
 def write_frames(frames, path: str | Path, fps: float = 30.0) -> Path:
     """Write RGB frames (an iterable of (H, W, 3) uint8) to an H.264 ``.mp4`` or a ``.gif``,
-    atomically (nothing is left on error). Raises DanoError for another suffix."""
+    atomically (nothing is left on error). Raises DanoError for another suffix or for an .mp4
+    without ffmpeg (:func:`check_video_writer`)."""
     import imageio.v2 as imageio
 
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix not in (".mp4", ".gif"):
-        raise DanoError(f"{path}: video must be .mp4 or .gif")
+    check_video_writer(path, f"{path}: video")
     kwargs = {"fps": fps}
     if suffix == ".mp4":
         kwargs.update(format="FFMPEG", codec="libx264", quality=7, macro_block_size=8, ffmpeg_log_level="error")
