@@ -78,13 +78,6 @@ def jaxlib_has_fusion_flag() -> bool:
         return False
 
 
-_STARTED_BEFORE_US = _backend_started()
-_FLAG_BEFORE_US = FUSION_FLAG in os.environ.get("XLA_FLAGS", "")
-if not _STARTED_BEFORE_US and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", "") \
-        and jaxlib_has_fusion_flag():
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + FUSION_FLAG).strip()
-if not _STARTED_BEFORE_US and "xla_backend_extra_options" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + SMALL_LOOP_FLAG).strip()
 def headless_gl_backend() -> str:
     """MuJoCo's OpenGL back-end for a machine without a display: ``egl`` where the system
     has libEGL, else ``osmesa`` where it has libOSMesa, else ``disable``. PyOpenGL does not
@@ -100,6 +93,13 @@ def headless_gl_backend() -> str:
     return "disable"
 
 
+_STARTED_BEFORE_US = _backend_started()
+_FLAG_BEFORE_US = FUSION_FLAG in os.environ.get("XLA_FLAGS", "")
+if not _STARTED_BEFORE_US and "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", "") \
+        and jaxlib_has_fusion_flag():
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + FUSION_FLAG).strip()
+if not _STARTED_BEFORE_US and "xla_backend_extra_options" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + SMALL_LOOP_FLAG).strip()
 if not os.environ.get("DISPLAY") and "mujoco" not in sys.modules and "MUJOCO_GL" not in os.environ:
     os.environ["MUJOCO_GL"] = headless_gl_backend()
 
