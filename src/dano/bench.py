@@ -444,11 +444,15 @@ def bench_scaling(repeats: int = 2, steps: int = 200, batches: tuple[int, ...] |
     device, so that a point that runs longer than ``timeout_s`` (seconds, compile included)
     is reported (``timed_out_s``) and the table goes on; each compiles afresh (no persistent
     compilation cache: a cached program would hide a compile that differs). Default B:
-    :data:`SCALING_BATCHES` of the backend. Keys ``{engine}_{dtype}_{B}``; ratios
+    :data:`SCALING_BATCHES` of the backend; a B given again is a further attempt, keyed
+    ``{B}_2``, ``{B}_3``, ... Keys ``{engine}_{dtype}_{B}``; ratios
     ``ratio_dano_over_mjx_{dtype}_{B}`` of env-steps/s."""
     batches = batches or SCALING_BATCHES["gpu" if jax.default_backend() == "gpu" else "cpu"]
     out: dict = {"steps": steps, "batches": list(batches), "timeout_s": timeout_s}
-    for b in batches:
+    for i, b in enumerate(batches):
+        # a B given again is a further attempt (a fresh process and compile): keys {B}_2, {B}_3, ...
+        k = batches[:i].count(b)
+        b_key = f"{b}_{k + 1}" if k else str(b)
         for dtype in dtypes:
             for engine in engines:
                 code = ("import json, dano.bench as b; "
@@ -463,12 +467,12 @@ def bench_scaling(repeats: int = 2, steps: int = 200, batches: tuple[int, ...] |
                     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
                     r = json.loads(lines[-1][7:]) if lines else {"error": proc.stderr.strip().splitlines()[-5:]}
                 r["wall_s"] = time.perf_counter() - t0
-                out[f"{engine}_{dtype}_{b}"] = r
+                out[f"{engine}_{dtype}_{b_key}"] = r
                 print(f"scaling {engine} {dtype} B={b}: " + (f"{r['env_steps_per_s']:.4g} env-steps/s"
                       if "env_steps_per_s" in r else str(r)), file=sys.stderr, flush=True)
-            d, m = out.get(f"dano_{dtype}_{b}", {}), out.get(f"mjx_{dtype}_{b}", {})
+            d, m = out.get(f"dano_{dtype}_{b_key}", {}), out.get(f"mjx_{dtype}_{b_key}", {})
             if "env_steps_per_s" in d and "env_steps_per_s" in m:
-                out[f"ratio_dano_over_mjx_{dtype}_{b}"] = d["env_steps_per_s"] / m["env_steps_per_s"]
+                out[f"ratio_dano_over_mjx_{dtype}_{b_key}"] = d["env_steps_per_s"] / m["env_steps_per_s"]
     return out
 
 
