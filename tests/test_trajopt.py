@@ -246,7 +246,12 @@ def test_push_sphere_cli_reaches_both_goals(tmp_path, capsys, monkeypatch, push_
     assert (out / "push-sphere.mp4").stat().st_size > 10_000 and (out / "convergence.png").stat().st_size > 10_000
 
 
-def test_trajopt_cli_bad_input(tmp_path, capsys):
+def test_trajopt_cli_bad_input(tmp_path, capsys, monkeypatch):
+    with monkeypatch.context() as m:  # no OpenGL for MuJoCo: refused before the solve, not after it
+        m.setenv("MUJOCO_GL", "disable")
+        code = main(["trajopt", "push-sphere", "--out-dir", str(tmp_path / "o")])
+        err = capsys.readouterr().err
+        assert code == 1 and "MUJOCO_GL=disable" in err and "--no-video" in err
     code = main(["trajopt", "push-cube"])
     assert code == 1 and "unknown task 'push-cube'" in capsys.readouterr().err
     cfg = tmp_path / "bad.toml"

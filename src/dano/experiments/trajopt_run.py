@@ -20,7 +20,7 @@ from .._files import atomic_path
 from ..errors import DanoError
 from ..sim import State, rollout
 from ..viz.plot import plot_trajopt
-from ..viz.video import write_video
+from ..viz.video import check_mujoco_video, write_video
 from .grasp import GraspPandaConfig, run_grasp
 from .push import TASKS, final_errors, limit_report, model_error_run, pusher_positions, solve_task, unknown_task
 
@@ -266,7 +266,11 @@ class TrajoptCommandConfig:
 def trajopt_command(config: TrajoptCommandConfig, progress=None) -> tuple[dict, list]:
     """``dano trajopt``: solve the task (:func:`run`), its report made JSON-safe (non-finite
     values as null, listed in ``warnings``), every output written to ``out_dir`` (default
-    ``trajopt-<task>/``, :func:`write_outputs`). Returns (report, paths written)."""
+    ``trajopt-<task>/``, :func:`write_outputs`). Returns (report, paths written). Raises
+    DanoError before the solve if the video cannot be made here (no OpenGL for MuJoCo, no
+    ffmpeg: :func:`~dano.viz.video.check_mujoco_video`)."""
+    if not config.no_video:
+        check_mujoco_video("video.mp4", "the video (--no-video to leave it out)")
     task, solution, me, rep = run(config.task, progress=progress, model_error=config.model_error,
                                   max_iterations=config.max_iterations, contact_model=config.contact_model,
                                   object=config.object, goal=config.goal_xy(), pusher=config.pusher)

@@ -15,7 +15,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import time
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -32,7 +31,7 @@ from ..contact import CONTACT_MODELS
 from ..data import load_asset
 from ..errors import DanoError
 from ..trajectory import Trajectory, save_trajectory
-from ..viz.video import camera_id, check_video_writer, write_video
+from ..viz.video import camera_id, check_mujoco_video, write_video
 from .rollout import rollout
 from .dynamics import State
 from .scene import DanoObject, Scene, SimParams
@@ -241,17 +240,10 @@ def simulate(config: SimulateConfig, progress=None) -> SimulationRun:
 
 
 def check_video_path(video: str | Path | None) -> None:
-    """Raises DanoError unless ``video`` is None or an .mp4 or .gif that can be written
-    (:func:`~dano.viz.video.check_video_writer`) and MuJoCo's OpenGL is not disabled
-    (``MUJOCO_GL=disable``, which dano sets on a machine without libEGL or libOSMesa);
-    checked before a run."""
-    if video is None:
-        return
-    check_video_writer(video, f"--video {video}")
-    if os.environ.get("MUJOCO_GL", "").lower().strip() in ("disable", "disabled", "off", "false", "0"):
-        raise DanoError(f"--video {video}: cannot render: MuJoCo's OpenGL is off (MUJOCO_GL="
-                        f"{os.environ['MUJOCO_GL']}: this machine has no libEGL or libOSMesa, or it was set so); "
-                        "install one (e.g. libegl1, libosmesa6) or leave out --video")
+    """Raises DanoError unless ``video`` is None or a video MuJoCo can render and write here
+    (:func:`~dano.viz.video.check_mujoco_video`); checked before a run."""
+    if video is not None:
+        check_mujoco_video(video, f"--video {video}")
 
 
 @dataclass(frozen=True)

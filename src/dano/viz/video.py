@@ -101,6 +101,24 @@ def check_video_writer(path: str | Path, what: str | None = None) -> None:
                             "or set IMAGEIO_FFMPEG_EXE to an ffmpeg executable, or write a .gif") from exc
 
 
+#: the values of MUJOCO_GL with which MuJoCo loads no OpenGL back-end (MuJoCo's own list)
+GL_DISABLED = ("disable", "disabled", "off", "false", "0")
+
+
+def check_mujoco_video(path: str | Path, what: str | None = None) -> None:
+    """:func:`check_video_writer`, and raises DanoError (naming ``what``) if MuJoCo's OpenGL
+    is off (``MUJOCO_GL`` one of :data:`GL_DISABLED`, which dano sets on a machine without
+    libEGL or libOSMesa), so that :func:`write_video` could not render. Called by the verbs
+    that film with MuJoCo before their work (a simulation, a trajectory optimisation)."""
+    what = what or str(path)
+    check_video_writer(path, what)
+    gl = os.environ.get("MUJOCO_GL", "")
+    if gl.lower().strip() in GL_DISABLED:
+        raise DanoError(f"{what}: cannot render: MuJoCo's OpenGL is off (MUJOCO_GL={gl}: this machine has no "
+                        "libEGL or libOSMesa, or it was set so); install one (e.g. libegl1, libosmesa6) or leave out "
+                        "the video")
+
+
 def write_frames(frames, path: str | Path, fps: float = 30.0) -> Path:
     """Write RGB frames (an iterable of (H, W, 3) uint8) to an H.264 ``.mp4`` or a ``.gif``,
     atomically (nothing is left on error). Raises DanoError for another suffix or for an .mp4
