@@ -40,6 +40,7 @@ from .nerf import TrainConfig, load_dataset, train
 from .sim import DanoObject, NewtonConfig, SimParams, State, compose, rollout_arrays, scan_steps
 from .sim.dynamics import as_data
 from .sim.implicit import resolve_linear_solver
+from .sim.scene import cast_floats
 from .sim.scenes import load_scene
 from .sysid import FitParameter, SysIdProblem, Weights, identify
 from .trajopt.ilqr import Multipliers, _compiled
@@ -158,9 +159,7 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     setup = load_scene("bunny-drop")
     sc, s0, p = setup.scene, setup.state0, setup.params
     ps = load_scene("bunny-drop", contact_model="per_sample")
-    sc32 = sc.astype(jnp.float32)
-    p32 = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), p)
-    s32 = State(jnp.asarray(s0.qpos, jnp.float32), jnp.asarray(s0.qvel, jnp.float32))
+    sc32, p32, s32 = (cast_floats(x, jnp.float32) for x in (sc, p, s0))
 
     # MuJoCo C with the bunny as a convex hull of its samples
     m, hull_vertices = _hull_model(sc)
@@ -369,10 +368,6 @@ def bench_batched(repeats: int = 3, steps: int = 200, batches: tuple[int, ...] |
 SCALING_BATCHES = {"gpu": (1024, 4096, 16384, 32768, 65536, 131072, 262144), "cpu": (16, 64, 256)}
 
 
-def _cast(tree, dtype):
-    return jax.tree_util.tree_map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
-
-
 def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats: int = 2,
                   linear_solver: str = "auto") -> dict:
     """One point of the scaling suite, in this process: ``batch`` bunny drops of ``steps``
@@ -382,7 +377,7 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
     the convex hull of its samples, :func:`_hull_model`). Returns :func:`_time`'s dict with
     env-steps/s and the device's peak memory (``peak_bytes``: XLA's allocator statistics where
     the device keeps them, else None; ``max_rss_bytes``: the process's peak resident memory);
-    for dano also the Newton iterations (B, T) of one further run: ``iterations_mean`` per
+    for dano also the Newton iterations (B, T) of the last timed run: ``iterations_mean`` per
     env-step, ``loop_trips`` (the sum over steps of the batch's largest count: what the
     vmapped Newton loop runs), ``typical_env_trips`` (the median env's sum), ``envs_at_max``
     (envs that used all ``max_iterations`` in some step) and ``non_finite_envs``;
@@ -397,7 +392,7 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
     qpos, qvel = (x.astype(dt) for x in _drops(batch, sc, s0))
     out: dict = {"engine": engine, "dtype": dtype, "batch": batch, "steps": steps, "backend": jax.default_backend()}
     if engine == "dano":
-        scd, pd = sc.astype(dt), _cast(p, dt)
+        scd, pd = sc.astype(dt), cast_floats(p, dt)
         newton = resolve_linear_solver(NewtonConfig(linear_solver=linear_solver), scd, steps)
         out["linear_solver"] = newton.linear_solver
         ctrl, f = jnp.zeros((steps, scd.nu), dt), jnp.zeros((steps, scd.nv), dt)
@@ -411,8 +406,8 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
         from ._mjx import mjx
 
         m, out["hull_vertices"] = _hull_model(sc)
-        mx = _cast(mjx.put_model(m), dt)
-        d0 = _cast(mjx.make_data(mx), dt)
+        mx = cast_floats(mjx.put_model(m), dt)
+        d0 = cast_floats(mjx.make_data(mx), dt)
 
         def roll(q, v):
             d = jax.lax.scan(lambda d, _: (mjx.step(mx, d), None), d0.replace(qpos=q, qvel=v), None, length=steps)[0]
@@ -421,8 +416,13 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
         run = jax.jit(jax.vmap(roll))
     else:
         raise DanoError(f"unknown engine {engine!r}: dano or mjx")
-    r = _time(lambda: jax.block_until_ready(run(qpos, qvel)), repeats)
-    qf, vf, iters = (np.asarray(x) for x in run(qpos, qvel))
+    last: list = []  # the final states and iterations of the last timed run (not one run more)
+
+    def call():
+        last[:] = [jax.block_until_ready(run(qpos, qvel))]
+
+    r = _time(call, repeats)
+    qf, vf, iters = (np.asarray(x) for x in last[0])
     r.update(out, env_steps_per_s=batch * steps / r["median_s"], compile_s=max(r["first_s"] - r["median_s"], 0.0))
     finite = np.isfinite(qf).all(1) & np.isfinite(vf).all(1)
     r["non_finite_envs"] = int((~finite).sum())

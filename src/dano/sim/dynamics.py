@@ -38,7 +38,7 @@ from ..contact import PAIR_KINDS
 from ..contact.base import pose_linearised_geometry
 from ..pose import normalize_quat, quat_multiply, rotvec_to_quat
 from .implicit import ImplicitProblem, NewtonConfig, contact_force, solve_velocity
-from .scene import Scene, SimParams
+from .scene import Scene, SimParams, cast_floats
 
 
 @jax.tree_util.register_dataclass
@@ -75,7 +75,7 @@ def make_data(scene: Scene, qpos=None, qvel=None, *, act=None, ctrl=None, time: 
     # (MJX makes its float fields in JAX's default float type; on this process's first device, not
     # jax.devices()[0], which is process 0's in a multi-process run)
     d = mjx.make_data(scene.model, device=jax.local_devices()[0])
-    d = jax.tree_util.tree_map(lambda x: x.astype(dt) if jnp.issubdtype(x.dtype, jnp.floating) else x, d)
+    d = cast_floats(d, dt)
     repl = {"time": jnp.asarray(time, dt)}
     if qpos is not None:
         repl["qpos"] = jnp.asarray(qpos, dt)

@@ -236,7 +236,7 @@ class Scene:
         DanoError for float64 while JAX's 64-bit mode is off."""
         dtype = jnp.dtype(dtype)
         _check_dtype(dtype)
-        return jax.tree_util.tree_map(lambda x: x.astype(dtype) if _is_float(x) else x, self)
+        return cast_floats(self, dtype)
 
     def default_params(self, **contact_overrides) -> SimParams:
         """The paper's contact parameters for every pair (overrides by name, scalar or
@@ -301,6 +301,12 @@ class Scene:
 
 def _is_float(x) -> bool:
     return hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.floating)
+
+
+def cast_floats(tree, dtype):
+    """``tree`` (any pytree: a Scene, SimParams, MJX Model or Data) with every floating-point
+    array converted to ``dtype``; other leaves as they are."""
+    return jax.tree_util.tree_map(lambda x: x.astype(dtype) if _is_float(x) else x, tree)
 
 
 def _check_dtype(dtype) -> None:
