@@ -133,9 +133,11 @@ def test_non_convex_block_rests_where_mujoco_c_puts_its_convex_decomposition(u_b
 def test_per_sample_block_search_gives_the_all_samples_wrench():
     # the benchmark's bunny (bunny-drop) resting on the ground: the samples the two-level
     # block search keeps give the wrench and its Jacobian of all samples, with the search
-    # holding them all and overflowing (too few blocks or samples: the full fallback)
+    # holding them all and overflowing (too few blocks or samples: the full fallback); the
+    # closed-form Jacobian is forward-mode AD's
     from dano._mjx import mjx
-    from dano.contact.per_sample import PerSample, _AllSamples
+    from dano.contact.base import sample_rates
+    from dano.contact.per_sample import REACH_MARGIN, PerSample, _AllSamples, depth_rates
     from dano.sim.dynamics import _group_params, contact_geometry, make_data, model_with_params
     from dano.sim.scenes import load_scene
 
@@ -152,29 +154,37 @@ def test_per_sample_block_search_gives_the_all_samples_wrench():
 
     g = pair_geometry(rest.qpos[-1], rest.qvel[-1])
     p = jax.tree_util.tree_map(lambda x: x[0], _group_params(params, scene.groups[0], 1))
-    reach = int(np.sum(np.asarray(g.depth) > -1.0))
-    assert 30 < reach <= PerSample().max_active  # (104 samples within reach, in 28 blocks of 8)
-    full = _AllSamples(g, (g.depth > -1.0) & (g.weight > 0), jnp.asarray(0.01))
+    reach = int(np.sum(np.asarray(g.depth) > -REACH_MARGIN))
+    assert 30 < reach <= PerSample().max_active  # (51 samples within reach; 30 in contact)
+    full = _AllSamples(g, (g.depth > -REACH_MARGIN) & (g.weight > 0), jnp.asarray(0.01))
 
     @functools.partial(jax.jit, static_argnums=0)
-    def wrench_and_jacobian(model, st, u):
+    def by_ad(model, st, u):
         return model.wrench(p, st, u), jax.jacfwd(lambda x: model.wrench(p, st, x))(u)
 
+    closed_form = jax.jit(lambda model, st, u: model.wrench_and_jacobian(p, st, u), static_argnums=0)
     us = (jnp.zeros(6), jnp.asarray([0.2, -0.1, -0.3, 0.5, 1.0, -2.0]))
     # the wrench of all samples, the reference (it uses none of the search's counts: one program)
-    reference = [wrench_and_jacobian(PerSample(), full, u) for u in us]
+    reference = [by_ad(PerSample(), full, u) for u in us]
     for model, overflows in ((PerSample(), False), (PerSample(blocks_searched=4), True),
                              (PerSample(max_active=16), True)):
         st = jax.jit(lambda g: model.prepare(g, 0.01))(g)  # noqa: B023  (called at once)
         assert bool(st.overflow) == overflows
         assert int(np.sum(np.asarray(st.active.weight) > 0)) == min(reach, model.max_active) or overflows
         for u, (expected, expected_jac) in zip(us, reference):
-            W, K = wrench_and_jacobian(model, st, u)
-            np.testing.assert_allclose(W, expected, rtol=1e-12, atol=1e-12)
-            np.testing.assert_allclose(K, expected_jac, rtol=1e-10, atol=1e-9)
+            for W, K in (by_ad(model, st, u), closed_form(model, st, u)):
+                np.testing.assert_allclose(W, expected, rtol=1e-12, atol=1e-12)
+                np.testing.assert_allclose(K, expected_jac, rtol=1e-10, atol=1e-9)
             if not overflows:  # the kept samples alone
-                np.testing.assert_allclose(wrench_and_jacobian(model, st.active, u)[0], expected, rtol=1e-12,
-                                           atol=1e-12)
+                np.testing.assert_allclose(by_ad(model, st.active, u)[0], expected, rtol=1e-12, atol=1e-12)
+
+    # the look-ahead: ż_i = c_i·u (the plane's affine shortcut), and a bunny moving down at
+    # 1 m/s reaches h·1 m/s / r = 0.41 radii further; moving up, no further than at rest
+    u = jnp.asarray([0.3, -0.2, -1.0, 0.4, -0.7, 0.2])
+    np.testing.assert_allclose(depth_rates(g, u), u @ sample_rates(g), rtol=1e-12, atol=1e-12)
+    count = lambda u: int(np.sum(np.asarray(jax.jit(lambda g, u: PerSample().prepare(g, 0.01, u).active.weight)(g, u)) > 0))  # noqa: E731
+    assert count(jnp.asarray([0, 0, -1.0, 0, 0, 0])) > reach
+    assert count(jnp.asarray([0, 0, 1.0, 0, 0, 0])) == reach
 
 
 @pytest.mark.parametrize("bad", [dict(max_active=0), dict(blocks_searched=0), dict(blocks_searched=2.5),

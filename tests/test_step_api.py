@@ -1,9 +1,11 @@
 """The public step and its pytrees (issue 7, "What to build" 1 and 6)."""
 
+import dataclasses
 import re
 import subprocess
 import sys
 from pathlib import Path
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -316,6 +318,7 @@ def test_unrolled_rollout_has_no_lapack_call_and_agrees_with_lapack():
     picks it for rollouts of at least UNROLLED_MIN_STEPS steps with the centroid model."""
     from dano.errors import DanoError
     from dano.sim import NewtonConfig
+    from dano.contact import Centroid
     from dano.sim.implicit import UNROLLED_MIN_STEPS, resolve_linear_solver
     from dano.sim.scenes import load_scene
 
@@ -336,7 +339,14 @@ def test_unrolled_rollout_has_no_lapack_call_and_agrees_with_lapack():
     assert resolve_linear_solver(auto, sc, UNROLLED_MIN_STEPS - 1).linear_solver == "lapack"
     lapack = NewtonConfig(linear_solver="lapack")
     assert resolve_linear_solver(lapack, sc, 10 * UNROLLED_MIN_STEPS) is lapack
-    per_sample = load_scene("bunny-drop", contact_model="per_sample").scene  # its rollout is not one kernel
-    assert resolve_linear_solver(auto, per_sample, UNROLLED_MIN_STEPS).linear_solver == "lapack"
+    per_sample = load_scene("bunny-drop", contact_model="per_sample").scene  # one kernel too (no YNNPACK fusions)
+    assert resolve_linear_solver(auto, per_sample, UNROLLED_MIN_STEPS).linear_solver == "unrolled"
+
+    @dataclasses.dataclass(frozen=True)
+    class OpByOp(Centroid):  # a model whose rollout does not compile into one kernel
+        single_kernel_rollout: ClassVar[bool] = False
+
+    other = load_scene("bunny-drop", contact_model=OpByOp()).scene
+    assert resolve_linear_solver(auto, other, UNROLLED_MIN_STEPS).linear_solver == "lapack"
     with pytest.raises(DanoError, match="linear_solver must be"):
         NewtonConfig(linear_solver="lu")

@@ -227,10 +227,12 @@ class CachedFunction:
     documentation). Call it like the function; ``lower`` and other ``jax.jit`` attributes
     are those of the plain jitted function (``.jit``)."""
 
-    def __init__(self, fn, static_argnums=(), mesh=None):
+    def __init__(self, fn, static_argnums=(), mesh=None, compiler_options=None):
         self.fn = fn
         self.static_argnums = tuple(sorted(static_argnums))
+        self._compiler_options = compiler_options
         self.jit = jax.jit(fn, static_argnums=self.static_argnums)
+        self._top_jit = None  # self.jit with the compiler options (JAX takes them on a top-level call only)
         self.mesh_of = mesh
         self._sharded_jits: dict = {}  # mesh -> jax.jit with replicated in/out shardings
         self.name = f"{fn.__module__}.{fn.__qualname__}"
@@ -241,6 +243,19 @@ class CachedFunction:
         self.counts = collections.Counter()
         functools.update_wrapper(self, fn)
         _FUNCTIONS.add(self)
+
+    def _top_level_jit(self):
+        """The jitted function with its compiler options (made at its first use, when the
+        backend is known), for calls with concrete arguments."""
+        if self._top_jit is None:
+            options = self._options()
+            self._top_jit = jax.jit(self.fn, static_argnums=self.static_argnums, **options) if options else self.jit
+        return self._top_jit
+
+    def _options(self) -> dict:
+        """``compiler_options=`` for ``jax.jit``: the function's XLA options for this backend."""
+        options = self._compiler_options() if self._compiler_options is not None else None
+        return {"compiler_options": options} if options else {}
 
     def __getattr__(self, name):  # lower, trace, eval_shape, _cache_size, ...
         return getattr(self.jit, name)
@@ -258,7 +273,7 @@ class CachedFunction:
         traced = any(isinstance(x, jax.core.Tracer) for x in leaves)
         mesh = None if (self.mesh_of is None or traced) else self.mesh_of(*statics)
         if where is None or traced:
-            return self._timed_jit(args, mesh)
+            return self._timed_jit(args, mesh, traced)
         if mesh is None and jax.process_count() == 1:  # (across processes JAX places the call itself)
             leaves = _committed(leaves)
         try:
@@ -282,19 +297,20 @@ class CachedFunction:
             out = program[0](*leaves)
         return jax.tree_util.tree_unflatten(program[1], out)
 
-    def _jit_for(self, mesh):
-        """The plain jitted function, for a sharded program with replicated arguments and results."""
+    def _jit_for(self, mesh, traced: bool = False):
+        """The plain jitted function (``traced``: inside another transformation, without the
+        compiler options), for a sharded program with replicated arguments and results."""
         if mesh is None:
-            return self.jit
+            return self.jit if traced else self._top_level_jit()
         if mesh not in self._sharded_jits:
             rep = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
             self._sharded_jits[mesh] = jax.jit(self.fn, static_argnums=self.static_argnums, in_shardings=rep,
-                                               out_shardings=rep)
+                                               out_shardings=rep, **self._options())
         return self._sharded_jits[mesh]
 
-    def _timed_jit(self, args, mesh=None):
+    def _timed_jit(self, args, mesh=None, traced: bool = False):
         """The plain jitted call; its time counts as compiling when JAX's cache grew."""
-        jitted = self._jit_for(mesh)
+        jitted = self._jit_for(mesh, traced)
         before = jitted._cache_size()
         t0 = time.perf_counter()
         out = jitted(*args)
@@ -318,7 +334,7 @@ class CachedFunction:
             self.counts["reused"] += 1
             return program
         path = where / f"{digest}.jaxexp"
-        program = _load(path, mesh)
+        program = _load(path, mesh, self._options())
         kind = "loaded" if program is not None else "traced"
         if program is None:
             program = self._export(tree, statics, leaves, path, mesh)
@@ -340,7 +356,7 @@ class CachedFunction:
 
         exported = jax.export.export(jax.jit(flat, **_replicated(mesh)))(*(_abstract(x) for x in leaves))
         _save(path, exported, holder["tree"])
-        return jax.jit(exported.call, **_replicated(mesh)), holder["tree"]
+        return jax.jit(exported.call, **_replicated(mesh), **self._options()), holder["tree"]
 
 
 def _committed(leaves: list) -> list:
@@ -395,9 +411,9 @@ def _save(path: Path, exported, out_tree) -> None:
         pass
 
 
-def _load(path: Path, mesh=None):
+def _load(path: Path, mesh=None, options: dict | None = None):
     """(jitted call, output tree) of a saved program, or None (absent, or unreadable: then
-    removed); a sharded program is called on ``mesh``."""
+    removed); a sharded program is called on ``mesh``; options: further ``jax.jit`` keywords."""
     try:
         blob = path.read_bytes()
     except OSError:
@@ -411,7 +427,7 @@ def _load(path: Path, mesh=None):
         exported = jax.export.deserialize(bytearray(blob[at + 8 + n :]))
         if exported.nr_devices != (1 if mesh is None else mesh.size):
             raise ValueError("exported for another number of devices")
-        return jax.jit(exported.call, **_replicated(mesh)), out_tree
+        return jax.jit(exported.call, **_replicated(mesh), **(options or {})), out_tree
     except Exception:  # noqa: BLE001 - a truncated or foreign file: trace again
         try:
             path.unlink()
@@ -427,11 +443,15 @@ def clear() -> None:
         f.clear()
 
 
-def cached_jit(fn=None, *, static_argnums=(), mesh=None):
+def cached_jit(fn=None, *, static_argnums=(), mesh=None, compiler_options=None):
     """``jax.jit`` whose traced program is kept per structure, across processes (module
     documentation). Use as ``cached_jit(fn, static_argnums=(0,))`` or as a decorator.
     mesh: for a function that shards its work with ``shard_map``, ``mesh(*static
-    arguments)`` -> the Mesh it runs on, or None for a single-device call."""
+    arguments)`` -> the Mesh it runs on, or None for a single-device call.
+    compiler_options: a function () -> dict of XLA options for ``jax.jit(...,
+    compiler_options=)`` (or None), called at the first compile, when the backend is known
+    (:func:`dano._jax_setup.rollout_compiler_options`)."""
     if fn is None:
-        return functools.partial(cached_jit, static_argnums=static_argnums, mesh=mesh)
-    return CachedFunction(fn, static_argnums, mesh)
+        return functools.partial(cached_jit, static_argnums=static_argnums, mesh=mesh,
+                                 compiler_options=compiler_options)
+    return CachedFunction(fn, static_argnums, mesh, compiler_options)

@@ -104,6 +104,33 @@ if not os.environ.get("DISPLAY") and "mujoco" not in sys.modules and "MUJOCO_GL"
     os.environ["MUJOCO_GL"] = headless_gl_backend()
 
 
+#: XLA's CPU option that picks which operations become YNNPACK library fusions (dots,
+#: reductions, element-wise); empty: none (:func:`rollout_compiler_options`)
+YNN_OPTION = "xla_cpu_experimental_ynn_fusion_type"
+
+
+@functools.lru_cache(maxsize=1)
+def rollout_compiler_options() -> dict:
+    """XLA options of a rollout's compile (``jax.jit(..., compiler_options=)``): on the CPU,
+    no YNNPACK fusions. A YNNPACK fusion runs as a library call, and XLA's CPU compiler
+    turns a while loop into one kernel only when nothing in it calls out
+    (:data:`SMALL_LOOP_FLAG`): the per-sample model's sums over its samples became such
+    fusions, so its rollouts ran op by op (bunny drop, 2-core CPU: 50–53 µs per step, 22
+    µs as one kernel). The centroid model's rollout has none in its loop and steps as fast
+    either way (7.4 µs). Empty where the backend is not the CPU, where the user's XLA_FLAGS
+    set the option, or where this jaxlib does not know it (tried once on a tiny function)."""
+    import jax
+
+    if jax.default_backend() != "cpu" or YNN_OPTION in os.environ.get("XLA_FLAGS", ""):
+        return {}
+    options = {YNN_OPTION: ""}
+    try:
+        jax.jit(lambda x: x + 1, compiler_options=options).lower(1.0).compile()
+    except Exception:  # noqa: BLE001 - an XLA without the option: compile as it comes
+        return {}
+    return options
+
+
 def check_xla_flags() -> bool:
     """Return True if the CPU backend runs with the fusion-emitter flag off.
 

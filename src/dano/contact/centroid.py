@@ -47,7 +47,7 @@ class Centroid:
     def __post_init__(self):
         check_drag(self.drag)
 
-    def prepare(self, g: PairGeometry, h) -> CentroidState:
+    def prepare(self, g: PairGeometry, h, u=None) -> CentroidState:
         return CentroidState(g.psi, g.psi_rate, g.moment_rate, g.normal, jnp.asarray(h, g.psi.dtype))
 
     def wrench(self, p, st: CentroidState, u):

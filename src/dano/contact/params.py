@@ -79,6 +79,22 @@ def smooth_direction(v: jax.Array, steepness: float = FRICTION_STEEPNESS,
     revision. At 1 cm/s the magnitude is 0.17, at 10 cm/s 0.80, at 1 m/s 0.98; it is 0 (and
     smooth, with a finite derivative) at v = 0, so there is no NaN at rest.
     """
+    _, _, phi, _ = direction_profile(v, steepness, regularizer, axis)
+    return -(2.0 / jnp.pi) * phi * v
+
+
+def direction_profile(v: jax.Array, steepness: float = FRICTION_STEEPNESS,
+                      regularizer: float = FRICTION_REGULARIZER, axis: int = -1):
+    """The parts of :func:`smooth_direction` (= −(2/π)·φ(|v|)·v) for velocities v along
+    ``axis``: (speed |v|, unit v/|v| (0 where v = 0), φ = atan(s·|v|)/(r + |v|) and its
+    slope dφ/d|v| [s/m per m/s]), the speed-shaped arrays keeping ``axis`` with length 1.
+    All are finite at v = 0 (the square root is taken of a positive stand-in there)."""
     sq = jnp.sum(v * v, axis=axis, keepdims=True)
-    speed = jnp.sqrt(jnp.where(sq > 0, sq, 1.0)) * (sq > 0)
-    return -(2.0 / jnp.pi) * jnp.arctan(steepness * speed) * v / (regularizer + speed)
+    moving = sq > 0
+    speed = jnp.sqrt(jnp.where(moving, sq, 1.0)) * moving
+    unit = v / jnp.where(moving, speed, 1.0)
+    angle = jnp.arctan(steepness * speed)
+    denom = regularizer + speed
+    phi = angle / denom
+    dphi = steepness / ((1.0 + (steepness * speed) ** 2) * denom) - phi / denom
+    return speed, unit, phi, dphi

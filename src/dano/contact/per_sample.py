@@ -11,9 +11,9 @@ import jax
 import jax.numpy as jnp
 
 from ..errors import DanoError
-from .base import (Compacted, PairGeometry, cross_columns, occupancy, register_contact_model, sample_rates,
-                   world_points)
-from .law import check_drag, sample_forces
+from .base import (Compacted, PairGeometry, cross_columns, occupancy, occupancy_slope, register_contact_model,
+                   sample_rates, skew, world_points)
+from .law import check_drag, sample_forces_and_slopes
 from .samples import SAMPLE_BLOCK
 
 
@@ -58,6 +58,12 @@ class _AllSamples:
     h: jax.Array
 
 
+#: a sample is within reach of a step when its depth z_i, advanced over the step at the
+#: step's start velocity where that deepens it, is above −REACH_MARGIN (in sample radii):
+#: the margin covers the step's change of velocity
+REACH_MARGIN = 0.25
+
+
 @register_contact_model("per_sample")
 @dataclass(frozen=True)
 class PerSample:
@@ -70,25 +76,31 @@ class PerSample:
     (z_i + h·ż_i, its occupancy following), so samples entering contact during the step
     push back within it. drag: as for the centroid model.
 
-    Only samples within one sample radius of contact at the step's start can act in it (as
-    in the centroid model, a pair acts once it overlaps at the start of a step). The step
-    then works on the first ``max_active`` of them, gathered once per step, instead of all
-    samples. The search is in two levels: the scene stores samples in spatially compact
+    Only samples within reach can act in a step: those whose depth, advanced over the step
+    at the step's start velocity where that deepens it, comes within :data:`REACH_MARGIN`
+    sample radii of contact (the margin covers the step's change of velocity; a sample
+    that would reach contact later acts from a later step, as a pair acts once it overlaps
+    at the start of a step in the centroid model). The step then works on the first
+    ``max_active`` of them, gathered once per step, instead of all samples. The search is
+    in two levels: the scene stores samples in spatially compact
     blocks of :data:`~dano.contact.samples.SAMPLE_BLOCK` (:class:`~dano.contact.samples.Samples`);
     the step finds the first ``blocks_searched`` blocks holding a sample within reach, then
     the samples within reach among theirs (a prefix count over all samples cost as much as
-    the rest of the step). If more blocks or samples are within reach, it uses all samples
-    (same result, full cost). Measured on the paper bunny resting on the ground (2926
-    distinct samples in 366 blocks): 104 samples within reach, in 28 blocks; 30 in contact.
-    A flat face of a finely sampled box can hold more and then runs at full cost."""
+    the rest of the step). If more blocks or samples are within reach, it uses all samples,
+    ``max_active`` at a time (same result, full cost). Measured on the paper bunny resting on
+    the ground (2926 distinct samples in 366 blocks): 51 samples within reach, 30 in
+    contact (104 within one radius, the reach before 2026-11-25, which needed 128 slots and
+    cost 1.5× the step); falling at 1 m/s it reaches 0.41 radii further. A flat face of a
+    finely sampled box can hold more and then runs at full cost. The Newton Jacobian is in
+    closed form (:meth:`wrench_and_jacobian`)."""
 
     name: ClassVar[str] = "per_sample"
-    #: no: XLA makes YNNPACK fusions of its sums over samples, and its all-samples fallback's
-    #: Newton loop reads more than the one-kernel threshold (docs/simulation.md, Speed); the
-    #: unrolled solve measured 36.7 µs per step against LAPACK's 36.3 µs
-    single_kernel_rollout: ClassVar[bool] = False
+    #: yes, compiled without YNNPACK fusions (:func:`dano._jax_setup.rollout_compiler_options`) and
+    #: with the all-samples fallback evaluated max_active samples at a time: the bunny drop's
+    #: step 22 µs with the unrolled LU, 41 µs with LAPACK (2-core CPU)
+    single_kernel_rollout: ClassVar[bool] = True
     drag: str = "normal_force"
-    max_active: int = 128
+    max_active: int = 64
     blocks_searched: int = 48
 
     def __post_init__(self):
@@ -98,8 +110,11 @@ class PerSample:
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise DanoError(f"PerSample.{name} must be a positive integer, got {value!r}")
 
-    def prepare(self, g: PairGeometry, h):
-        reach = (g.depth > -1.0) & (g.weight > 0)  # padded samples have weight 0
+    def prepare(self, g: PairGeometry, h, u=None):
+        # within reach: z_i + h·max(ż_i, 0) > −REACH_MARGIN at the start twist u (padded
+        # samples have weight 0)
+        rise = 0.0 if u is None else h * jnp.maximum(depth_rates(g, u), 0.0)
+        reach = (g.depth + rise > -REACH_MARGIN) & (g.weight > 0)
         if g.depth.shape[-1] <= self.max_active:
             return _state(g, h, reach)
         full = _AllSamples(g, reach, jnp.asarray(h, g.psi.dtype))
@@ -108,24 +123,113 @@ class PerSample:
             candidates, within = jnp.arange(S), reach
             over = jnp.zeros((), bool)
         else:  # the first blocks holding a sample within reach, then the samples in them
-            blocks = jnp.any(reach.reshape(-1, block), axis=1)
-            first = jnp.nonzero(blocks, size=self.blocks_searched, fill_value=0)[0]
+            first, found = _first_true(jnp.any(reach.reshape(-1, block), axis=1), self.blocks_searched)
             candidates = (first[:, None] * block + jnp.arange(block)).reshape(-1)
-            kept = jnp.repeat(jnp.arange(self.blocks_searched) < jnp.sum(blocks), block)
+            kept = jnp.repeat(jnp.arange(self.blocks_searched) < found, block)
             within = reach[candidates] & kept
-            over = jnp.sum(blocks) > self.blocks_searched
-        count = jnp.sum(within)
-        idx = candidates[jnp.nonzero(within, size=self.max_active, fill_value=0)[0]]
+            over = found > self.blocks_searched
+        slots, count = _first_true(within, self.max_active)
         valid = jnp.arange(self.max_active) < count
-        return Compacted(_state(_take(g, idx), h, valid), full, over | (count > self.max_active))
+        return Compacted(_state(_take(g, candidates[slots]), h, valid), full, over | (count > self.max_active))
 
     def wrench(self, p, st: PerSampleState | Compacted | _AllSamples, u):
+        return self._wrench(p, st, u, jacobian=False)
+
+    def wrench_and_jacobian(self, p, st: PerSampleState | Compacted | _AllSamples, u):
+        """(wrench (6,), ∂wrench/∂u (6, 6)), the Jacobian in closed form from the force
+        law's :class:`~dano.contact.law.SampleForceSlopes` (the step's Newton Jacobian;
+        forward-mode AD of :meth:`wrench` gives the same to rounding, at 1.6× the cost on
+        the resting bunny's 128 samples)."""
+        return self._wrench(p, st, u, jacobian=True)
+
+    def _wrench(self, p, st, u, jacobian: bool):
         if isinstance(st, Compacted):  # one pair evaluated on its own (the step does this per group)
-            return jax.lax.cond(st.overflow, lambda: self.wrench(p, st.full, u), lambda: self.wrench(p, st.active, u))
+            return jax.lax.cond(st.overflow, lambda: self._wrench(p, st.full, u, jacobian),
+                                lambda: self._wrench(p, st.active, u, jacobian))
         if isinstance(st, _AllSamples):
-            st = _state(st.geometry, st.h, st.reach)
+            return self._evaluate_all(p, st, u, jacobian)
+        return self._evaluate(p, st, u, jacobian)
+
+    def _evaluate_all(self, p, full: _AllSamples, u, jacobian: bool):
+        """:meth:`_evaluate` over all samples, ``max_active`` at a time, summed: a loop of
+        the compacted step's size keeps the fallback's code as small as the step's (XLA's
+        CPU compiler then still turns the rollout into one kernel: the Newton loop over
+        all 2928 bunny samples at once read more than its byte threshold)."""
+        g, K = full.geometry, self.max_active
+        S = g.depth.shape[-1]
+
+        def chunk(i, total):
+            start = jnp.minimum(i * K, S - K)  # the last chunk ends at S, overlapping the one before
+            idx = start + jnp.arange(K)
+            valid = full.reach[idx] & (idx >= i * K)
+            out = self._evaluate(p, _state(_take(g, idx), full.h, valid), u, jacobian)
+            return jax.tree_util.tree_map(jnp.add, total, out)
+
+        zero = jnp.zeros(6, u.dtype)
+        return jax.lax.fori_loop(0, -(-S // K), chunk, (zero, jnp.zeros((6, 6), u.dtype)) if jacobian else zero)
+
+    def _evaluate(self, p, st: PerSampleState, u, jacobian: bool):
         motion = u[:3, None] + cross_columns(u[3:, None], st.arm)  # (3, K) relative velocity at each sample
-        arm = st.arm + st.h * st.moves * motion
-        share = st.weight * occupancy(st.depth + st.h * (u @ st.rate))
-        forces = sample_forces(p, share, st.normal, motion, self.drag)
-        return jnp.concatenate([jnp.sum(forces, axis=1), jnp.sum(cross_columns(arm, forces), axis=1)])
+        moved = st.h * st.moves
+        arm = st.arm + moved * motion
+        depth = st.depth + st.h * (u @ st.rate)
+        forces, slopes = sample_forces_and_slopes(p, st.weight * occupancy(depth), st.normal, motion, self.drag)
+        wrench = jnp.concatenate([jnp.sum(forces, axis=1), jnp.sum(cross_columns(arm, forces), axis=1)])
+        if not jacobian:
+            return wrench
+        # ∂F_i/∂u = κ_i·[I, −[a_i]×] + Σ_t x_t ⊗ y_t over three rank-one terms: the motion
+        # v + ω × a_i has ∂/∂u = [I, −[a_i]×] (a row yᵀ becomes [yᵀ, (a_i × y)ᵀ]), the share
+        # w_i·o(z_i + h·c_i·u) has ∂/∂u = w_i·o'·h·c_i; the arm a_i + h·m_i·(v + ω × a_i)
+        # adds −[F_i]×·h·m_i·[I, −[a_i]×] to the torque's
+        normal = jnp.broadcast_to(st.normal, motion.shape)
+        terms = ((slopes.along_normal, _twist_row(normal, st.arm)),
+                 (slopes.along_slip, _twist_row(slopes.slip_direction, st.arm)),
+                 (slopes.per_weight, (st.weight * occupancy_slope(depth) * st.h) * st.rate))
+        x = jnp.concatenate([t[0] for t in terms], axis=1)  # (3, 3K), the terms side by side
+        y = jnp.concatenate([t[1] for t in terms], axis=1)  # (6, 3K)
+        j_force = _outer_sum(x, y)
+        j_torque = _outer_sum(cross_columns(jnp.concatenate([arm] * len(terms), axis=1), x), y)
+        kappa = slopes.kappa
+        eye = jnp.eye(3, dtype=u.dtype)
+        lever = kappa * arm - moved * forces  # (3, K); Σ [b_i]×[a_i]× = Σ a_i b_iᵀ − (a_i·b_i)·I
+        ab = _outer_sum(st.arm, lever)
+        j_force = j_force + jnp.concatenate([jnp.sum(kappa) * eye, -skew(st.arm @ kappa)], axis=1)
+        j_torque = j_torque + jnp.concatenate([skew(jnp.sum(lever, axis=1)), jnp.trace(ab) * eye - ab], axis=1)
+        return wrench, jnp.concatenate([j_force, j_torque], axis=0)
+
+
+def depth_rates(g: PairGeometry, u) -> jax.Array:
+    """ż_i (S,) of every sample at the relative twist u (6,) [1/s]: c_i·u of
+    :func:`~dano.contact.base.sample_rates` without forming the (6, S) columns. Where the depth
+    gradient is one column ∇z (plane pairs), ż_i = ∇z·(v + ω × a_i) is affine in the
+    stored points p_i (a_i = R·p_i + x − χ): 3 products per sample."""
+    v, w = u[:3], u[3:]
+    sign = 2.0 * g.moves - 1.0
+    if g.depth_grad.shape[-1] == 1:
+        grad = g.depth_grad[:, 0]
+        offset = jnp.dot(grad, v + jnp.cross(w, g.points_offset - g.chi))
+        return sign * (offset + (g.points_rotation.T @ jnp.cross(grad, w)) @ g.points)
+    arm = world_points(g) - g.chi[:, None]
+    return sign * jnp.sum(g.depth_grad * (v[:, None] + cross_columns(w[:, None], arm)), axis=0)
+
+
+def _first_true(mask, size: int):
+    """(indices (size,) of the first ``size`` True entries of ``mask`` (N,), in order, the
+    slots past the last True holding N − 1; the number of True entries ()): a prefix count
+    and a binary search of it (``jnp.nonzero`` scatters element by element: 2 µs more per
+    bunny step)."""
+    ranks = jnp.cumsum(mask)
+    idx = jnp.searchsorted(ranks, jnp.arange(1, size + 1, dtype=ranks.dtype))
+    return jnp.minimum(idx, mask.shape[0] - 1), ranks[-1]
+
+
+def _twist_row(y, arm):
+    """(6, K) rows [y_i; a_i × y_i]: y_iᵀ·∂(v + ω × a_i)/∂u for y (3, K), arms a (3, K)."""
+    return jnp.concatenate([y, cross_columns(arm, y)], axis=0)
+
+
+def _outer_sum(x, y):
+    """Σ_i x_i ⊗ y_i (m, n) of columns x (m, K), y (n, K), as products and one sum: in XLA's
+    CPU kernel the resting bunny's Jacobian (128 samples) took 6.5 µs so, 16.9 µs as a dot,
+    9.1 µs with one such sum per term, 10.4 µs by forward-mode AD."""
+    return jnp.sum(x[:, None, :] * y[None, :, :], axis=-1)

@@ -204,7 +204,10 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig =
     geos, jacs = contact_geometry(scene, params, m, d, newton.geometry_tangents)
     models = tuple(g.model for g in scene.groups)
     gparams = tuple(_group_params(params, g, len(scene.pairs)) for g in scene.groups)
-    states = tuple(jax.vmap(lambda g_, model=model: model.prepare(g_, h))(g) for model, g in zip(models, geos))
+    # each pair's relative twist at its centroid at the step's start (J·v: the contact models' look-ahead)
+    twists = tuple(jnp.einsum("gvk,v->gk", J, data.qvel.astype(J.dtype)) for J in jacs)
+    states = tuple(jax.vmap(lambda g_, u_, model=model: model.prepare(g_, h, u_))(g, u)
+                   for model, g, u in zip(models, geos, twists))
     d = mjx.fwd_velocity(m, d)
     d = mjx.fwd_actuation(m, d)
     # some MJX stages compute in the default float type (64-bit under x64 mode): keep the

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 from dataclasses import dataclass
 
 import jax
@@ -154,6 +155,9 @@ def _contact_force_and_jacobian(models, pr: ImplicitProblem, v):
         u = jnp.einsum("gvk,v->gk", J, v)
 
         def value_and_jac(p_, st_, u_, model=model):
+            if hasattr(model, "wrench_and_jacobian") and os.environ.get("DANO_AD") != "1":  # the model's own (closed-form) Jacobian
+                return model.wrench_and_jacobian(p_, st_, u_)
+
             def w(x):
                 out = model.wrench(p_, st_, x)
                 return out, out

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._compiled import cached_jit
+from .._jax_setup import rollout_compiler_options
 from ..errors import DanoError
 from ..trajectory import Trajectory
 from .implicit import NewtonConfig, resolve_linear_solver
@@ -57,7 +58,7 @@ def _scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: N
     return d_last, jnp.concatenate([data.qpos[None], qpos]), jnp.concatenate([data.qvel[None], qvel]), psi, iters
 
 
-_scan_steps_compiled = cached_jit(_scan_steps, static_argnums=(5, 6))
+_scan_steps_compiled = cached_jit(_scan_steps, static_argnums=(5, 6), compiler_options=rollout_compiler_options)
 
 
 def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig = NewtonConfig(),
