@@ -182,7 +182,11 @@ def test_per_sample_block_search_gives_the_all_samples_wrench():
     # 1 m/s reaches h·1 m/s / r = 0.41 radii further; moving up, no further than at rest
     u = jnp.asarray([0.3, -0.2, -1.0, 0.4, -0.7, 0.2])
     np.testing.assert_allclose(depth_rates(g, u), u @ sample_rates(g), rtol=1e-12, atol=1e-12)
-    count = lambda u: int(np.sum(np.asarray(jax.jit(lambda g, u: PerSample().prepare(g, 0.01, u).active.weight)(g, u)) > 0))  # noqa: E731
+    gathered = jax.jit(lambda g, u: PerSample().prepare(g, 0.01, u).active.weight)
+
+    def count(u):
+        return int(np.sum(np.asarray(gathered(g, u)) > 0))
+
     assert count(jnp.asarray([0, 0, -1.0, 0, 0, 0])) > reach
     assert count(jnp.asarray([0, 0, 1.0, 0, 0, 0])) == reach
 
