@@ -219,3 +219,30 @@ def test_per_sample_reverse_mode_matches_central_differences_through_its_fallbac
     central = (x_end(0.2 + 1e-6) - x_end(0.2 - 1e-6)) / 2e-6
     assert float(reverse) < -0.1  # more friction, a shorter slide
     np.testing.assert_allclose(reverse, central, rtol=1e-6)
+
+
+def test_per_sample_look_ahead_rates_are_the_sample_rates_for_every_pair_kind():
+    # ż_i = c_i·u: the plane's affine shortcut and the general form (per-sample depth
+    # gradients: the sphere geom and DANO-DANO pairs) against the (6, S) rate columns
+    from dano._mjx import mjx
+    from dano.contact.base import sample_rates
+    from dano.contact.per_sample import depth_rates
+    from dano.sim.dynamics import contact_geometry, make_data, model_with_params
+    from dano.sim.scenes import load_scene
+
+    setup = load_scene("two-bunnies-sphere", contact_model="per_sample")
+    scene, params = setup.scene, setup.params
+
+    @jax.jit
+    def geometries(qpos, qvel):
+        m = model_with_params(scene, params)
+        return contact_geometry(scene, params, m, mjx.fwd_position(m, make_data(scene, qpos, qvel)))[0]
+
+    u = jnp.asarray([0.3, -0.2, -1.0, 0.4, -0.7, 0.2])
+    kinds = set()
+    for group, batch in zip(scene.groups, geometries(setup.state0.qpos, setup.state0.qvel)):
+        g = jax.tree_util.tree_map(lambda x: x[0], batch)  # noqa: B023
+        kinds.add(group.kind)
+        rates = np.asarray(depth_rates(g, u))
+        np.testing.assert_allclose(rates, np.asarray(u @ sample_rates(g)), rtol=0, atol=1e-12 * np.abs(rates).max())
+    assert kinds == {"plane", "sphere", "dano"}

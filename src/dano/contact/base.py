@@ -190,14 +190,17 @@ class PairKind(Protocol):
 class ContactModel(Protocol):
     """A contact model (hashable: it is static data).
 
-    ``prepare(geometry, h)`` runs once per step on one pair's :class:`PairGeometry` and
-    returns a pytree ``state`` (or a :class:`Compacted` pair of them); ``wrench(p, state, u)`` then gives the force and torque (6,)
+    ``prepare(geometry, h, u=None)`` runs once per step on one pair's :class:`PairGeometry`
+    (u: the pair's relative twist (6,) at χ at the step's start, for models that look
+    ahead; None: at rest) and returns a pytree ``state`` (or a :class:`Compacted` pair of
+    them); ``wrench(p, state, u)`` then gives the force and torque (6,)
     on A, world frame, torque about χ (the point where the step evaluates the Jacobians),
     for the pair's scalar parameters p and the velocity u = (v, ω) (6,) of A relative to B
     at χ, *at the end of the step*: the contact geometry advanced by the step of length h
     with that velocity (to first order), so that the step is implicit in the contact force.
     The step solves for the velocity with Newton's method and differentiates ``wrench``
-    with respect to u in forward mode.
+    with respect to u in forward mode, or calls the model's ``wrench_and_jacobian(p, state,
+    u)`` -> (wrench (6,), ∂wrench/∂u (6, 6)) where it has one (a closed form).
 
     A model may set ``single_kernel_rollout = True`` (a class attribute; False if absent)
     where XLA's CPU compiler turns a rollout of its step into one kernel once the Newton
@@ -206,7 +209,7 @@ class ContactModel(Protocol):
 
     name: str
 
-    def prepare(self, geometry: PairGeometry, h) -> Any: ...
+    def prepare(self, geometry: PairGeometry, h, u=None) -> Any: ...
 
     def wrench(self, p, state, u: jax.Array) -> jax.Array: ...
 
@@ -241,7 +244,7 @@ def contact_model(spec) -> ContactModel:
     if isinstance(spec, type) or not (callable(getattr(spec, "wrench", None))
                                        and callable(getattr(spec, "prepare", None))
                                        and isinstance(getattr(spec, "name", None), str)):
-        raise DanoError("a contact model is an instance with a name and prepare(geometry, h) and "
+        raise DanoError("a contact model is an instance with a name and prepare(geometry, h, u=None) and "
                         f"wrench(p, state, u) methods, got {spec!r}")
     try:
         hash(spec)
