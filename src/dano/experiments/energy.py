@@ -57,7 +57,8 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
     :func:`random_drops`, h = 0.01 s, ``duration`` s, unactuated, vmapped in batches),
     counting runs that become non-finite, diverge (speed > 1000 or an overlap above half
     the mass) or whose kinetic + potential energy ever exceeds its initial value by more
-    than 1 % (``energy_rises``); ``max_energy_ratio`` is the largest max_t E(t)/E(0);
+    than 1 % (``energy_rises``; the five worst in ``worst_runs``, the first 20 non-finite
+    drops by index in ``nonfinite_drops``); ``max_energy_ratio`` is the largest max_t E(t)/E(0);
     ``unconverged_steps``: steps whose Newton solve used all its iterations.
     contact_model: of the bunny/ground pair. batch: drops per vmapped call (default 50 for
     the centroid model; 1, unbatched, for per_sample, whose gathering of the samples in
@@ -88,7 +89,7 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
            "unconverged_steps": 0, "max_newton_iterations": 0, "batch": batch,
            "devices": 1 if batch == 1 else sharding.shards_for(batch)}
     t0 = time.perf_counter()
-    worst = []
+    worst, nonfinite = [], []
     for start in range(0, drops, batch):
         sl = slice(start, min(start + batch, drops))
         n = sl.stop - sl.start
@@ -102,6 +103,7 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
         for i in range(n):
             if not (np.all(np.isfinite(qpos[i])) and np.all(np.isfinite(qvel[i]))):
                 out["nonfinite"] += 1
+                nonfinite.append(start + i)
                 continue
             params_i = base.replace(contact=jax.tree_util.tree_map(lambda x: x[start + i], cparams))
             if first_divergence(sc, params_i, qpos[i], qvel[i], psi[i])[0] is not None:
@@ -114,4 +116,5 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
     out["wall_time_s"] = time.perf_counter() - t0
     out["env_steps_per_s"] = drops * steps / out["wall_time_s"]
     out["worst_runs"] = [{"drop": i, "energy_ratio": r} for r, i in sorted(worst, reverse=True)[:5]]
+    out["nonfinite_drops"] = nonfinite[:20]
     return out
