@@ -162,3 +162,30 @@ def test_labels_are_not_in_the_key(tmp_path, monkeypatch):
                 for a, n in ((asset, "one"), (renamed, "two")))
     assert one.info.name != two.info.name and _digest(one.info) == _digest(two.info)
     assert _digest(asset) == _digest(renamed) != _digest(asset.scaled(2.0))
+
+
+@pytest.mark.parametrize("cache", [True, False])
+def test_compiler_options_on_top_level_calls_only(tmp_path, monkeypatch, cache):
+    # a function with compiler options (a rollout's: no YNNPACK fusions on the CPU) takes
+    # them on a call with concrete arguments; called inside the user's jax.jit, even with
+    # concrete arguments only (closed over), it is traced into that jit as plain jax.jit
+    # (JAX refuses compiler_options on a nested jit), with the disk cache on or off
+    from dano._jax_setup import YNN_OPTION, rollout_compiler_options
+
+    if cache:
+        monkeypatch.delenv("DANO_EXPORT_CACHE", raising=False)
+        _compiled.set_directory(tmp_path)
+    else:
+        monkeypatch.setenv("DANO_EXPORT_CACHE", "0")
+    try:
+        f = cached_jit(_affine, static_argnums=(0,), compiler_options=rollout_compiler_options)
+        x, y = jnp.ones(2), jnp.arange(2.0)
+        top = f(2.0, x, y)["sum"]
+        inside = jax.jit(lambda: f(2.0, x, y)["sum"])()
+        np.testing.assert_array_equal(top, _affine(2.0, x, y)["sum"])
+        np.testing.assert_array_equal(inside, top)
+        if jax.default_backend() == "cpu":  # this jaxlib knows the option
+            assert rollout_compiler_options() == {YNN_OPTION: ""}
+            assert f.lower(2.0, x, y).compile() is not None  # lower: that of the top-level jit
+    finally:
+        _compiled.set_directory(None)

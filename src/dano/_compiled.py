@@ -257,8 +257,8 @@ class CachedFunction:
         options = self._compiler_options() if self._compiler_options is not None else None
         return {"compiler_options": options} if options else {}
 
-    def __getattr__(self, name):  # lower, trace, eval_shape, _cache_size, ...
-        return getattr(self.jit, name)
+    def __getattr__(self, name):  # lower, trace, eval_shape, _cache_size, ...: those of the jit a call would use
+        return getattr(self.jit if _tracing() else self._top_level_jit(), name)
 
     def clear(self) -> None:
         """Forget the programs loaded in this process (the disk keeps them)."""
@@ -270,7 +270,7 @@ class CachedFunction:
         statics = tuple(args[i] for i in self.static_argnums)
         dynamic = tuple(a for i, a in enumerate(args) if i not in self.static_argnums)
         leaves, tree = jax.tree_util.tree_flatten(dynamic)
-        traced = any(isinstance(x, jax.core.Tracer) for x in leaves)
+        traced = _tracing() or any(isinstance(x, jax.core.Tracer) for x in leaves)
         mesh = None if (self.mesh_of is None or traced) else self.mesh_of(*statics)
         if where is None or traced:
             return self._timed_jit(args, mesh, traced)
@@ -357,6 +357,21 @@ class CachedFunction:
         exported = jax.export.export(jax.jit(flat, **_replicated(mesh)))(*(_abstract(x) for x in leaves))
         _save(path, exported, holder["tree"])
         return jax.jit(exported.call, **_replicated(mesh), **self._options()), holder["tree"]
+
+
+def _tracing() -> bool:
+    """Whether a JAX transformation (``jit``, ``vmap``, ...) is tracing the caller: a cached
+    function called there with concrete arguments (e.g. a rollout of fixed inputs inside the
+    user's ``jax.jit``) is traced into it, as plain ``jax.jit`` (JAX refuses compiler
+    options on a nested jit)."""
+    try:
+        from jax._src import core
+
+        return not core.trace_state_clean()
+    except (ImportError, AttributeError):  # pragma: no cover - private API moved: an op stages under a trace
+        import jax.numpy as jnp
+
+        return isinstance(jnp.zeros(()), jax.core.Tracer)
 
 
 def _committed(leaves: list) -> list:

@@ -12,6 +12,7 @@ the centroid into a wrench; the step solves the implicit velocity equation with 
 from __future__ import annotations
 
 import functools
+import inspect
 from dataclasses import dataclass
 from typing import Any, Callable, Protocol
 
@@ -192,8 +193,9 @@ class ContactModel(Protocol):
 
     ``prepare(geometry, h, u=None)`` runs once per step on one pair's :class:`PairGeometry`
     (u: the pair's relative twist (6,) at χ at the step's start, for models that look
-    ahead; None: at rest) and returns a pytree ``state`` (or a :class:`Compacted` pair of
-    them); ``wrench(p, state, u)`` then gives the force and torque (6,)
+    ahead; None: at rest; a ``prepare(geometry, h)`` of the earlier protocol is called
+    without it: :func:`prepare_pair`) and returns a pytree ``state`` (or a
+    :class:`Compacted` pair of them); ``wrench(p, state, u)`` then gives the force and torque (6,)
     on A, world frame, torque about χ (the point where the step evaluates the Jacobians),
     for the pair's scalar parameters p and the velocity u = (v, ω) (6,) of A relative to B
     at χ, *at the end of the step*: the contact geometry advanced by the step of length h
@@ -212,6 +214,24 @@ class ContactModel(Protocol):
     def prepare(self, geometry: PairGeometry, h, u=None) -> Any: ...
 
     def wrench(self, p, state, u: jax.Array) -> jax.Array: ...
+
+
+def prepare_pair(model: ContactModel, geometry: PairGeometry, h, u):
+    """``model.prepare(geometry, h, u)``; a model whose ``prepare`` takes (geometry, h) only
+    (the protocol before 2026-11-25) is called without the twist."""
+    if _takes_twist(type(model)):
+        return model.prepare(geometry, h, u)
+    return model.prepare(geometry, h)
+
+
+@functools.lru_cache(maxsize=None)
+def _takes_twist(cls) -> bool:
+    try:
+        params = inspect.signature(cls.prepare).parameters.values()
+    except (TypeError, ValueError):  # pragma: no cover - a prepare without a signature: assume the current protocol
+        return True
+    positional = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    return len(positional) >= 4 or any(p.kind == p.VAR_POSITIONAL for p in params)
 
 
 PAIR_KINDS: dict[str, PairKind] = {}

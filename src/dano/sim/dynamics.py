@@ -35,7 +35,7 @@ import numpy as np
 
 from .._mjx import mjx
 from ..contact import PAIR_KINDS
-from ..contact.base import pose_linearised_geometry
+from ..contact.base import pose_linearised_geometry, prepare_pair
 from ..pose import normalize_quat, quat_multiply, rotvec_to_quat
 from .implicit import ImplicitProblem, NewtonConfig, contact_force, solve_velocity
 from .scene import Scene, SimParams, cast_floats
@@ -206,7 +206,7 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig =
     gparams = tuple(_group_params(params, g, len(scene.pairs)) for g in scene.groups)
     # each pair's relative twist at its centroid at the step's start (J·v: the contact models' look-ahead)
     twists = tuple(jnp.einsum("gvk,v->gk", J, data.qvel.astype(J.dtype)) for J in jacs)
-    states = tuple(jax.vmap(lambda g_, u_, model=model: model.prepare(g_, h, u_))(g, u)
+    states = tuple(jax.vmap(lambda g_, u_, model=model: prepare_pair(model, g_, h, u_))(g, u)
                    for model, g, u in zip(models, geos, twists))
     d = mjx.fwd_velocity(m, d)
     d = mjx.fwd_actuation(m, d)
