@@ -225,7 +225,8 @@ def _abstract(x):
 class CachedFunction:
     """A jitted function whose traced program is kept on disk per structure (see the module
     documentation). Call it like the function; ``lower`` and other ``jax.jit`` attributes
-    are those of the plain jitted function (``.jit``)."""
+    are those of the jitted function a call would use: with the compiler options outside
+    any JAX trace, the plain one (``.jit``) inside one."""
 
     def __init__(self, fn, static_argnums=(), mesh=None, compiler_options=None):
         self.fn = fn

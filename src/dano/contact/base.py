@@ -98,9 +98,14 @@ def sample_rates(g: PairGeometry):
 
 
 def _rate_columns(depth_grad, moves, arm):
-    sign = 2.0 * moves - 1.0
-    depth_grad = jnp.broadcast_to(depth_grad, arm.shape)
-    return sign * jnp.concatenate([depth_grad, cross_columns(arm, depth_grad)], axis=0)
+    return (2.0 * moves - 1.0) * twist_rows(jnp.broadcast_to(depth_grad, arm.shape), arm)
+
+
+def twist_rows(y: jax.Array, arm: jax.Array) -> jax.Array:
+    """(6, K) columns [y_i; a_i × y_i] for y (3, K) and arms a (3, K) [m], world frame:
+    y_iᵀ·∂(v + ω × a_i)/∂u, the row y_iᵀ of a point velocity taken to the twist u = (v, ω)
+    about the point the arms start from."""
+    return jnp.concatenate([y, cross_columns(arm, y)], axis=0)
 
 
 def surface_occupancy(depth_outside: jax.Array, radius) -> jax.Array:

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 
 from ..errors import DanoError
 from .base import (Compacted, PairGeometry, cross_columns, occupancy, occupancy_slope, register_contact_model,
-                   sample_rates, skew, world_points)
+                   sample_rates, skew, twist_rows, world_points)
 from .law import check_drag, sample_forces_and_slopes
 from .samples import SAMPLE_BLOCK
 
@@ -182,8 +182,8 @@ class PerSample:
         # w_i·o(z_i + h·c_i·u) has ∂/∂u = w_i·o'·h·c_i; the arm a_i + h·m_i·(v + ω × a_i)
         # adds −[F_i]×·h·m_i·[I, −[a_i]×] to the torque's
         normal = jnp.broadcast_to(st.normal, motion.shape)
-        terms = ((slopes.along_normal, _twist_row(normal, st.arm)),
-                 (slopes.along_slip, _twist_row(slopes.slip_direction, st.arm)),
+        terms = ((slopes.along_normal, twist_rows(normal, st.arm)),
+                 (slopes.along_slip, twist_rows(slopes.slip_direction, st.arm)),
                  (slopes.per_weight, (st.weight * occupancy_slope(depth) * st.h) * st.rate))
         x = jnp.concatenate([t[0] for t in terms], axis=1)  # (3, 3K), the terms side by side
         y = jnp.concatenate([t[1] for t in terms], axis=1)  # (6, 3K)
@@ -221,11 +221,6 @@ def _first_true(mask, size: int):
     ranks = jnp.cumsum(mask)
     idx = jnp.searchsorted(ranks, jnp.arange(1, size + 1, dtype=ranks.dtype))
     return jnp.minimum(idx, mask.shape[0] - 1), ranks[-1]
-
-
-def _twist_row(y, arm):
-    """(6, K) rows [y_i; a_i × y_i]: y_iᵀ·∂(v + ω × a_i)/∂u for y (3, K), arms a (3, K)."""
-    return jnp.concatenate([y, cross_columns(arm, y)], axis=0)
 
 
 def _outer_sum(x, y):
