@@ -1,6 +1,7 @@
 """Contact physics of the simulation core v2 (issue 7, "Must show"): energy, rest on the
 true surface, per-sample torsion, a non-convex object against MuJoCo C."""
 
+import dataclasses
 import functools
 
 import jax
@@ -171,12 +172,28 @@ def test_per_sample_block_search_gives_the_all_samples_wrench():
         st = jax.jit(lambda g: model.prepare(g, 0.01))(g)  # noqa: B023  (called at once)
         assert bool(st.overflow) == overflows
         assert int(np.sum(np.asarray(st.active.weight) > 0)) == min(reach, model.max_active) or overflows
+        # reverse_mode=False: the Newton iteration's per-pair choice (the fallback a while loop)
+        loop = dataclasses.replace(st, reverse_mode=False)
         for u, (expected, expected_jac) in zip(us, reference):
-            for W, K in (by_ad(model, st, u), closed_form(model, st, u)):
+            for W, K in (by_ad(model, st, u), closed_form(model, st, u), by_ad(model, loop, u),
+                         closed_form(model, loop, u)):
                 np.testing.assert_allclose(W, expected, rtol=1e-12, atol=1e-12)
                 np.testing.assert_allclose(K, expected_jac, rtol=1e-10, atol=1e-9)
             if not overflows:  # the kept samples alone
                 np.testing.assert_allclose(by_ad(model, st.active, u)[0], expected, rtol=1e-12, atol=1e-12)
+
+    # under vmap, a pair that overflows beside one out of reach (lifted by 1 m: depth far
+    # below): each gets its own wrench, by the branch and by the per-pair loop
+    model, u = PerSample(max_active=16), us[1]
+    lifted = dataclasses.replace(g, depth=g.depth - 100.0)
+    pair = jax.tree_util.tree_map(lambda a, b: jnp.stack([a, b]), g, lifted)
+    st = jax.jit(jax.vmap(lambda g: model.prepare(g, 0.01)))(pair)
+    assert np.asarray(st.overflow).tolist() == [True, False]
+    for st_ in (st, dataclasses.replace(st, reverse_mode=False)):
+        W, K = jax.jit(jax.vmap(lambda s: model.wrench_and_jacobian(p, s, u)))(st_)  # noqa: B023
+        np.testing.assert_allclose(W[0], reference[1][0], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(K[0], reference[1][1], rtol=1e-10, atol=1e-9)
+        assert not np.any(np.asarray(W[1])) and not np.any(np.asarray(K[1]))
 
     # the look-ahead: ż_i = c_i·u (the plane's affine shortcut), and a bunny moving down at
     # 1 m/s reaches h·1 m/s / r = 0.41 radii further; moving up, no further than at rest
@@ -206,7 +223,7 @@ def test_per_sample_reverse_mode_matches_central_differences_through_its_fallbac
     # (a loop of 8-sample chunks inside the branch per force evaluation); jax.grad (reverse
     # mode through the implicit step's tangent) equals central differences
     from dano.contact.per_sample import PerSample
-    from dano.sim import rollout_arrays
+    from dano.sim import NewtonConfig, State, rollout_arrays
     from dano.sim.scenes import load_scene
 
     setup = load_scene("bunny-slide", contact_model=PerSample(max_active=8))
@@ -219,6 +236,20 @@ def test_per_sample_reverse_mode_matches_central_differences_through_its_fallbac
     central = (x_end(0.2 + 1e-6) - x_end(0.2 - 1e-6)) / 2e-6
     assert float(reverse) < -0.1  # more friction, a shorter slide
     np.testing.assert_allclose(reverse, central, rtol=1e-6)
+
+    # forward mode only (NewtonConfig.reverse_mode=False: the fallback a while loop), vmapped
+    # beside the same bunny 1 m up (in the air for the 20 steps, no sample within reach):
+    # the slide's value and derivative as above, the flight's x0 + v·t with dx/dμ = 0
+    def x_end_forward(mu, z):
+        params = setup.params.replace(contact=setup.params.contact.replace(sliding_friction=mu))
+        start = State(setup.state0.qpos.at[2].add(z), setup.state0.qvel)
+        return rollout_arrays(setup.scene, start, None, params, 20, newton=NewtonConfig(reverse_mode=False))[0][-1, 0]
+
+    x, dx = jax.jit(jax.vmap(lambda z: jax.jvp(lambda m: x_end_forward(m, z), (0.2,), (1.0,))))(jnp.asarray([0.0, 1.0]))
+    np.testing.assert_allclose(x[0], x_end(0.2), rtol=1e-12)
+    np.testing.assert_allclose(dx[0], reverse, rtol=1e-9)
+    np.testing.assert_allclose(x[1], setup.state0.qpos[0] + 2.5 * 20 * setup.scene.dt, rtol=1e-12)
+    assert float(dx[1]) == 0.0
 
 
 def test_per_sample_look_ahead_rates_are_the_sample_rates_for_every_pair_kind():

@@ -359,3 +359,5 @@ def test_unrolled_rollout_has_no_lapack_call_and_agrees_with_lapack():
                                   rollout_arrays(sc, s0, None, p, 80)[0])
     with pytest.raises(DanoError, match="linear_solver must be"):
         NewtonConfig(linear_solver="lu")
+    with pytest.raises(DanoError, match="reverse_mode must be True or False"):
+        NewtonConfig(reverse_mode="no")

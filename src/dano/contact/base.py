@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import functools
 import inspect
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol
 
 import jax
@@ -169,11 +169,20 @@ class Compacted:
     all samples (or what the model's ``wrench`` needs to build that state, so that it is
     only computed in a step that uses it); ``overflow`` () is True where ``active`` could
     not hold them all. The step evaluates a group's wrenches on ``active`` unless a pair of
-    the group overflows (then on ``full``; the same result at full cost)."""
+    the group overflows (then on ``full``; the same result at full cost).
+
+    ``reverse_mode`` (static): False where nobody differentiates the wrench in reverse mode
+    (the step's Newton iteration and the Jacobian of its solution, see
+    :func:`dano.sim.implicit.solve_velocity`). The model's ``wrench`` then receives the
+    pair itself and may evaluate ``full`` in a loop that runs no trip where the pair does
+    not overflow (a ``while_loop``, which reverse mode cannot differentiate): under
+    ``jax.vmap`` a branch between ``active`` and ``full`` runs both sides, such a loop runs
+    as many trips as the batch's pairs need, none where none overflows."""
 
     active: Any
     full: Any
     overflow: jax.Array
+    reverse_mode: bool = field(default=True, metadata=dict(static=True))
 
 
 class PairKind(Protocol):

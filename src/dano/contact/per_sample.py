@@ -50,8 +50,9 @@ def _take(g: PairGeometry, idx) -> PairGeometry:
 @dataclass(frozen=True)
 class _AllSamples:
     """The fallback of a pair whose samples within reach overflow ``max_active``: its whole
-    geometry, prepared inside the branch that uses it (so a step that does not overflow
-    never computes the rates of every sample)."""
+    geometry and which samples are within reach (S,), prepared chunk by chunk inside the
+    branch or loop that uses it (so a step that does not overflow never computes the rates
+    of every sample)."""
 
     geometry: PairGeometry
     reach: jax.Array
@@ -86,8 +87,11 @@ class PerSample:
     blocks of :data:`~dano.contact.samples.SAMPLE_BLOCK` (:class:`~dano.contact.samples.Samples`);
     the step finds the first ``blocks_searched`` blocks holding a sample within reach, then
     the samples within reach among theirs (a prefix count over all samples cost as much as
-    the rest of the step). If more blocks or samples are within reach, it uses all samples,
-    ``max_active`` at a time (same result, full cost). Measured on the paper bunny resting on
+    the rest of the step). If more blocks or samples are within reach, it takes every sample
+    within reach, ``max_active`` at a time (the same result, a chunk per ``max_active`` of
+    them; in the Newton iteration a loop that runs no trip for a pair that does not overflow,
+    so that under ``jax.vmap`` only the batch's overflowing pairs cost:
+    :attr:`~dano.contact.base.Compacted.reverse_mode`). Measured on the paper bunny resting on
     the ground (2926 distinct samples in 366 blocks): 51 samples within reach, 30 in
     contact (104 within one radius, the reach before 2026-11-25, which needed 128 slots and
     cost 1.5× the step); falling at 1 m/s it reaches 0.41 radii further. A flat face of a
@@ -143,6 +147,10 @@ class PerSample:
         return self._wrench(p, st, u, jacobian=True)
 
     def _wrench(self, p, st, u, jacobian: bool):
+        if isinstance(st, Compacted) and not st.reverse_mode:  # the Newton iteration's
+            active = self._evaluate(p, st.active, u, jacobian)
+            full = self._evaluate_all(p, st.full, u, jacobian, overflow=st.overflow)
+            return jax.tree_util.tree_map(lambda a, f: jnp.where(st.overflow, f, a), active, full)
         if isinstance(st, Compacted):  # one pair evaluated on its own (the step does this per group)
             return jax.lax.cond(st.overflow, lambda: self._wrench(p, st.full, u, jacobian),
                                 lambda: self._wrench(p, st.active, u, jacobian))
@@ -150,23 +158,47 @@ class PerSample:
             return self._evaluate_all(p, st, u, jacobian)
         return self._evaluate(p, st, u, jacobian)
 
-    def _evaluate_all(self, p, full: _AllSamples, u, jacobian: bool):
-        """:meth:`_evaluate` over all samples, ``max_active`` at a time, summed: a loop of
-        the compacted step's size keeps the fallback's code as small as the step's (XLA's
-        CPU compiler then still turns the rollout into one kernel: the Newton loop over
-        all 2928 bunny samples at once read more than its byte threshold)."""
+    def _evaluate_all(self, p, full: _AllSamples, u, jacobian: bool, overflow=None):
+        """:meth:`_evaluate` over every sample within reach, ``max_active`` at a time (each
+        chunk the next ``max_active`` after the last one taken: a prefix count over all
+        samples and a binary search, as the step's gathering), summed. A loop of the
+        compacted step's size keeps the fallback's code as small as the step's (XLA's CPU
+        compiler then still turns the rollout into one kernel), and it costs as many
+        chunks as there are samples within reach, not all samples: the upright bunny at
+        rest has 111 within reach, two chunks of 64, where the 46 chunks of its 2926
+        samples made its slide's step 439 µs.
+
+        ``overflow`` None: a loop of ceil(S / max_active) trips, each chunk past the last
+        sample within reach skipped by a branch (differentiable in reverse mode); ``overflow``
+        () given: a ``while_loop`` that runs the chunks needed where ``overflow`` is True and
+        none where it is False (the result is then zero), for
+        :attr:`~dano.contact.base.Compacted.reverse_mode` False: under ``jax.vmap`` a branch
+        runs every chunk for the whole batch, this loop as many as its pairs need."""
         g, K = full.geometry, self.max_active
         S = g.depth.shape[-1]
+        zero = jnp.zeros(6, u.dtype)
+        zero = (zero, jnp.zeros((6, 6), u.dtype)) if jacobian else zero
 
-        def chunk(i, total):
-            start = jnp.minimum(i * K, S - K)  # the last chunk ends at S, overlapping the one before
-            idx = start + jnp.arange(K)
-            valid = full.reach[idx] & (idx >= i * K)
-            out = self._evaluate(p, _state(_take(g, idx), full.h, valid), u, jacobian)
+        def add(total, slots, valid):
+            out = self._evaluate(p, _state(_take(g, slots), full.h, valid), u, jacobian)
             return jax.tree_util.tree_map(jnp.add, total, out)
 
-        zero = jnp.zeros(6, u.dtype)
-        return jax.lax.fori_loop(0, -(-S // K), chunk, (zero, jnp.zeros((6, 6), u.dtype)) if jacobian else zero)
+        if overflow is not None:
+            def body(carry):  # the next K samples within reach from index start on (carried,
+                start, total, _ = carry  # so that XLA cannot hoist the prefix count out of the loop)
+                slots, count = _first_true(full.reach & (jnp.arange(S) >= start), K)
+                return (slots[-1] + 1).astype(jnp.int32), add(total, slots, jnp.arange(K) < count), count > K
+
+            return jax.lax.while_loop(lambda c: c[2], body, (jnp.int32(0), zero, overflow))[1]
+
+        ranks = jnp.cumsum(full.reach)
+
+        def chunk(i, total):  # samples within reach number i·K + 1 … (i + 1)·K
+            wanted = i * K + jnp.arange(1, K + 1, dtype=ranks.dtype)
+            slots = jnp.minimum(jnp.searchsorted(ranks, wanted), S - 1)
+            return jax.lax.cond(i * K < ranks[-1], lambda: add(total, slots, wanted <= ranks[-1]), lambda: total)
+
+        return jax.lax.fori_loop(0, -(-S // K), chunk, zero)
 
     def _evaluate(self, p, st: PerSampleState, u, jacobian: bool):
         motion = u[:3, None] + cross_columns(u[3:, None], st.arm)  # (3, K) relative velocity at each sample

@@ -290,7 +290,7 @@ def _constraint_passes(m, d, user_qfrc, newton: NewtonConfig, h: float, models, 
 
     def body(carry, first):
         d_in, Q_seen, v, _ = carry
-        Q = contact_force(models, problem, v).astype(dtype)
+        Q = contact_force(models, problem, v, newton.reverse_mode).astype(dtype)
         changed = jnp.linalg.norm(Q - Q_seen) > PASS_CHANGE * (jnp.linalg.norm(Q_seen) + jnp.linalg.norm(Q))
         return jax.lax.cond(first | changed, lambda: one_pass(d_in, Q), lambda: carry), None
 

@@ -70,6 +70,13 @@ class NewtonConfig:
     constraints, with at most :data:`UNROLLED_LU_MAX` degrees of freedom and contact models whose rollout compiles
     into one kernel (``single_kernel_rollout``: the centroid model, not the per-sample one), where the faster steps
     repay the longer compile; ``lapack`` otherwise, and for single steps). Derivatives always use LAPACK."""
+    reverse_mode: bool = True
+    """False: the step's derivatives in forward mode only (``jax.jvp``, ``jax.jacfwd``; reverse mode then fails with
+    JAX's error on ``while_loop``). Only contact models that gather their samples (:class:`~dano.contact.base.Compacted`
+    states: ``per_sample``) are affected: the tangents then evaluate a pair's all-samples fallback in a loop that
+    runs only where the pair overflows, where a ``vmap``'s batch otherwise pays for it in every step (eight vmapped
+    per-sample bunny drops under ``jax.jacfwd``: 413 -> 124 µs per env-step; slides 725 -> 446). The identification
+    sets it (forward-mode Jacobians of rollouts vmapped over trajectories)."""
 
     def __post_init__(self):
         if self.geometry_tangents not in ("direct", "pose"):
@@ -77,6 +84,8 @@ class NewtonConfig:
         if self.linear_solver not in ("auto", "lapack", "unrolled"):
             raise DanoError(f"NewtonOptions.linear_solver must be 'auto', 'lapack' or 'unrolled', "
                             f"got {self.linear_solver!r}")
+        if not isinstance(self.reverse_mode, bool):
+            raise DanoError(f"NewtonOptions.reverse_mode must be True or False, got {self.reverse_mode!r}")
         for name in ("max_iterations", "max_backtracks", "constraint_passes"):
             value = getattr(self, name)
             least = 0 if name == "max_backtracks" else 1
@@ -114,23 +123,37 @@ def _pick(pr: ImplicitProblem, full: bool) -> ImplicitProblem:
     return dataclasses.replace(pr, state=pick)
 
 
+def _undifferentiated(pr: ImplicitProblem) -> ImplicitProblem:
+    """``pr`` with its :class:`~dano.contact.base.Compacted` states marked
+    ``reverse_mode=False``: for the Newton iteration and the Jacobian at its solution,
+    which nothing differentiates in reverse mode (the solution's derivatives come from
+    :func:`_solve_velocity_jvp`'s residual, evaluated on ``pr`` as it is). Their models then
+    choose between the gathered samples and all samples per pair, in a loop that runs no
+    trip where no pair of a ``vmap``'s batch overflows (:func:`_on_problem`)."""
+    mark = tuple(dataclasses.replace(st, reverse_mode=False) if isinstance(st, Compacted) else st for st in pr.state)
+    return dataclasses.replace(pr, state=mark)
+
+
 def _on_problem(fn, pr: ImplicitProblem):
     """fn(pr) with every group's prepared state plain: for
     :class:`~dano.contact.base.Compacted` states, on their active parts unless a pair of any
     group of ``pr`` overflows (then on the full ones: the same result at full cost). One
     branch per evaluation of the force, so that the program holds one Newton loop: with a
     branch per solve (two Newton loops) the per-sample bunny's one-kernel rollout compiled
-    in 12.5 s instead of 10.5 s, its step as fast. Under ``jax.vmap`` both branches run."""
-    flags = [jnp.any(st.overflow) for st in pr.state if isinstance(st, Compacted)]
+    in 12.5 s instead of 10.5 s, its step as fast. Under ``jax.vmap`` both branches run, so
+    states marked ``reverse_mode=False`` (:func:`_undifferentiated`) are passed to their
+    models as they are, which choose per pair."""
+    flags = [jnp.any(st.overflow) for st in pr.state if isinstance(st, Compacted) and st.reverse_mode]
     if not flags:
         return fn(pr)
     return jax.lax.cond(functools.reduce(jnp.logical_or, flags), lambda: fn(_pick(pr, True)),
                         lambda: fn(_pick(pr, False)))
 
 
-def contact_force(models, pr: ImplicitProblem, v):
-    """Generalized DANO contact force Q(v) (nv,) at the end of the step."""
-    return _on_problem(lambda p: _contact_force(models, p, v), pr)
+def contact_force(models, pr: ImplicitProblem, v, reverse_mode: bool = True):
+    """Generalized DANO contact force Q(v) (nv,) at the end of the step; reverse_mode=False:
+    differentiable in forward mode only (:attr:`NewtonConfig.reverse_mode`)."""
+    return _on_problem(lambda p: _contact_force(models, p, v), pr if reverse_mode else _undifferentiated(pr))
 
 
 def _contact_force(models, pr: ImplicitProblem, v):
@@ -170,8 +193,8 @@ def _contact_force_and_jacobian(models, pr: ImplicitProblem, v):
     return Q, D
 
 
-def _residual(models, h, pr: ImplicitProblem, v):
-    return pr.Mh @ (v - pr.v0) - h * (pr.f + contact_force(models, pr, v))
+def _residual(models, h, pr: ImplicitProblem, v, reverse_mode: bool = True):
+    return pr.Mh @ (v - pr.v0) - h * (pr.f + contact_force(models, pr, v, reverse_mode))
 
 
 # ------------------------------------------------------------------ the step's dense solves
@@ -270,6 +293,7 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
     returns the start velocity at once, with 0 iterations: under ``vmap`` such an env
     otherwise ran all ``max_iterations`` on every step for the whole batch, to the same
     answer (no iterate can beat a non-finite residual)."""
+    pr = _undifferentiated(pr)
     tol = _tolerance(opts, pr.v0.dtype)
     eps = jnp.finfo(pr.v0.dtype).eps
     impulse = h * jnp.max(jnp.abs(pr.f)) + jnp.max(jnp.abs(pr.Mh)) * (jnp.max(jnp.abs(pr.v0)) + 1.0) * eps
@@ -333,8 +357,8 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
 def solve_velocity(models: tuple, opts: NewtonConfig, h: float, pr: ImplicitProblem):
     """The next velocity v' (nv,) with G(v') = 0, and diagnostics [Newton iterations,
     final residual relative to the step's impulses] (2,). ``models``: the contact model of
-    each pair group (static); h: time step [s]. Differentiable (forward and reverse mode)
-    through the implicit function theorem."""
+    each pair group (static); h: time step [s]. Differentiable (forward and, unless
+    ``opts.reverse_mode`` is False, reverse mode) through the implicit function theorem."""
     return _newton(models, opts, h, pr)
 
 
@@ -342,7 +366,7 @@ def solve_velocity(models: tuple, opts: NewtonConfig, h: float, pr: ImplicitProb
 def _solve_velocity_jvp(models, opts, h, primals, tangents):
     (pr,), (dpr,) = primals, tangents
     v, info = _newton_plain(models, opts, h, pr)
-    _, D = contact_force_and_jacobian(models, pr, v)
-    _, dG = jax.jvp(lambda p: _residual(models, h, p, v), (pr,), (dpr,))
+    _, D = contact_force_and_jacobian(models, _undifferentiated(pr), v)
+    _, dG = jax.jvp(lambda p: _residual(models, h, p, v, opts.reverse_mode), (pr,), (dpr,))
     dv = -jnp.linalg.solve(pr.Mh - h * D, dG)
     return (v, info), (dv, jnp.zeros_like(info))

@@ -25,9 +25,10 @@ from .._compiled import cached_jit
 from ..contact.params import ContactParams
 from ..errors import DanoError
 from ..pose import quat_error, quat_inverse, quat_mean, quat_multiply, rotate, rotvec_to_quat, velocity_from_poses
-from ..sim.scene import INERTIAL_PARAMETERS, Scene, SimParams
-from ..sim.rollout import rollout_arrays
 from ..sim.dynamics import State
+from ..sim.implicit import NewtonConfig
+from ..sim.rollout import rollout_arrays
+from ..sim.scene import INERTIAL_PARAMETERS, Scene, SimParams
 
 
 @dataclass(frozen=True)
@@ -283,6 +284,11 @@ def _to_table(qpos0, qvel0, qadr, dadr, height, R):
 #: label prefixes of the per-segment nuisance parameters (:attr:`SysIdProblem.labels`)
 SEGMENT_NUISANCE_PREFIXES = ("v0[", "w0[", "p0[", "r0[")
 
+#: the residuals' rollouts: their Jacobians are forward-mode (per-sample contact's fallback
+#: then costs nothing in the tangents of a batch's trajectories that do not overflow;
+#: :attr:`~dano.sim.implicit.NewtonConfig.reverse_mode`)
+FORWARD_ONLY = NewtonConfig(reverse_mode=False)
+
 
 def _with_offsets(qpos0, qvel0, block, qadr, dadr, axes):
     """Initial state of one segment with its nuisance offsets added: ``block`` (tracked DANOs,
@@ -428,7 +434,7 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
                 obs_pose = jax.vmap(lambda p: _poses_to_table(p, height, R))(obs_pose)
             qpos0, qvel0 = _with_offsets(qpos0, qvel0, block, qadr, dadr, axes)
             qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, batch.steps, qfrc,
-                                        overlaps=False)
+                                        overlaps=False, newton=FORWARD_ONLY)
             states = qpos[settle::substeps]  # states at frames 0..F-1
             frames = states[1:]
             res = []  # components with zero weight are left out (they would dilute σ²)
@@ -1032,7 +1038,8 @@ class SysIdProblem:
         return np.concatenate(out)
 
     def residual_function(self):
-        """(θ) -> residual vector (m,), a pure JAX function (jit/jacfwd it): :func:`padded_residuals`
+        """(θ) -> residual vector (m,), a pure JAX function (jit/jacfwd it; forward mode only
+        with per-sample contact, :data:`FORWARD_ONLY`): :func:`padded_residuals`
         on this problem's layout and data, padded entries dropped. Residuals are ordered by
         batch, then segment, then block (per tracked DANO its position axes with non-zero weight
         [m·√w] and its rotation vector [rad·√w], then each joint), each block frame by frame
@@ -1060,7 +1067,7 @@ class SysIdProblem:
             qpos0, qvel0 = _with_offsets(qpos0, qvel0, block, qadr, dadr, axes)
             ctrl, qfrc = (jnp.asarray(_pad(np.asarray(data[k]), k, 0, longest)) for k in ("ctrl", "qfrc"))
             qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, longest, qfrc,
-                                        overlaps=False)
+                                        overlaps=False, newton=FORWARD_ONLY)
             qpos = jnp.asarray(qpos)[settle : settle + steps + 1 : self.substeps]
             if self.fit_ground:  # back in the observations' frame
                 for a in qadr:
