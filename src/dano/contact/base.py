@@ -216,7 +216,11 @@ class ContactModel(Protocol):
     with that velocity (to first order), so that the step is implicit in the contact force.
     The step solves for the velocity with Newton's method and differentiates ``wrench``
     with respect to u in forward mode, or calls the model's ``wrench_and_jacobian(p, state,
-    u)`` -> (wrench (6,), ∂wrench/∂u (6, 6)) where it has one (a closed form).
+    u)`` -> (wrench (6,), ∂wrench/∂u (6, 6)) where it has one (a closed form). A model whose
+    ``prepare`` returns :class:`Compacted` states receives, in ``wrench`` and
+    ``wrench_and_jacobian``, their ``active`` or ``full`` part, or the pair itself (in the
+    Newton iteration, marked ``reverse_mode=False``; also when one pair is evaluated on its
+    own) and then chooses per pair.
 
     A model may set ``single_kernel_rollout = True`` (a class attribute; False if absent)
     where XLA's CPU compiler turns a rollout of its step into one kernel once the Newton
