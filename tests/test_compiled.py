@@ -189,3 +189,72 @@ def test_compiler_options_on_top_level_calls_only(tmp_path, monkeypatch, cache):
             assert f.lower(2.0, x, y).compile() is not None  # lower: that of the top-level jit
     finally:
         _compiled.set_directory(None)
+
+
+@dataclasses.dataclass(frozen=True)
+class _WithHostFacts:
+    """A static argument with a value that traces read and host-side facts that they must not."""
+
+    scale: float
+    facts: tuple = dataclasses.field(default=(), metadata=_compiled.HOST_ONLY)
+
+
+def _reads_scale(s, x):
+    return s.scale * x
+
+
+def _reads_facts(s, x):
+    return s.facts[0] * x
+
+
+def test_host_only_fields_are_left_out_of_the_key_and_hidden_from_traces(tmp_path, monkeypatch):
+    monkeypatch.delenv("DANO_EXPORT_CACHE", raising=False)
+    _compiled.set_directory(tmp_path)
+    try:
+        f = cached_jit(_reads_scale, static_argnums=(0,))
+        a = f(_WithHostFacts(2.0, (1.0,)), jnp.arange(3.0))
+        b = f(_WithHostFacts(2.0, (5.0,)), jnp.arange(3.0))  # other host facts: the same program
+        assert f.counts["traced"] == 1 and np.array_equal(a, b)
+        # a trace that reads a host-only fact would bake in what its key does not hold: it fails
+        saved = set(tmp_path.glob("*.jaxexp"))
+        g = cached_jit(_reads_facts, static_argnums=(0,))
+        with pytest.raises(_compiled.TracedHostOnlyError, match="_WithHostFacts.facts is host-only"):
+            g(_WithHostFacts(2.0, (1.0,)), jnp.arange(3.0))
+        assert set(tmp_path.glob("*.jaxexp")) == saved  # (nothing kept)
+    finally:
+        _compiled.set_directory(None)
+
+
+def test_objects_of_the_same_structure_share_their_programs(tmp_path, monkeypatch):
+    """Issue 32 item 1, 'every new object pays this again': two objects of one structure
+    (as many samples, other shapes, masses, visual meshes and names) share the rollout's
+    program, and the second object's rollout from the shared program equals a rollout traced
+    for it alone (plain jax.jit, no disk cache) bit for bit."""
+    import dano
+    from dano.asset import build
+    from dano.fields import BoxField, SphereField
+    from dano.sim import DanoObject, State, compose, rollout
+    from dano.sim.rollout import _scan_steps_compiled
+
+    dano.enable_float64()
+    box = build(BoxField((0.06, 0.04, 0.03)), mass=0.3, num_samples=300, mesh_resolution=12, name="box")
+    ball = build(SphereField(0.03), mass=0.2, num_samples=300, mesh_resolution=16, name="ball")
+    assert box.mesh_vertices.shape != ball.mesh_vertices.shape  # (other visual meshes)
+
+    def final(asset, name):
+        scene = compose([DanoObject(name, asset, (0, 0, 0.05))], dt=0.01, name=name)
+        return rollout(scene, State(scene.qpos0, [0.4, 0.1, 0, 0, 0, 1.0]), steps=30).qpos[-1]
+
+    monkeypatch.delenv("DANO_EXPORT_CACHE", raising=False)
+    _compiled.set_directory(tmp_path)
+    try:
+        before = _scan_steps_compiled.counts["traced"]
+        final(box, "box")
+        shared = final(ball, "ball")
+        assert _scan_steps_compiled.counts["traced"] - before == 1  # the ball reused the box's program
+    finally:
+        _compiled.set_directory(None)
+    monkeypatch.setenv("DANO_EXPORT_CACHE", "0")
+    alone = final(ball, "ball")
+    assert np.isfinite(alone).all() and abs(alone[2] - 0.03) < 0.01  # (resting on the ground)
+    np.testing.assert_array_equal(shared, alone)

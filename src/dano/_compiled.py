@@ -12,14 +12,20 @@ each traced and lowered program (a :class:`jax.export.Exported`, StableHLO) in
 * the function (module and name) and a digest of dano's own source files;
 * the versions of jax, jaxlib, mujoco and mujoco-mjx, the backend, 64-bit mode, XLA_FLAGS;
 * the static arguments and the structure of the others: their pytree definitions with
-  all static metadata by content (MuJoCo models as their binary MJB, assets, contact
-  models, layouts; an object it cannot digest by content makes the call a plain ``jax.jit``
-  call; dataclass fields marked ``metadata={"cache_key": False}``, labels that no trace
-  reads, such as a scene's name or an asset's provenance, are left out), and every leaf's
+  all static metadata by content (MuJoCo models as their binary MJB, contact models,
+  layouts; an object it cannot digest by content makes the call a plain ``jax.jit`` call;
+  dataclass fields marked ``metadata={"cache_key": False}`` are left out), and every leaf's
   shape, dtype and weak type.
 
 Values are arguments, never part of the key: problems of the same structure (other
-observations, parameters, initial states) load the program instead of tracing it again.
+observations, parameters, initial states, other objects with as many samples) load the
+program instead of tracing it again. Fields marked :data:`HOST_ONLY` (a scene's MuJoCo C
+model and assets, its name, an asset's provenance: host-side facts that vary from object to
+object) are left out of the key and hidden from the trace: a program traced for export
+sees them as a placeholder that raises :class:`TracedHostOnlyError` when read, so a trace
+cannot bake in what its key does not hold. Fields marked only ``{"cache_key": False}`` are
+read by the trace, and something else in the key stands for them (a trajectory
+optimisation problem's ``key``, :mod:`dano.trajopt.ilqr`).
 
 Sharded programs (``mesh=``: a function of the static arguments that returns the
 :class:`jax.sharding.Mesh` the function's ``shard_map`` runs on, or None) are exported and
@@ -60,6 +66,10 @@ import numpy as np
 COMPILE_SECONDS = [0.0]
 #: how many programs were traced (and exported) and how many were loaded from disk
 COUNTS = collections.Counter()
+
+#: dataclass field metadata of host-side facts that no traced program may read: left out of
+#: the key, and a placeholder raising :class:`TracedHostOnlyError` in an exported trace
+HOST_ONLY = {"cache_key": False, "traced": False}
 
 _DIRECTORY: list[Path | None] = [None]
 _FUNCTIONS: "weakref.WeakSet[CachedFunction]" = weakref.WeakSet()
@@ -119,6 +129,79 @@ def directory() -> Path | None:
 
 class _Unkeyable(Exception):
     """An argument's static part cannot be digested by content."""
+
+
+class TracedHostOnlyError(RuntimeError):
+    """A traced program read a field marked :data:`HOST_ONLY` (a bug in dano: what the trace
+    reads must be in the program's key)."""
+
+
+class _HostOnly:
+    """What a traced program sees of a :data:`HOST_ONLY` field: reading it raises."""
+
+    __slots__ = ("_where",)
+
+    def __init__(self, where: str):
+        object.__setattr__(self, "_where", where)
+
+    def _fail(self, *_, **__):
+        raise TracedHostOnlyError(f"{object.__getattribute__(self, '_where')} is host-only (left out of the "
+                                  "compiled program's key) but was read while tracing it")
+
+    __getattr__ = __getitem__ = __iter__ = __len__ = __bool__ = __str__ = __format__ = __call__ = _fail
+    __eq__ = __lt__ = __le__ = __gt__ = __ge__ = __contains__ = __index__ = __int__ = __float__ = _fail
+
+    def __repr__(self) -> str:
+        return f"<host-only {object.__getattribute__(self, '_where')}>"
+
+    __hash__ = object.__hash__
+
+
+def _hide_host_only(x, seen: dict | None = None):
+    """``x`` with every :data:`HOST_ONLY` field of the dataclasses in it (through dataclass
+    fields, tuples, lists and dicts) replaced by a :class:`_HostOnly` placeholder; what holds
+    none is returned as it is."""
+    seen = {} if seen is None else seen
+    if id(x) in seen:
+        return seen[id(x)]
+    out = x
+    if dataclasses.is_dataclass(x) and not isinstance(x, type):
+        changes = {}
+        for f in dataclasses.fields(x):
+            if not hasattr(x, f.name):
+                continue
+            value = getattr(x, f.name)
+            if f.metadata.get("traced") is False:
+                changes[f.name] = _HostOnly(f"{type(x).__qualname__}.{f.name}")
+            else:
+                new = _hide_host_only(value, seen)
+                if new is not value:
+                    changes[f.name] = new
+        if changes:
+            out = _replace_fields(x, changes)
+    elif isinstance(x, (tuple, list)) and type(x) in (tuple, list):
+        items = [_hide_host_only(v, seen) for v in x]
+        if any(a is not b for a, b in zip(items, x)):
+            out = type(x)(items)
+    elif type(x) is dict:
+        items = {k: _hide_host_only(v, seen) for k, v in x.items()}
+        if any(items[k] is not x[k] for k in x):
+            out = items
+    seen[id(x)] = out
+    return out
+
+
+def _replace_fields(x, changes: dict):
+    """A shallow copy of dataclass ``x`` with ``changes`` set, without running its
+    ``__init__`` or ``__post_init__`` (validation would read the placeholders)."""
+    new = object.__new__(type(x))
+    for f in dataclasses.fields(x):
+        if hasattr(x, f.name):
+            object.__setattr__(new, f.name, changes.get(f.name, getattr(x, f.name)))
+    for k, v in getattr(x, "__dict__", {}).items():  # (attributes beyond the fields, e.g. caches)
+        if k not in changes and not any(k == f.name for f in dataclasses.fields(x)):
+            object.__setattr__(new, k, v)
+    return new
 
 
 @functools.lru_cache(maxsize=1)
@@ -348,8 +431,9 @@ class CachedFunction:
         holder = {}
 
         def flat(*flat_leaves):
-            dynamic = iter(jax.tree_util.tree_unflatten(tree, flat_leaves))
-            fixed = dict(zip(self.static_argnums, statics))
+            # host-only fields are not in the key: the trace must not read them
+            dynamic = iter(_hide_host_only(tuple(jax.tree_util.tree_unflatten(tree, flat_leaves))))
+            fixed = dict(zip(self.static_argnums, _hide_host_only(tuple(statics))))
             count = len(statics) + len(tree.children())  # (the dynamic arguments: a tuple)
             args = [fixed[i] if i in fixed else next(dynamic) for i in range(count)]
             out_leaves, holder["tree"] = jax.tree_util.tree_flatten(self.fn(*args))

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._version import __version__
+from ._compiled import HOST_ONLY
 from ._files import atomic_write
 from ._jax_setup import in_float64
 from .errors import DanoError, FileFormatError
@@ -431,7 +432,7 @@ class DanoAsset(_PrincipalInertia):
     mesh_vertices: np.ndarray = dc_field(default_factory=lambda: _frozen(np.zeros((0, 3))))
     mesh_faces: np.ndarray = dc_field(default_factory=lambda: _frozen(np.zeros((0, 3)), np.int64))
     field: Any = None
-    metadata: dict = dc_field(default_factory=dict, metadata={"cache_key": False})  # (provenance: not in program keys)
+    metadata: dict = dc_field(default_factory=dict, metadata=HOST_ONLY)  # (provenance: not in program keys)
 
     def __post_init__(self):
         faces = np.asarray(self.mesh_faces)

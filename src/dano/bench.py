@@ -269,22 +269,40 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
     return out
 
 
+def _timed_command(args: list[str], cache: str, out: str) -> float:
+    """Seconds of ``dano ARGS`` in a fresh process with compilation cache ``cache``; ``{out}``
+    in an argument becomes ``out``."""
+    env = {**os.environ, "DANO_CACHE_DIR": cache}
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "dano.cli", *(a.replace("{out}", out) for a in args)], env=env, check=True,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return time.perf_counter() - t0
+
+
 def command_times(args: list[str], repeats: int = 2) -> dict:
     """Wall time of ``dano ARGS`` as a user runs it (a fresh process, start-up and writing
     included): once with an empty compilation cache (cold), then ``repeats`` times with the cache
     that run filled (warm; median). ``{out}`` in an argument becomes a fresh folder in a
     temporary directory for each run. Returns {"command", "cold_s", "warm_s", "warm_runs"}."""
-    def once(cache: str, out: str) -> float:
-        env = {**os.environ, "DANO_CACHE_DIR": cache}
-        t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "dano.cli", *(a.replace("{out}", out) for a in args)], env=env, check=True,
-                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        return time.perf_counter() - t0
-
     with tempfile.TemporaryDirectory() as tmp:
-        cold = once(os.path.join(tmp, "cache"), os.path.join(tmp, "out0"))
-        warm = [once(os.path.join(tmp, "cache"), os.path.join(tmp, f"out{k + 1}")) for k in range(repeats)]
+        cold = _timed_command(args, os.path.join(tmp, "cache"), os.path.join(tmp, "out0"))
+        warm = [_timed_command(args, os.path.join(tmp, "cache"), os.path.join(tmp, f"out{k + 1}"))
+                for k in range(repeats)]
     return {"command": "dano " + " ".join(args), "cold_s": cold, "warm_s": statistics.median(warm), "warm_runs": warm}
+
+
+def new_problem_times(first: list[str], then: list[str]) -> dict:
+    """Time to first result of a new problem of a structure already compiled (issue 32: 'every
+    new object or problem pays this again'): ``dano FIRST`` once with an empty compilation
+    cache, then ``dano THEN`` (e.g. the same identification for another object) once with the
+    cache the first filled, each a fresh process. Returns {"first_command", "first_cold_s",
+    "command", "new_problem_s"}."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = os.path.join(tmp, "cache")
+        first_s = _timed_command(first, cache, os.path.join(tmp, "out0"))
+        then_s = _timed_command(then, cache, os.path.join(tmp, "out1"))
+    return {"first_command": "dano " + " ".join(first), "first_cold_s": first_s, "command": "dano " + " ".join(then),
+            "new_problem_s": then_s}
 
 
 def bench_latency(repeats: int = 2) -> dict:
@@ -293,7 +311,10 @@ def bench_latency(repeats: int = 2) -> dict:
     ``repeats`` warm runs): ``dano sysid soap``, a user's TOML identification (three MuJoCo C
     slides of the low-poly bunny as a 0.2 m, 0.7 kg toy; needs the shared data's mesh, else
     skipped), ``dano trajopt push-sphere``, ``dano simulate bunny-drop --duration 2`` and
-    ``dano demo``."""
+    ``dano demo``; with the shared data's meshes, a new object's first run with the cache a
+    first object filled (:func:`new_problem_times`): Spot's identification after the bunny's
+    (``sysid_new_object_toml``) and its simulation in a user's scene after the bunny's
+    (``simulate_new_object``)."""
     repeats = max(1, repeats)
     out: dict = {
         "sysid_soap": command_times(["sysid", "soap", "--json", "-o", "{out}"], repeats),
@@ -304,14 +325,27 @@ def bench_latency(repeats: int = 2) -> dict:
         "demo": command_times(["demo", "--out-dir", "{out}"], repeats),
     }
     data_dir = _shared_data()
-    mesh = None if data_dir is None else data_dir / "meshes" / "bunny_lowpoly.obj"
-    if mesh is None or not mesh.is_file():
-        out["sysid_own_toml"] = "skipped: needs meshes/bunny_lowpoly.obj of the shared data ($DANO_SHARED_DATA)"
-    else:
-        with tempfile.TemporaryDirectory() as tmp:
-            made = mujoco_c_slides(Path(tmp) / "toy", mesh=str(mesh))
-            out["sysid_own_toml"] = command_times(["sysid", str(made["toml"]), "--json", "-o", "{out}"], repeats)
-            out["sysid_own_toml"]["problem"] = "3 MuJoCo C slides of bunny_lowpoly.obj at 0.2 m, 0.7 kg (friction 0.5)"
+    meshes = None if data_dir is None else data_dir / "meshes"
+    if meshes is None or not (meshes / "bunny_lowpoly.obj").is_file() or not (meshes / "spot.obj").is_file():
+        out["sysid_own_toml"] = "skipped: needs meshes/bunny_lowpoly.obj and spot.obj of the shared data " \
+                                "($DANO_SHARED_DATA)"
+        return out
+    with tempfile.TemporaryDirectory() as tmp:
+        made = mujoco_c_slides(Path(tmp) / "toy", mesh=str(meshes / "bunny_lowpoly.obj"))
+        out["sysid_own_toml"] = command_times(["sysid", str(made["toml"]), "--json", "-o", "{out}"], repeats)
+        out["sysid_own_toml"]["problem"] = "3 MuJoCo C slides of bunny_lowpoly.obj at 0.2 m, 0.7 kg (friction 0.5)"
+        # a second object of its own: Spot, the same kind of problem (other mesh, size, mass, friction)
+        spot = mujoco_c_slides(Path(tmp) / "spot", mesh=str(meshes / "spot.obj"), friction=0.3, seed=1)
+        out["sysid_new_object_toml"] = new_problem_times(["sysid", str(made["toml"]), "--json", "-o", "{out}"],
+                                                         ["sysid", str(spot["toml"]), "--json", "-o", "{out}"])
+        out["sysid_new_object_toml"]["problem"] = "3 MuJoCo C slides of spot.obj at 0.2 m, 0.7 kg (friction 0.3), " \
+                                                  "after the bunny's"
+        scene = Path(tmp) / "scene.xml"
+        scene.write_text('<mujoco><option timestep="0.01"/><worldbody><geom name="floor" type="plane" '
+                         'size="5 5 0.1"/></worldbody></mujoco>')
+        simulate = lambda obj: ["simulate", str(scene), "--object", f"{obj}@0,0,0.15", "--duration", "1",  # noqa: E731
+                                "--out", "{out}/run.npz"]
+        out["simulate_new_object"] = new_problem_times(simulate(made["dano"]), simulate(spot["dano"]))
     return out
 
 

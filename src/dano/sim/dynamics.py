@@ -30,7 +30,6 @@ from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 
 from .._mjx import mjx
@@ -119,9 +118,9 @@ def model_with_params(scene: Scene, params: SimParams):
     second moments scaled (body_inertia: I_x = α(Σ_y + Σ_z), ...) and the principal axes
     rotated (body_iquat). Differentiable in all of them."""
     m = scene.model
-    if not scene.dano_names:
+    if not scene.info.dano_bodies:
         return m
-    ids = np.asarray(_dano_bodies(scene), dtype=np.int32)
+    ids = np.asarray(scene.info.dano_bodies, dtype=np.int32)
     alpha = params.alpha
     mass = scene.base_mass * alpha
     inertia = scene.base_inertia
@@ -135,11 +134,6 @@ def model_with_params(scene: Scene, params: SimParams):
         turn = quat_multiply(m.body_iquat[ids], rotvec_to_quat(jnp.asarray(params.principal_axes)))
         repl["body_iquat"] = m.body_iquat.at[ids].set(turn)
     return m.replace(**repl)
-
-
-def _dano_bodies(scene: Scene) -> tuple[int, ...]:
-    names = scene.body_names
-    return tuple(names.index(n) for n in scene.dano_names)
 
 
 def _group_params(params: SimParams, group, num_pairs: int):
@@ -301,24 +295,11 @@ def _constraint_passes(m, d, user_qfrc, newton: NewtonConfig, h: float, models, 
     return d, v, diag
 
 
-def _quaternion_slots(scene: Scene) -> tuple[tuple[int, int], ...]:
-    """(qpos address of the quaternion, dof address of ω) of every free and ball joint."""
-    m = scene.mj_model
-    slots = []
-    for j in range(m.njnt):
-        kind = int(m.jnt_type[j])
-        if kind == int(mujoco.mjtJoint.mjJNT_FREE):
-            slots.append((int(m.jnt_qposadr[j]) + 3, int(m.jnt_dofadr[j]) + 3))
-        elif kind == int(mujoco.mjtJoint.mjJNT_BALL):
-            slots.append((int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])))
-    return tuple(slots)
-
-
 def _rotate_quaternions(scene: Scene, qpos0, v, h: float, qpos):
     """``qpos`` with each free/ball joint's quaternion set to normalize(q0 ⊗ exp(h·ω)),
     q0 from ``qpos0``, ω (body frame) from ``v``; the exponential map of :mod:`dano.pose`
     (Taylor series near 0), so that value and derivatives are exact at ω = 0 too."""
-    slots = _quaternion_slots(scene)
+    slots = scene.info.quaternion_slots
     if not slots:
         return qpos
     qa = np.asarray([a for a, _ in slots])[:, None] + np.arange(4)

@@ -23,6 +23,7 @@ import mujoco
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .._compiled import HOST_ONLY
 from .._mjx import mjx
 from ..asset import DanoAsset
 from ..contact import PAIR_KINDS, ContactParams, Samples, contact_model
@@ -70,7 +71,7 @@ class Pair:
     b: int
     body_a: int
     body_b: int
-    name: str
+    name: str = dataclasses.field(metadata=HOST_ONLY)  # (a label: traces use the indices)
     model: Any
 
 
@@ -92,17 +93,29 @@ class PairGroup:
 
 @dataclass(frozen=True, eq=False)
 class SceneInfo:
-    """Host-side facts of a scene (static pytree metadata, compared by identity): the
-    MuJoCo C model (rendering, comparison), the assets, names and qpos/qvel addresses."""
+    """Static facts of a scene (pytree metadata, compared by identity).
 
-    mj_model: mujoco.MjModel
-    assets: tuple[DanoAsset, ...]
-    dano_names: tuple[str, ...]
-    body_names: tuple[str, ...]
+    What traced programs read, part of their key (:mod:`dano._compiled`): qpos_adr and
+    dof_adr (D,) of each DANO's free joint, dano_bodies (D,) their MuJoCo body ids, pairs (their kinds, indices and contact models),
+    the sizes nq, nv, nu and quaternion_slots ((qpos address of the quaternion, dof address of
+    ω) of every free and ball joint). Host-side only (``HOST_ONLY``: left out of the key and
+    hidden from traces, so that programs are shared by every object of the same structure,
+    whatever its values and names): the MuJoCo C model (rendering, comparison, name lookups),
+    the assets, the DANO and body names, the pairs' names and the scene's name."""
+
+    mj_model: mujoco.MjModel = dataclasses.field(metadata=HOST_ONLY)
+    assets: tuple[DanoAsset, ...] = dataclasses.field(metadata=HOST_ONLY)
+    dano_names: tuple[str, ...] = dataclasses.field(metadata=HOST_ONLY)
+    body_names: tuple[str, ...] = dataclasses.field(metadata=HOST_ONLY)
     qpos_adr: tuple[int, ...]
     dof_adr: tuple[int, ...]
+    dano_bodies: tuple[int, ...]
     pairs: tuple[Pair, ...]
-    name: str = dataclasses.field(metadata={"cache_key": False})  # (a label: programs of any name are shared)
+    nq: int
+    nv: int
+    nu: int
+    quaternion_slots: tuple[tuple[int, int], ...]
+    name: str = dataclasses.field(metadata=HOST_ONLY)  # (a label: programs of any name are shared)
 
 
 #: per-DANO parameters of its own dynamics besides α (fields of :class:`SimParams`, one per axis)
@@ -215,15 +228,15 @@ class Scene:
 
     @property
     def nq(self) -> int:
-        return int(self.mj_model.nq)
+        return self.info.nq
 
     @property
     def nv(self) -> int:
-        return int(self.mj_model.nv)
+        return self.info.nv
 
     @property
     def nu(self) -> int:
-        return int(self.mj_model.nu)
+        return self.info.nu
 
     @property
     def dtype(self):
@@ -249,10 +262,11 @@ class Scene:
         return SimParams(cp.broadcast(len(self.pairs), self.dtype),
                          jnp.asarray([a.alpha for a in self.assets], dtype=self.dtype).reshape(len(self.assets)))
 
-    def set_param(self, params: SimParams, name: str, value, target: str | None = None) -> SimParams:
+    def set_param(self, params: SimParams, name: str, value, target: str | int | None = None) -> SimParams:
         """A copy of ``params`` with contact parameter ``name`` (or ``"alpha"``, or one of
         :data:`INERTIAL_PARAMETERS`, e.g. ``"com_offset_x"``) set to ``value`` for every pair
-        (every DANO for alpha and the inertial ones), or only for pair/DANO ``target``.
+        (every DANO for alpha and the inertial ones), or only for pair/DANO ``target`` (a
+        name, or its index: :meth:`target_index`).
         A convenience over ``params.replace``: differentiable in ``value`` (usable under
         ``jax.jacfwd``); concrete values are validated. Raises DanoError for unknown names
         or targets and invalid values."""
@@ -260,23 +274,18 @@ class Scene:
         if concrete and not np.all(np.isfinite(np.asarray(value, dtype=np.float64))):
             raise DanoError(f"parameter {name} must be finite, got {value}")
         if name == "alpha":
-            idx = slice(None) if target is None else self.dano_index(target)
+            idx = self._target_index(name, target)
             new = params.replace(alpha=jnp.asarray(params.alpha).at[idx].set(value))
         elif name in INERTIAL_PARAMETERS:
-            idx = slice(None) if target is None else self.dano_index(target)
+            idx = self._target_index(name, target)
             field_name, axis = name[:-2], "xyz".index(name[-1])
             current = getattr(params, field_name)
             if current is None:  # the asset's own: zero offsets and rotations, unit scales
                 fill = 1.0 if field_name == "second_moment_scale" else 0.0
-                current = jnp.full((len(self.dano_names), 3), fill, dtype=jnp.asarray(params.alpha).dtype)
+                current = jnp.full((len(self.qpos_adr), 3), fill, dtype=jnp.asarray(params.alpha).dtype)
             new = params.replace(**{field_name: jnp.asarray(current).at[idx, axis].set(value)})
         elif name in ContactParams.names():
-            if target is None:
-                idx = slice(None)
-            elif target in self.pair_names:
-                idx = self.pair_names.index(target)
-            else:
-                raise DanoError(f"no contact pair {target!r}; pairs: {list(self.pair_names)}")
+            idx = self._target_index(name, target)
             arr = jnp.asarray(getattr(params.contact, name)).at[idx].set(value)
             new = params.replace(contact=params.contact.replace(**{name: arr}))
         else:
@@ -289,6 +298,28 @@ class Scene:
             if new.second_moment_scale is not None and np.any(np.asarray(new.second_moment_scale) < 0):
                 raise DanoError(f"second moment scales must be >= 0 (a physical inertia), got {value}")
         return new
+
+    def _target_index(self, name: str, target):
+        """Where parameter ``name`` of ``target`` sits in its (D,) or (P,) array: every entry
+        for None, a given index for an int (traced programs pass :meth:`target_index`'s, so
+        that they read no names), else the DANO's or pair's by name. Raises DanoError for
+        an unknown target."""
+        if target is None:
+            return slice(None)
+        if isinstance(target, (int, np.integer)):
+            return int(target)
+        if name in ContactParams.names():
+            if target not in self.pair_names:
+                raise DanoError(f"no contact pair {target!r}; pairs: {list(self.pair_names)}")
+            return self.pair_names.index(target)
+        return self.dano_index(target)
+
+    def target_index(self, name: str, target: str | None) -> int | None:
+        """The index that :meth:`set_param` takes for ``target`` of parameter ``name``: the
+        DANO's (``alpha`` and the inertial parameters) or the contact pair's; None for every
+        DANO or pair. Raises DanoError for an unknown target."""
+        idx = self._target_index(name, target)
+        return None if isinstance(idx, slice) else idx
 
     def dano_index(self, name: str) -> int:
         """Index of DANO ``name`` in ``dano_names`` (and in ``params.alpha``). Raises
@@ -389,6 +420,56 @@ def contact_samples(obj: DanoObject) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return points, normals, w, float(r), rho
 
 
+#: radius [m] of the sphere that stands for each DANO's visual geom in the model MJX simulates
+PHYSICS_VISUAL_RADIUS = 0.01
+
+
+def _physics_model(spec: mujoco.MjSpec, names: Sequence[str], mj_model: mujoco.MjModel) -> mujoco.MjModel:
+    """The MuJoCo model that MJX simulates: ``spec``'s, with each DANO's visual geom (a mesh or
+    an ellipsoid that collides with nothing and has no mass: the inertial is explicit) a
+    sphere of :data:`PHYSICS_VISUAL_RADIUS` at the body's origin, its mesh left out, and the
+    DANO's body, joint and geom named by its index (``dano:0``, ``dano:0:free``, ...). MJX
+    keeps mesh data, geom bounds and names as static (trace-time) facts of its model, so a
+    visual mesh or a name made every object's programs its own; without them, every object
+    of the same structure shares them (:mod:`dano._compiled`). Bodies, joints, geoms (their
+    ids included) and masses are ``mj_model``'s, which keeps the meshes and names for
+    rendering and lookups."""
+    phys = spec.copy()
+    for k, name in enumerate(names):
+        phys.body(name).name = f"dano:{k}"
+        phys.joint(f"{name}_free").name = f"dano:{k}:free"
+        geom = phys.geom(f"{name}_visual")
+        if geom is None:  # pragma: no cover - add_to_spec always adds it
+            continue
+        geom.name = f"dano:{k}:visual"
+        mesh = phys.mesh(geom.meshname) if geom.meshname else None
+        geom.type, geom.meshname = mujoco.mjtGeom.mjGEOM_SPHERE, ""
+        geom.size, geom.pos, geom.quat = [PHYSICS_VISUAL_RADIUS, 0, 0], [0, 0, 0], [1, 0, 0, 0]
+        if mesh is not None:
+            phys.delete(mesh)
+    try:
+        model = phys.compile()
+    except Exception as exc:  # (a base model naming its own parts dano:0 ...)
+        raise DanoError(f"the scene's model without its DANOs' visual meshes does not compile: {exc}") from exc
+    same = (model.nbody, model.njnt, model.ngeom, model.nq, model.nv, model.nu) == (
+        mj_model.nbody, mj_model.njnt, mj_model.ngeom, mj_model.nq, mj_model.nv, mj_model.nu)
+    if not same or not np.array_equal(model.body_mass, mj_model.body_mass):  # pragma: no cover - a guard
+        raise DanoError("internal: the physics model of the scene differs from its MuJoCo model")
+    return model
+
+
+def quaternion_slots(m: mujoco.MjModel) -> tuple[tuple[int, int], ...]:
+    """(qpos address of the quaternion, dof address of ω) of every free and ball joint of ``m``."""
+    slots = []
+    for j in range(m.njnt):
+        kind = int(m.jnt_type[j])
+        if kind == int(mujoco.mjtJoint.mjJNT_FREE):
+            slots.append((int(m.jnt_qposadr[j]) + 3, int(m.jnt_dofadr[j]) + 3))
+        elif kind == int(mujoco.mjtJoint.mjJNT_BALL):
+            slots.append((int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])))
+    return tuple(slots)
+
+
 def _could_have_constraints(m: mujoco.MjModel) -> bool:
     """Whether MuJoCo's constraint solver can have rows: equalities, friction loss, joint or
     tendon limits, or geom pairs that may collide (contype/conaffinity or explicit pairs)."""
@@ -477,6 +558,7 @@ def compose(
         where = f"{base}: " if isinstance(base, (str, Path)) and not str(base).lstrip().startswith("<") else ""
         raise DanoError(f"{where}the scene's MuJoCo model does not compile: {exc}") from exc
 
+    physics_model = _physics_model(spec, names, mj_model)
     body_ids = [mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_BODY, n) for n in names]
     pairs = []
     for i, o in enumerate(objects):
@@ -517,7 +599,10 @@ def compose(
     data = [contact_samples(o) for o in objects]
     samples = Samples.stack([d[0] for d in data], [d[1] for d in data], [d[2] for d in data],
                             [d[3] for d in data], [o.asset.center_of_mass for o in objects], [d[4] for d in data])
-    fields = tuple(o.asset.field for o in objects)
+    # the fields that DANO-DANO pairs query (the others stay out of the scene's arrays, so that
+    # objects of the same structure share compiled programs whatever their fields' grids)
+    queried = {i for p in pairs if p.kind == "dano" for i in (p.a, p.b)}
+    fields = tuple(o.asset.field if i in queried else None for i, o in enumerate(objects))
     base_mass = np.array([mj_model.body_mass[b] / o.asset.alpha for b, o in zip(body_ids, objects)])
     base_inertia = np.array([mj_model.body_inertia[b] / o.asset.alpha for b, o in zip(body_ids, objects)])
     jnt = [mj_model.body_jntadr[b] for b in body_ids]
@@ -528,12 +613,17 @@ def compose(
         body_names=tuple(mujoco.mj_id2name(mj_model, mujoco.mjtObj.mjOBJ_BODY, b) or "" for b in range(mj_model.nbody)),
         qpos_adr=tuple(int(mj_model.jnt_qposadr[j]) for j in jnt),
         dof_adr=tuple(int(mj_model.jnt_dofadr[j]) for j in jnt),
+        dano_bodies=tuple(int(b) for b in body_ids),
         pairs=tuple(pairs),
+        nq=int(mj_model.nq),
+        nv=int(mj_model.nv),
+        nu=int(mj_model.nu),
+        quaternion_slots=quaternion_slots(mj_model),
         name=name,
     )
     # this process's first device (MJX's default, jax.devices()[0], belongs to process 0 in a
     # multi-process run)
-    scene = Scene(model=mjx.put_model(mj_model, device=jax.local_devices()[0]), samples=samples, fields=fields,
+    scene = Scene(model=mjx.put_model(physics_model, device=jax.local_devices()[0]), samples=samples, fields=fields,
                   base_mass=jnp.asarray(base_mass).reshape(len(objects)),
                   base_inertia=jnp.asarray(base_inertia).reshape(len(objects), 3),
                   groups=_pair_groups(pairs, fields), dt=float(dt),

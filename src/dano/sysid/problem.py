@@ -362,7 +362,7 @@ class ResidualLayout:
     continuation stages, data sets of the same lengths)."""
 
     batches: tuple[BatchLayout, ...]
-    parameters: tuple[tuple[str, str | None], ...]
+    parameters: tuple[tuple[str, int | None], ...]  # (name, index of its DANO or pair; None: every one)
     nuisance: tuple[int, ...]
     fit_axes: tuple[int, ...]
     pos_axes: tuple[int, ...]
@@ -868,7 +868,8 @@ class SysIdProblem:
             batches.append(BatchLayout(tuple(i for i, _, _ in items), qadr, dadr, jadr, settle + steps, settle))
             wrot.append(jnp.asarray([rot_w[self.scene.qpos_adr.index(a)] for a in qadr], dtype=jnp.float64))
         layout = ResidualLayout(
-            batches=tuple(batches), parameters=tuple((p.name, p.target) for p in self.parameters),
+            batches=tuple(batches), parameters=tuple((p.name, self.scene.target_index(p.name, p.target))
+                                                     for p in self.parameters),
             nuisance=tuple(int(x) for x in self._nuisance_offsets()), fit_axes=self.fit_axes,
             pos_axes=self._pos_axes(), rotation=self._rotation_weighted(), joints=self.weights.joints > 0,
             substeps=self.substeps, fit_ground=self.fit_ground, fit_tilt=self.fit_tilt, shards=shards)
