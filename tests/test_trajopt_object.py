@@ -19,3 +19,40 @@ def test_push_bad_input(args, message, tmp_path, capsys):
     assert main(["trajopt", *args, "-o", str(out), "--quiet"]) == 1
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and not out.exists()
+
+
+def test_push_programs_are_shared_by_objects_of_one_structure(tmp_path, monkeypatch):
+    """Issue 32 item 1: the iLQR's programs of ``push`` serve every object of one structure
+    (the scene, its pusher sized to the object and the control scale are the problem's
+    parameters, not constants): a ball pushed after a box of as many samples loads the box's
+    forward pass, and its plain push from that program equals the one traced for the ball
+    alone (a problem without a key: plain jax.jit) bit for bit."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    import dano
+    from dano import _compiled
+    from dano.asset import build, save
+    from dano.experiments.push import PushObjectConfig, PushParams, push_object_task
+    from dano.fields import BoxField, SphereField
+    from dano.trajopt import Problem, rollout
+    from dano.trajopt.ilqr import _CACHED
+
+    dano.enable_float64()
+    files = {"box": tmp_path / "box.dano", "ball": tmp_path / "ball.dano"}
+    save(build(BoxField((0.06, 0.04, 0.03)), mass=0.3, num_samples=300, mesh_resolution=0, name="box"), files["box"])
+    save(build(SphereField(0.03), mass=0.2, num_samples=300, mesh_resolution=0, name="ball"), files["ball"])
+    monkeypatch.delenv("DANO_EXPORT_CACHE", raising=False)
+    _compiled.set_directory(tmp_path / "exported")
+    try:
+        before = _CACHED["forward"].counts["traced"]
+        push_object_task(PushObjectConfig(object=str(files["box"]), horizon=20))
+        ball = push_object_task(PushObjectConfig(object=str(files["ball"]), horizon=20))
+        assert _CACHED["forward"].counts["traced"] - before == 1
+    finally:
+        _compiled.set_directory(None)
+    pr = ball.problem
+    alone = Problem(pr.dynamics, pr.stage_cost, pr.terminal_cost, pr.horizon, pr.nx, pr.nu)  # (no key)
+    X = rollout(alone, ball.x0, ball.U_plain, PushParams(ball.params, None, ball.scene, jnp.asarray(ball.u_ref)))
+    assert np.all(np.isfinite(ball.X_plain)) and np.ptp(ball.X_plain[:, ball.bunny_qpos][:, 0]) > 0.002  # (pushed: 4 mm)
+    np.testing.assert_array_equal(np.asarray(X), ball.X_plain)

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -42,7 +43,7 @@ from ..sim.scene import add_ground
 from ..sim.scenes import PANDA_WAYPOINTS, initial_state, menagerie_panda, resting_height
 from ..trajopt.ilqr import ILQRConfig, Solution, rollout, solve
 from ..trajopt.mpc import RecedingHorizonResult, receding_horizon
-from ..trajopt.problem import Problem, mjx_dynamics
+from ..trajopt.problem import Problem, mjx_dynamics, scene_dynamics
 
 G = 9.81
 
@@ -176,6 +177,26 @@ SPHERE_START = (-0.8, 0.0, 0.25)
 PLAIN_FORCE = 80.0  # N
 
 
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class PushParams:
+    """The parameters p of a sphere-pusher task's problems (``push-sphere``, ``push``): values
+    of the solver's programs, not constants, so that one set of programs serves every goal and
+    every object of the same structure (the same sample count and contact model; another
+    object's size, mass and pusher: the same programs, loaded from disk). sim: the
+    :class:`~dano.sim.SimParams`; goal: (2,) object goal x–y, then (3,) pusher goal where the
+    task has one [m], or None (the plain push); scene: the task's :class:`~dano.sim.Scene`;
+    u_ref: (6,) the control scale of the cost [N, N m]."""
+
+    sim: Any
+    goal: Any
+    scene: Any
+    u_ref: Any
+
+    def replace(self, **changes) -> "PushParams":
+        return dataclasses.replace(self, **changes)
+
+
 @dataclass(frozen=True)
 class PushTask:
     """A built task: scene, params (the model's SimParams), problem, x0 (nx,), the initial
@@ -200,16 +221,22 @@ class PushTask:
     u_ref: np.ndarray
     config: PushConfig
     goal_parameter: bool = False
+    scene_parameter: bool = False
 
     def problem_params(self, params=None):
-        """The problem's parameters p: ``(params, goal)`` where the task has a goal parameter
-        (goal (2,) or (5,) [m]: bunny_goal, then pusher_goal), else ``params`` (default: the
-        task's SimParams)."""
+        """The problem's parameters p for SimParams ``params`` (default: the task's): a
+        :class:`PushParams` where the task passes its scene as a parameter
+        (``scene_parameter``: the sphere-pusher tasks), else ``(params, goal)`` where the
+        task has a goal parameter (goal (2,) or (5,) [m]: bunny_goal, then pusher_goal), else
+        ``params``."""
         params = self.params if params is None else params
-        if not self.goal_parameter:
-            return params
-        goals = [self.bunny_goal] + ([] if self.pusher_goal is None else [self.pusher_goal])
-        return params, jnp.asarray(np.concatenate(goals), dtype=float)
+        goal = None
+        if self.goal_parameter:
+            goals = [self.bunny_goal] + ([] if self.pusher_goal is None else [self.pusher_goal])
+            goal = jnp.asarray(np.concatenate(goals), dtype=float)
+        if self.scene_parameter:
+            return PushParams(params, goal, self.scene, jnp.asarray(self.u_ref, dtype=float))
+        return params if goal is None else (params, goal)
 
 
 def _stage_cost(config: PushConfig, nq: int, u_ref):
@@ -231,10 +258,11 @@ def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mas
     """A floating sphere (``radius`` [m], ``mass`` [kg], gravity compensated, touching only
     the DANO) at ``start`` (3,) [m] behind the DANO ``name`` resting at the origin; the plain
     push: ``force`` (3,) [N] for 25 of every 60 steps, then the same braking. ``goal_of(X_plain,
-    object_q, pusher_q)`` gives (object goal (2,), pusher goal (3,) or None). The goals are
-    the constrained problem's parameters (``p = (params, goal)``), not constants of its
-    programs, and both problems have a key (:class:`~dano.trajopt.Problem`): their solver
-    programs are kept on disk and serve every goal."""
+    object_q, pusher_q)`` gives (object goal (2,), pusher goal (3,) or None). The goals, the
+    scene and the control scale are the problems' parameters (:class:`PushParams`), not
+    constants of their programs, and both problems have a key (:class:`~dano.trajopt.Problem`)
+    that holds what their functions read besides: their solver programs are kept on disk and
+    serve every goal and every object of the same structure."""
     z = resting_height(asset) + 0.001
     spec = mujoco.MjSpec()
     add_ground(spec)
@@ -254,34 +282,37 @@ def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mas
     pa, ba = scene.mj_model.jnt_qposadr[0], scene.qpos_adr[0]
     pusher, object_q = slice(pa, pa + 3), slice(ba, ba + 3)
     dofs = np.arange(scene.mj_model.jnt_dofadr[0], scene.mj_model.jnt_dofadr[0] + 6)
-    dynamics = mjx_dynamics(scene, "qfrc", dofs=dofs)
+    step = scene_dynamics("qfrc", dofs=dofs)
     u_ref = np.array([mass * G] * 3 + [mass * G * radius] * 3)
     half = T * 25 // 60  # 25 of 60 steps: 0.5 s at the paper's h
     U_plain = np.zeros((T, 6))
     U_plain[:half, :3] = force
     U_plain[half:2 * half, :3] = -np.asarray(force)
-    stage_cost = _stage_cost(config, scene.nq, u_ref)
-    # what the problems' functions read: their key (the solver's programs are kept on disk)
-    key = ("dano.experiments.push.sphere_pusher", scene, dofs, float(config.state_weight),
-           float(config.control_weight), u_ref)
+    nq, wq, wu = scene.nq, float(config.state_weight), float(config.control_weight)
+
+    def dynamics(x, u, t, p: PushParams):
+        return step(x, u, t, (p.scene, p.sim))
+
+    def stage_cost(x, u, t, p: PushParams):
+        return 0.5 * wq * jnp.sum(x[nq:] ** 2) + 0.5 * wu * jnp.sum((u / p.u_ref) ** 2)
+
+    # what the problems' functions read besides p (whose structure, the scene's included, is
+    # part of every program's key): their key (the solver's programs are kept on disk)
+    key = ("dano.experiments.push.sphere_pusher", dofs, wq, wu)
     plain = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, key=key)
-    X_plain = np.asarray(rollout(plain, x0, U_plain, params))
+    X_plain = np.asarray(rollout(plain, x0, U_plain, PushParams(params, None, scene, jnp.asarray(u_ref))))
     object_goal, pusher_goal = goal_of(X_plain, object_q, pusher)
 
-    def terminal(x, pg):  # pg = (params, goal)
-        g = pg[1]
+    def terminal(x, p: PushParams):
         if pusher_goal is None:
-            return x[object_q][:2] - g
-        return jnp.concatenate([x[object_q][:2] - g[:2], x[pusher] - g[2:]])
+            return x[object_q][:2] - p.goal
+        return jnp.concatenate([x[object_q][:2] - p.goal[:2], x[pusher] - p.goal[2:]])
 
-    def goal_dynamics(x, u, t, pg):
-        return dynamics(x, u, t, pg[0])
-
-    problem = Problem(goal_dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, terminal_equality=terminal,
+    problem = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, terminal_equality=terminal,
                       key=key + ("goal parameter", (int(ba), int(ba) + 3),
                                  None if pusher_goal is None else (int(pa), int(pa) + 3)))
     return PushTask(scene, params, problem, x0, U_plain, X_plain, np.asarray(object_goal), pusher_goal, object_q,
-                    "qfrc", dofs, u_ref, config, goal_parameter=True)
+                    "qfrc", dofs, u_ref, config, goal_parameter=True, scene_parameter=True)
 
 
 def push_sphere_task(config: PushSphereConfig = PushSphereConfig()) -> PushTask:

@@ -458,6 +458,20 @@ def _physics_model(spec: mujoco.MjSpec, names: Sequence[str], mj_model: mujoco.M
     return model
 
 
+def _put_model(m: mujoco.MjModel):
+    """``mjx.put_model(m)`` on this process's first device (MJX's default, jax.devices()[0],
+    belongs to process 0 in a multi-process run). In a model without height fields, MJX's
+    static copy of every geom's bounding radius (``_impl.geom_rbound_hfield``, read only to
+    size height-field collisions) is zeroed: it made every geom size (a pusher sized to its
+    object) a trace-time fact, so each object compiled its own programs; the bounds MJX
+    uses otherwise (``geom_rbound``) are arrays."""
+    mx = mjx.put_model(m, device=jax.local_devices()[0])
+    impl = getattr(mx, "_impl", None)
+    if m.nhfield == 0 and impl is not None and hasattr(impl, "geom_rbound_hfield"):
+        mx = mx.replace(_impl=impl.replace(geom_rbound_hfield=np.zeros_like(np.asarray(impl.geom_rbound_hfield))))
+    return mx
+
+
 def quaternion_slots(m: mujoco.MjModel) -> tuple[tuple[int, int], ...]:
     """(qpos address of the quaternion, dof address of ω) of every free and ball joint of ``m``."""
     slots = []
@@ -621,9 +635,7 @@ def compose(
         quaternion_slots=quaternion_slots(mj_model),
         name=name,
     )
-    # this process's first device (MJX's default, jax.devices()[0], belongs to process 0 in a
-    # multi-process run)
-    scene = Scene(model=mjx.put_model(physics_model, device=jax.local_devices()[0]), samples=samples, fields=fields,
+    scene = Scene(model=_put_model(physics_model), samples=samples, fields=fields,
                   base_mass=jnp.asarray(base_mass).reshape(len(objects)),
                   base_inertia=jnp.asarray(base_inertia).reshape(len(objects), 3),
                   groups=_pair_groups(pairs, fields), dt=float(dt),

@@ -7,7 +7,7 @@
 
 from .ilqr import LOG_KEYS, ILQRConfig, Multipliers, Options, Solution, rollout, solve
 from .mpc import RecedingHorizonResult, receding_horizon
-from .problem import Problem, mjx_dynamics, quadratic, quadratic_problem
+from .problem import Problem, mjx_dynamics, quadratic, quadratic_problem, scene_dynamics
 
 __all__ = ["ILQRConfig", "LOG_KEYS", "Multipliers", "Options", "Problem", "RecedingHorizonResult", "Solution", "mjx_dynamics",
-           "quadratic", "quadratic_problem", "receding_horizon", "rollout", "solve"]
+           "quadratic", "quadratic_problem", "receding_horizon", "rollout", "scene_dynamics", "solve"]

@@ -140,21 +140,36 @@ def mjx_dynamics(scene, apply: str = "ctrl", dofs=None, newton=None) -> Callable
     generalised force on the dofs ``dofs`` (indices into qvel), e.g. a free body's force
     (world frame [N]) and torque (body frame [N m])). newton: the step's
     :class:`~dano.sim.NewtonConfig` (default: its defaults with ``geometry_tangents="pose"``,
-    since the solver differentiates the step along all nx + nu directions at once)."""
-    nq = scene.nq
+    since the solver differentiates the step along all nx + nu directions at once). The
+    scene is a constant of the programs the solver compiles; :func:`scene_dynamics` takes it
+    as an argument instead, so that one set of programs serves every scene of one structure
+    (another object). Raises DanoError for an unknown ``apply``."""
+    dynamics = scene_dynamics(apply, dofs, newton)
+    return lambda x, u, t, p: dynamics(x, u, t, (scene, p))
+
+
+def scene_dynamics(apply: str = "ctrl", dofs=None, newton=None) -> Callable:
+    """``dynamics(x, u, t, (scene, params))``: :func:`mjx_dynamics` with the scene an
+    argument, ``p = (scene, params)`` (a :class:`~dano.sim.Scene` and its
+    :class:`~dano.sim.SimParams`): the scene's arrays (masses, samples, geom sizes) are then
+    values, not constants, of the solver's programs, which serve every scene of the same
+    structure (:mod:`dano._compiled`; with a :class:`Problem` key that leaves the scene out).
+    apply, dofs, newton: as :func:`mjx_dynamics`'s. Raises DanoError for an unknown ``apply``."""
     opts = newton or NewtonConfig(geometry_tangents="pose")
     if apply not in ("ctrl", "qfrc"):
         raise DanoError(f"apply must be 'ctrl' or 'qfrc', got {apply!r}")
     idx = None if dofs is None else np.asarray(dofs, dtype=np.int32)
 
     def dynamics(x, u, t, p):
+        scene, params = p
+        nq = scene.nq
         qpos, qvel = x[:nq], x[nq:]
         if apply == "ctrl":
             d = make_data(scene, qpos, qvel, ctrl=u)
         else:
             d = make_data(scene, qpos, qvel)
             d = d.replace(qfrc_applied=d.qfrc_applied.at[idx].set(u.astype(d.qfrc_applied.dtype)))
-        d = step(scene, p, d, opts)
+        d = step(scene, params, d, opts)
         return jnp.concatenate([d.qpos, d.qvel]).astype(x.dtype)
 
     return dynamics
