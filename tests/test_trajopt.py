@@ -168,7 +168,7 @@ def test_contact_linearisation_matches_central_differences(push_task):
     against central differences of the step in float64, at stages of the plain push with
     the sphere touching the bunny and with it free, away from contact onsets."""
     task = push_task
-    pr, p = task.problem, task.problem_params()  # (p = (params, goal): the goal is a parameter)
+    pr, p = task.problem, task.problem_params()  # (p: PushParams, the goal and the scene parameters)
     X = np.asarray(rollout(pr, task.x0, task.U_plain, p))
     fns = _compiled(pr)
     from dano.trajopt.ilqr import Multipliers

@@ -96,9 +96,9 @@ class SceneInfo:
     """Static facts of a scene (pytree metadata, compared by identity).
 
     What traced programs read, part of their key (:mod:`dano._compiled`): qpos_adr and
-    dof_adr (D,) of each DANO's free joint, dano_bodies (D,) their MuJoCo body ids, pairs (their kinds, indices and contact models),
-    the sizes nq, nv, nu and quaternion_slots ((qpos address of the quaternion, dof address of
-    ω) of every free and ball joint). Host-side only (``HOST_ONLY``: left out of the key and
+    dof_adr (D,) of each DANO's free joint, dano_bodies (D,) their MuJoCo body ids, pairs
+    (their kinds, indices and contact models), the sizes nq, nv, nu and quaternion_slots
+    ((qpos address of the quaternion, dof address of ω) of every free and ball joint). Host-side only (``HOST_ONLY``: left out of the key and
     hidden from traces, so that programs are shared by every object of the same structure,
     whatever its values and names): the MuJoCo C model (rendering, comparison, name lookups),
     the assets, the DANO and body names, the pairs' names and the scene's name."""

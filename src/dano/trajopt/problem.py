@@ -46,8 +46,8 @@ class Problem:
     another process, or another problem with an equal key, loads them instead of tracing them
     again (``dano trajopt push-sphere`` warm: 27.7 s -> 21.4 s, medians of three alternating
     runs on the 2-core VM; a cold run about 4 s more for the export). Values that change from
-    problem to problem (goals) belong in ``p``, not in the functions, so that one key serves
-    them all (docs/trajopt.md). A key that misses something the functions read gives another
+    problem to problem (goals; the scene itself, with :func:`scene_dynamics`) belong in ``p``,
+    not in the functions, so that one key serves them all (docs/trajopt.md). A key that misses something the functions read gives another
     problem's programs: leave it None when unsure.
     """
 
