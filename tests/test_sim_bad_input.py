@@ -68,6 +68,12 @@ def test_bad_parameters(capsys, tmp_path, param, message):
 
 def test_library_refuses_non_finite_parameters_and_states():
     s = load_scene("bunny-drop")
+    # a target by index (what traced programs pass) out of range: an error, not JAX's silent clamp
+    assert s.scene.target_index("alpha", 0) == 0 and s.scene.target_index("sliding_friction", "bunny/ground") == 0
+    with pytest.raises(DanoError, match="DANO index 1 out of range: the scene has 1"):
+        s.scene.set_param(s.params, "alpha", 2.0, target=1)
+    with pytest.raises(DanoError, match="contact pair index -1 out of range"):
+        s.scene.set_param(s.params, "sliding_friction", 0.3, target=-1)
     with pytest.raises(DanoError, match="alpha must be"):
         rollout(s.scene, s.state0, None, s.params.__class__(s.params.contact, jnp.asarray([np.inf])), 5)
     with pytest.raises(DanoError, match="initial qvel contains NaN"):

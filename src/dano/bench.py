@@ -343,8 +343,10 @@ def bench_latency(repeats: int = 2) -> dict:
         scene = Path(tmp) / "scene.xml"
         scene.write_text('<mujoco><option timestep="0.01"/><worldbody><geom name="floor" type="plane" '
                          'size="5 5 0.1"/></worldbody></mujoco>')
-        simulate = lambda obj: ["simulate", str(scene), "--object", f"{obj}@0,0,0.15", "--duration", "1",  # noqa: E731
-                                "--out", "{out}/run.npz"]
+
+        def simulate(obj) -> list[str]:
+            return ["simulate", str(scene), "--object", f"{obj}@0,0,0.15", "--duration", "1", "--out", "{out}/run.npz"]
+
         out["simulate_new_object"] = new_problem_times(simulate(made["dano"]), simulate(spot["dano"]))
     return out
 

@@ -194,8 +194,7 @@ class PerSample:
         ranks = jnp.cumsum(full.reach)
 
         def chunk(i, total):  # samples within reach number i·K + 1 … (i + 1)·K
-            wanted = i * K + jnp.arange(1, K + 1, dtype=ranks.dtype)
-            slots = jnp.minimum(jnp.searchsorted(ranks, wanted), S - 1)
+            slots, wanted = _ranked(ranks, i * K, K)
             return jax.lax.cond(i * K < ranks[-1], lambda: add(total, slots, wanted <= ranks[-1]), lambda: total)
 
         return jax.lax.fori_loop(0, -(-S // K), chunk, zero)
@@ -251,8 +250,15 @@ def _first_true(mask, size: int):
     and a binary search of it (``jnp.nonzero`` scatters element by element: 2 µs more per
     bunny step)."""
     ranks = jnp.cumsum(mask)
-    idx = jnp.searchsorted(ranks, jnp.arange(1, size + 1, dtype=ranks.dtype))
-    return jnp.minimum(idx, mask.shape[0] - 1), ranks[-1]
+    return _ranked(ranks, 0, size)[0], ranks[-1]
+
+
+def _ranked(ranks, skip, size: int):
+    """(indices (size,) of the True entries number skip + 1 … skip + size of the mask whose
+    prefix count is ``ranks`` (N,), slots past the last True holding N − 1; those numbers
+    (size,))."""
+    wanted = skip + jnp.arange(1, size + 1, dtype=ranks.dtype)
+    return jnp.minimum(jnp.searchsorted(ranks, wanted), ranks.shape[0] - 1), wanted
 
 
 def _outer_sum(x, y):

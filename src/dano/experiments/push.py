@@ -193,9 +193,6 @@ class PushParams:
     scene: Any
     u_ref: Any
 
-    def replace(self, **changes) -> "PushParams":
-        return dataclasses.replace(self, **changes)
-
 
 @dataclass(frozen=True)
 class PushTask:

@@ -273,24 +273,23 @@ class Scene:
         concrete = not isinstance(value, jax.core.Tracer)
         if concrete and not np.all(np.isfinite(np.asarray(value, dtype=np.float64))):
             raise DanoError(f"parameter {name} must be finite, got {value}")
+        if name not in ("alpha",) + INERTIAL_PARAMETERS + ContactParams.names():
+            raise DanoError(f"unknown parameter {name!r}; known: alpha, {', '.join(INERTIAL_PARAMETERS)}, "
+                            f"{', '.join(ContactParams.names())}")
+        index = self.target_index(name, target)
+        idx = slice(None) if index is None else index
         if name == "alpha":
-            idx = self._target_index(name, target)
             new = params.replace(alpha=jnp.asarray(params.alpha).at[idx].set(value))
         elif name in INERTIAL_PARAMETERS:
-            idx = self._target_index(name, target)
             field_name, axis = name[:-2], "xyz".index(name[-1])
             current = getattr(params, field_name)
             if current is None:  # the asset's own: zero offsets and rotations, unit scales
                 fill = 1.0 if field_name == "second_moment_scale" else 0.0
                 current = jnp.full((len(self.qpos_adr), 3), fill, dtype=jnp.asarray(params.alpha).dtype)
             new = params.replace(**{field_name: jnp.asarray(current).at[idx, axis].set(value)})
-        elif name in ContactParams.names():
-            idx = self._target_index(name, target)
+        else:
             arr = jnp.asarray(getattr(params.contact, name)).at[idx].set(value)
             new = params.replace(contact=params.contact.replace(**{name: arr}))
-        else:
-            raise DanoError(f"unknown parameter {name!r}; known: alpha, {', '.join(INERTIAL_PARAMETERS)}, "
-                            f"{', '.join(ContactParams.names())}")
         if concrete:
             new.contact.validate()
             if np.any(np.asarray(new.alpha) <= 0):
@@ -299,27 +298,26 @@ class Scene:
                 raise DanoError(f"second moment scales must be >= 0 (a physical inertia), got {value}")
         return new
 
-    def _target_index(self, name: str, target):
-        """Where parameter ``name`` of ``target`` sits in its (D,) or (P,) array: every entry
-        for None, a given index for an int (traced programs pass :meth:`target_index`'s, so
-        that they read no names), else the DANO's or pair's by name. Raises DanoError for
-        an unknown target."""
+    def target_index(self, name: str, target: str | int | None) -> int | None:
+        """Where parameter ``name`` of ``target`` sits in its (D,) array (``alpha`` and the
+        inertial parameters: the DANO's index) or (P,) array (contact parameters: the pair's):
+        None for every DANO or pair; an int is taken as that index (traced programs pass
+        indices, so that they read no names). Raises DanoError for an unknown name or an
+        index out of range."""
         if target is None:
-            return slice(None)
-        if isinstance(target, (int, np.integer)):
+            return None
+        contact = name in ContactParams.names()
+        if isinstance(target, (int, np.integer)) and not isinstance(target, bool):
+            count = len(self.pairs) if contact else len(self.qpos_adr)
+            if not 0 <= int(target) < count:
+                raise DanoError(f"{'contact pair' if contact else 'DANO'} index {int(target)} out of range: "
+                                f"the scene has {count}")
             return int(target)
-        if name in ContactParams.names():
+        if contact:
             if target not in self.pair_names:
                 raise DanoError(f"no contact pair {target!r}; pairs: {list(self.pair_names)}")
             return self.pair_names.index(target)
         return self.dano_index(target)
-
-    def target_index(self, name: str, target: str | None) -> int | None:
-        """The index that :meth:`set_param` takes for ``target`` of parameter ``name``: the
-        DANO's (``alpha`` and the inertial parameters) or the contact pair's; None for every
-        DANO or pair. Raises DanoError for an unknown target."""
-        idx = self._target_index(name, target)
-        return None if isinstance(idx, slice) else idx
 
     def dano_index(self, name: str) -> int:
         """Index of DANO ``name`` in ``dano_names`` (and in ``params.alpha``). Raises
