@@ -39,7 +39,7 @@ from .fields import BoxField, SphereField, mesh_field
 from .nerf import TrainConfig, load_dataset, train
 from .sim import DanoObject, NewtonConfig, SimParams, State, compose, rollout_arrays, scan_steps
 from .sim.dynamics import as_data
-from .sim.implicit import resolve_linear_solver
+from .sim.implicit import iteration_limit, resolve_linear_solver
 from .sim.scene import cast_floats
 from .sim.scenes import load_scene
 from .sysid import FitParameter, SysIdProblem, Weights, identify
@@ -416,7 +416,7 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
     for dano also the Newton iterations (B, T) of the last timed run: ``iterations_mean`` per
     env-step, ``loop_trips`` (the sum over steps of the batch's largest count: what the
     vmapped Newton loop runs), ``typical_env_trips`` (the median env's sum), ``envs_at_max``
-    (envs that used all ``max_iterations`` in some step) and ``non_finite_envs``;
+    (envs whose Newton solve used all its iterations in some step) and ``non_finite_envs``;
     ``linear_solver``: :attr:`~dano.sim.NewtonConfig.linear_solver` of dano's steps."""
     import resource
 
@@ -465,7 +465,7 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
     if engine == "dano":
         r.update(iterations_mean=float(iters.mean()), loop_trips=int(iters.max(0).sum()),
                  typical_env_trips=float(np.median(iters.sum(1))),
-                 envs_at_max=int((iters >= NewtonConfig().max_iterations).any(1).sum()))
+                 envs_at_max=int((iters >= iteration_limit(scd, newton)).any(1).sum()))
     stats = jax.local_devices()[0].memory_stats() or {}
     r["peak_bytes"] = stats.get("peak_bytes_in_use")
     r["max_rss_bytes"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024

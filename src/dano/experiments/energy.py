@@ -12,7 +12,8 @@ import numpy as np
 from .. import sharding
 from ..contact import ContactParams
 from ..pose import quat_to_matrix, random_quats
-from ..sim import NewtonConfig, make_data, scan_steps
+from ..sim import make_data, scan_steps
+from ..sim.implicit import iteration_limit
 from ..sim.energy import mechanical_energy
 from ..sim.rollout import first_divergence
 from ..sim.scenes import load_scene
@@ -59,7 +60,8 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
     the mass) or whose kinetic + potential energy ever exceeds its initial value by more
     than 1 % (``energy_rises``; the five worst in ``worst_runs``, the first 20 non-finite
     drops by index in ``nonfinite_drops``); ``max_energy_ratio`` is the largest max_t E(t)/E(0);
-    ``unconverged_steps``: steps whose Newton solve used all its iterations.
+    ``unconverged_steps``: steps whose Newton solve used all its iterations (both tries' where
+    it has a second, :attr:`~dano.sim.NewtonConfig.second_try`).
     contact_model: of the bunny/ground pair. batch: drops per vmapped call (default 50 for
     the centroid model; 1, unbatched, for per_sample, whose gathering of the samples in
     reach only pays off outside ``jax.vmap``); a batched call is split over the devices in
@@ -96,7 +98,7 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
         pad = lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], batch - n, axis=0)]) if n < batch else x  # noqa: E731
         p = jax.tree_util.tree_map(lambda x: pad(x[sl]), cparams)
         qpos, qvel, psi, iters = (np.asarray(a)[:n] for a in run(pad(qpos0[sl]), pad(qvel0[sl]), p))
-        limit = NewtonConfig().max_iterations
+        limit = iteration_limit(sc)
         out["unconverged_steps"] += int(np.sum(iters >= limit))
         out["max_newton_iterations"] = max(out["max_newton_iterations"], int(iters.max()))
         E = mechanical_energy(sc, qpos, qvel)

@@ -57,8 +57,10 @@ class State:
 @dataclass(frozen=True)
 class StepInfo:
     """Diagnostics of one step: psi (P,) overlap of each contact pair at the step's start
-    (mass units, ``scene.pair_names`` order); newton_iterations (); newton_residual ():
-    final residual of the velocity equation relative to the step's impulses."""
+    (mass units, ``scene.pair_names`` order); newton_iterations (): of both tries where the
+    first did not converge (:func:`~dano.sim.implicit.solve_velocity`: more than
+    ``max_iterations`` then); newton_residual (): final residual of the velocity equation
+    relative to the step's impulses."""
 
     psi: jax.Array
     newton_iterations: jax.Array
