@@ -81,7 +81,8 @@ class NewtonConfig:
     Levenberg–Marquardt steps in place of the halvings (:func:`solve_velocity`); None: where a pair's contact model
     has ``spurious_roots`` (the per-sample model: without, 2 of 2000 random stiff bunny drops went non-finite).
     Costs nothing per step where the first try succeeds; the step's program holds a second Newton loop (the
-    per-sample bunny drop compiled in 6.9 s instead of 4.9 s)."""
+    per-sample bunny drop of 300 steps compiled in 6.9 s instead of 4.9 s, of 10,000 steps into one kernel in
+    25 s instead of 13 s)."""
     reverse_mode: bool = True
     """False: the step's derivatives in forward mode only (``jax.jvp``, ``jax.jacfwd``; reverse mode then fails with
     JAX's error on ``while_loop``). Only contact models that gather their samples (:class:`~dano.contact.base.Compacted`
