@@ -47,8 +47,7 @@ class NewtonConfig:
     not an integer."""
 
     max_iterations: int = 25
-    """Newton iterations per step, >= 1; a step not converged in as many tries again once (at most
-    2·max_iterations in all, :func:`solve_velocity`)."""
+    """Newton iterations per step, >= 1 (with :attr:`second_try`, as many again for the second try)."""
     tolerance: float | None = None
     """Relative step size below which the solve has converged; None: 1e-10 in float64, 1e-5 in float32."""
     max_backtracks: int = 12
