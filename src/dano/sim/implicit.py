@@ -79,9 +79,8 @@ class NewtonConfig:
     pair turns by more than :data:`MAX_TURN` over the step, tries again from the start velocity with
     Levenberg–Marquardt steps in place of the halvings (:func:`solve_velocity`); None: where a pair's contact model
     has ``spurious_roots`` (the per-sample model: without, 2 of 2000 random stiff bunny drops went non-finite).
-    Costs nothing per step where the first try succeeds; the step's program holds a second Newton loop (the
-    per-sample bunny drop of 300 steps compiled in 6.9 s instead of 4.9 s, of 10,000 steps into one kernel in
-    25 s instead of 13 s)."""
+    The same loop carries on from the start velocity with the flag set: a few operations more per iteration (the
+    per-sample bunny drop's step 13.6 µs, its one-kernel rollout compiled in 13.7 s: docs/simulation.md)."""
     reverse_mode: bool = True
     """False: the step's derivatives in forward mode only (``jax.jvp``, ``jax.jacfwd``; reverse mode then fails with
     JAX's error on ``while_loop``). Only contact models that gather their samples (:class:`~dano.contact.base.Compacted`
@@ -327,12 +326,12 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
     stops there when it is at roundoff level; otherwise it accepts the point if ‖G‖²
     decreased enough (Armijo) or halves Δ until it does, and evaluates the Jacobian for the
     next iteration. Near the solution an iteration thus costs one solve, one force and one
-    Jacobian evaluation; the last one skips the Jacobian. If it has not converged after
-    ``max_iterations``, or has converged where a pair turns more than :data:`MAX_TURN` over
-    the step, it tries again from the start velocity with Levenberg–Marquardt steps of
+    Jacobian evaluation; the last one skips the Jacobian. With a second try
+    (:attr:`NewtonConfig.second_try`): if it has not converged after ``max_iterations``, or
+    has converged where a pair turns more than :data:`MAX_TURN` over the step, it tries again from the start velocity with Levenberg–Marquardt steps of
     damping λ·diag(AᵀA) (λ = 1e-3, ×10 per try) in place of the halvings, for at most
-    ``max_iterations`` more, and takes that root if it converges; else the iterate of both
-    tries with the smallest residual. A step whose
+    ``max_iterations`` more, and takes that root if it converges. Not converged: the iterate
+    (of both tries) with the smallest residual. A step whose
     residual at the start velocity is not finite (a state already NaN, a non-finite force)
     returns the start velocity at once, with 0 iterations: under ``vmap`` such an env
     otherwise ran all ``max_iterations`` on every step for the whole batch, to the same
@@ -354,92 +353,85 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
         turns = [jnp.max(jnp.linalg.norm(jnp.einsum("gvk,v->gk", J, v)[:, 3:], axis=1)) for J in pr.jac]
         return h * functools.reduce(jnp.maximum, turns, jnp.zeros((), v.dtype))
 
-    def iterate(damped: bool):
-        """The loop's body: Newton steps, backtracking by halving them (``damped`` False) or
-        by Levenberg–Marquardt steps (True)."""
+    n = opts.max_iterations
+    retries = _second_try(opts, models)
 
-        def body(state):
-            k, v, G, A, _, v_best, G_best = state
-            dv = -solve(A, G)
-            phi0 = jnp.sum(G * G)
-            G1 = residual(v + dv)
+    def body(state):
+        # (the second try's flag ``damped`` is in the state only where there is a second try:
+        # without, the program is the same as before the second try existed)
+        k, v, G, A, _, v_best, G_best, *more = state
+        damped = more[0] if retries else jnp.zeros((), bool)
+        dv = -solve(A, G)
+        phi0 = jnp.sum(G * G)
+        G1 = residual(v + dv)
 
-            def halving(_):
-                def cond(ls):
-                    a, j, Gn = ls
-                    # "not decreased enough" (Armijo; a non-finite residual counts as not decreased)
-                    return ~(jnp.sum(Gn * Gn) <= (1.0 - 1e-4 * a) * phi0) & (j < opts.max_backtracks)
+        def backtrack(_):
+            def cond(ls):
+                a, j, Gn = ls
+                # "not decreased enough" (Armijo; a non-finite residual counts as not decreased)
+                more = ~(jnp.sum(Gn * Gn) <= (1.0 - 1e-4 * a) * phi0) & (j < opts.max_backtracks)
+                return more & ~damped if retries else more
 
-                def halve(ls):
-                    a, j, _ = ls
-                    return 0.5 * a, j + 1, residual(v + 0.5 * a * dv)
+            def halve(ls):
+                a, j, _ = ls
+                return 0.5 * a, j + 1, residual(v + 0.5 * a * dv)
 
-                a, _, Gn = jax.lax.while_loop(cond, halve, (jnp.ones((), v.dtype), 0, G1))
+            a, _, Gn = jax.lax.while_loop(cond, halve, (jnp.ones((), v.dtype), 0, G1))
+            if not retries:
                 return a * dv, Gn
+            # the second try's Levenberg–Marquardt steps (AᵀA + λ·diag(AᵀA))·d = −AᵀG, λ = 1e-3,
+            # 1e-2, ...: they turn from Newton's towards steepest descent of ‖G‖² and shorten as
+            # λ grows (a loop that runs no trip in the first try; the halving none in the second)
+            H, g = A.T @ A, A.T @ G
+            D = jnp.diag(jnp.diag(H))
 
-            def levenberg_marquardt(_):
-                # (AᵀA + λ·diag(AᵀA))·d = −AᵀG, λ = 1e-3, 1e-2, ...: steps that turn from
-                # Newton's towards steepest descent of ‖G‖² and shorten as λ grows
-                H, g = A.T @ A, A.T @ G
-                D = jnp.diag(jnp.diag(H))
+            def lm(ls):
+                lam, j, _, _, _ = ls
+                d = -solve(H + lam * D, g)
+                Gn = residual(v + d)
+                # the same Armijo test: ∇‖G‖²·d = 2·gᵀd (= −2‖G‖² for the Newton step)
+                return 10.0 * lam, j + 1, d, Gn, jnp.sum(Gn * Gn) <= phi0 + 1e-4 * jnp.dot(g, d)
 
-                def cond(ls):
-                    _, j, d, Gn = ls
-                    # the same Armijo test: ∇‖G‖²·d = 2·gᵀd (= −2‖G‖² for the Newton step)
-                    return ~(jnp.sum(Gn * Gn) <= phi0 + 1e-4 * jnp.dot(g, d)) & (j < opts.max_backtracks)
+            lam0 = jnp.asarray(LM_DAMPING, v.dtype)
+            return jax.lax.while_loop(lambda ls: ~ls[4] & (ls[1] < opts.max_backtracks), lm,
+                                      (lam0, 0, a * dv, Gn, ~damped))[2:4]
 
-                def next_try(ls):
-                    lam, j, _, _ = ls
-                    d = -solve(H + lam * D, g)
-                    return 10.0 * lam, j + 1, d, residual(v + d)
-
-                lam0 = jnp.asarray(LM_DAMPING, v.dtype)
-                d = -solve(H + lam0 * D, g)
-                return jax.lax.while_loop(cond, next_try, (10.0 * lam0, 0, d, residual(v + d)))[2:]
-
-            # a full step that lands at roundoff level is taken as it is: no line search can
-            # decrease a residual that is already noise (at rest it would halve to its limit)
-            accept = (jnp.sum(G1 * G1) <= (1.0 - 1e-4) * phi0) | ~jnp.isfinite(phi0) | small(G1, G_first)
-            step, Gn = jax.lax.cond(accept, lambda _: (dv, G1), levenberg_marquardt if damped else halving, None)
-            v_new = v + step
-            # converged when the full Newton step is small (not a step shortened by the line
-            # search) or the residual is at roundoff level
-            done = (jnp.max(jnp.abs(dv)) <= tol * (1.0 + jnp.max(jnp.abs(v_new)))) | small(Gn, G_first)
-            A_new = jax.lax.cond(done | (k + 1 >= opts.max_iterations), lambda _: A, lambda _: matrix(v_new), None)
-            better = jnp.sum(Gn * Gn) < jnp.sum(G_best * G_best)  # (False for a non-finite residual)
-            v_best, G_best = jnp.where(better, v_new, v_best), jnp.where(better, Gn, G_best)
+        # a full step that lands at roundoff level is taken as it is: no line search can
+        # decrease a residual that is already noise (at rest it would halve to its limit)
+        accept = (jnp.sum(G1 * G1) <= (1.0 - 1e-4) * phi0) | ~jnp.isfinite(phi0) | small(G1, G_first)
+        step, Gn = jax.lax.cond(accept, lambda _: (dv, G1), backtrack, None)
+        v_new = v + step
+        # converged when the full Newton step is small (not a step shortened by the line
+        # search) or the residual is at roundoff level
+        done = (jnp.max(jnp.abs(dv)) <= tol * (1.0 + jnp.max(jnp.abs(v_new)))) | small(Gn, G_first)
+        better = jnp.sum(Gn * Gn) < jnp.sum(G_best * G_best)  # (False for a non-finite residual)
+        v_best, G_best = jnp.where(better, v_new, v_best), jnp.where(better, Gn, G_best)
+        if not retries:
+            A_new = jax.lax.cond(done | (k + 1 >= n), lambda _: A, lambda _: matrix(v_new), None)
             return k + 1, v_new, Gn, A_new, done, v_best, G_best
-
-        return body
+        # the second try starts from the start velocity where the first has not converged in
+        # n iterations or converged where a pair turns further than MAX_TURN (its root then
+        # kept as the answer should the second try not converge: its residual is the smallest)
+        suspect = jax.lax.cond(done & ~damped, lambda: turn(v_new) > MAX_TURN, lambda: jnp.zeros((), bool))
+        again = (suspect | ((k + 1 == n) & ~done)) & ~damped
+        done = done & ~suspect
+        A_new = jax.lax.cond(done | again | (k + 1 >= 2 * n), lambda _: A, lambda _: matrix(v_new), None)
+        v_new, Gn, A_new = (jnp.where(again, x0, x) for x, x0 in ((v_new, pr.v0), (Gn, G_first), (A_new, A0)))
+        return k + 1, v_new, Gn, A_new, done, v_best, G_best, damped | again
 
     def cond(state):
         k, _, _, _, done, *_ = state
-        return (k < opts.max_iterations) & ~done
+        return (k < (2 * n if retries else n)) & ~done
 
     Q0, D0 = contact_force_and_jacobian(models, pr, pr.v0)
     G_first = -h * (pr.f + Q0)
     A0 = pr.Mh - h * D0
     start = (0, pr.v0, G_first, A0, ~jnp.all(jnp.isfinite(G_first)), pr.v0, G_first)
-    k, v, G, _, done, v_best, G_best = jax.lax.while_loop(cond, iterate(False), start)
-    if not _second_try(opts, models):
-        # not converged within max_iterations: the iterate with the smallest residual (never
-        # worse than the step's start), not wherever the last iteration ended
-        v, G = jnp.where(done, v, v_best), jnp.where(done, G, G_best)
-        rel = jnp.max(jnp.abs(G)) / (impulse + jnp.max(jnp.abs(G_first)) + jnp.finfo(v.dtype).tiny)
-        return v, jnp.stack([jnp.asarray(k, v.dtype), rel])
-    # not converged, or converged where a pair turns further than MAX_TURN: a second try from
-    # the start with Levenberg–Marquardt steps in place of the halvings (a loop that runs no
-    # trip where the first try succeeded; under vmap, where it did for the whole batch)
-    retry = (~done | (turn(v) > MAX_TURN)) & jnp.all(jnp.isfinite(G_first))
-    k2, v2, G2, _, done2, v2_best, G2_best = jax.lax.while_loop(
-        cond, iterate(True), (0, pr.v0, G_first, A0, ~retry, pr.v0, G_first))
-    # the first try's root where it is trusted, else the second's; neither converged: the
-    # iterate of both with the smallest residual (never worse than the step's start)
-    second = jnp.sum(G2_best * G2_best) < jnp.sum(G_best * G_best)
-    v_best, G_best = jnp.where(second, v2_best, v_best), jnp.where(second, G2_best, G_best)
-    v = jnp.where(~retry, v, jnp.where(done2, v2, v_best))
-    G = jnp.where(~retry, G, jnp.where(done2, G2, G_best))
-    k = k + k2
+    start = start + ((jnp.zeros((), bool),) if retries else ())
+    k, v, G, _, done, v_best, G_best, *_ = jax.lax.while_loop(cond, body, start)
+    # not converged: the iterate with the smallest residual (of both tries; never worse than
+    # the step's start), not wherever the last iteration ended
+    v, G = jnp.where(done, v, v_best), jnp.where(done, G, G_best)
     rel = jnp.max(jnp.abs(G)) / (impulse + jnp.max(jnp.abs(G_first)) + jnp.finfo(v.dtype).tiny)
     return v, jnp.stack([jnp.asarray(k, v.dtype), rel])
 
