@@ -369,8 +369,8 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
             def cond(ls):
                 a, j, Gn = ls
                 # "not decreased enough" (Armijo; a non-finite residual counts as not decreased)
-                more = ~(jnp.sum(Gn * Gn) <= (1.0 - 1e-4 * a) * phi0) & (j < opts.max_backtracks)
-                return more & ~damped if retries else more
+                go_on = ~(jnp.sum(Gn * Gn) <= (1.0 - 1e-4 * a) * phi0) & (j < opts.max_backtracks)
+                return go_on & ~damped if retries else go_on
 
             def halve(ls):
                 a, j, _ = ls
