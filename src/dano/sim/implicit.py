@@ -21,7 +21,7 @@ Newton: A = M + h·B − h·∂Q/∂v', step −A⁻¹G, backtracking on ‖G‖
 residual is at roundoff level relative to the step's impulses or the step is below
 ``tolerance``; a step that has not converged after ``max_iterations``, or converged to a
 velocity that turns a contact pair by more than a radian, tries again with
-Levenberg–Marquardt steps in place of the backtracking. ∂Q/∂v' = Σ J·(∂wrench/∂u)·Jᵀ, the
+Powell's dogleg steps in a trust region in place of the backtracking. ∂Q/∂v' = Σ J·(∂wrench/∂u)·Jᵀ, the
 6×6 wrench Jacobians by forward-mode AD. The tangent of the converged
 solution is −A⁻¹·(∂G/∂θ·dθ) (implicit function theorem), so gradients are exact and cost
 one linear solve, whatever the iteration count.
@@ -51,9 +51,7 @@ class NewtonConfig:
     tolerance: float | None = None
     """Relative step size below which the solve has converged; None: 1e-10 in float64, 1e-5 in float32."""
     max_backtracks: int = 12
-    """Tries per iteration where the full Newton step does not decrease the residual enough, >= 0: the Newton step
-    halved, or, in a step's second try, Levenberg–Marquardt steps (damping λ = 1e-3, 1e-2, ... relative to
-    diag(AᵀA))."""
+    """Line-search halvings per iteration, >= 0 (not in a step's second try, :attr:`second_try`)."""
     constraint_passes: int = 2
     """How many times MuJoCo's constraint solver (joint limits, equalities, MuJoCo contacts) and the implicit
     contact solve alternate in a step at most, >= 1: 1 shows the constraint solver the contact force at the step's
@@ -76,11 +74,11 @@ class NewtonConfig:
     repay the longer compile; ``lapack`` otherwise, and for single steps). Derivatives always use LAPACK."""
     second_try: bool | None = None
     """Whether a step whose Newton solve has not converged in ``max_iterations``, or has converged where a contact
-    pair turns by more than :data:`MAX_TURN` over the step, tries again from the start velocity with
-    Levenberg–Marquardt steps in place of the halvings (:func:`solve_velocity`); None: where a pair's contact model
-    has ``spurious_roots`` (the per-sample model: without, 2 of 2000 random stiff bunny drops went non-finite).
-    The same loop carries on from the start velocity with the flag set: a few operations more per iteration (the
-    per-sample bunny drop's step 13.6 µs, its one-kernel rollout compiled in 13.7 s: docs/simulation.md)."""
+    pair turns by more than :data:`MAX_TURN` over the step, tries again from the start velocity with Powell's
+    dogleg steps in a trust region in place of the halvings (:func:`solve_velocity`); None: where a pair's contact
+    model has ``spurious_roots`` (the per-sample model: without, 2 of 2000 random stiff bunny drops went
+    non-finite). The same loop carries on from the start velocity with a flag set: a few operations more per
+    iteration, no second loop (docs/simulation.md)."""
     reverse_mode: bool = True
     """False: the step's derivatives in forward mode only (``jax.jvp``, ``jax.jacfwd``; reverse mode then fails with
     JAX's error on ``while_loop``). Only contact models that gather their samples (:class:`~dano.contact.base.Compacted`
@@ -292,11 +290,8 @@ def _tolerance(opts: NewtonConfig, dtype) -> float:
 #: per-sample model's equation can have spurious roots there (a bunny dropped at 3.9 m/s,
 #: Newton's method converged to it leaving at 19 m/s spinning at 490 rad/s, where the root
 #: near the start velocity turns it 0.017 rad over the step): the solve tries again with
-#: Levenberg–Marquardt steps, whose root is taken if it converges
+#: dogleg steps in a trust region, whose root is taken if it converges
 MAX_TURN = 1.0
-#: the first Levenberg–Marquardt damping λ (relative to diag(AᵀA)) of a step's second try;
-#: each further try multiplies it by 10
-LM_DAMPING = 1e-3
 
 
 def _second_try(opts: NewtonConfig, models) -> bool:
@@ -328,9 +323,13 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
     next iteration. Near the solution an iteration thus costs one solve, one force and one
     Jacobian evaluation; the last one skips the Jacobian. With a second try
     (:attr:`NewtonConfig.second_try`): if it has not converged after ``max_iterations``, or
-    has converged where a pair turns more than :data:`MAX_TURN` over the step, it tries again from the start velocity with Levenberg–Marquardt steps of
-    damping λ·diag(AᵀA) (λ = 1e-3, ×10 per try) in place of the halvings, for at most
-    ``max_iterations`` more, and takes that root if it converges. Not converged: the iterate
+    has converged where a pair turns more than :data:`MAX_TURN` over the step, it tries again
+    from the start velocity with Powell's dogleg steps in place of the halved Newton steps
+    (MINPACK's hybrid method: within a trust region |√diag(M + h·B)·Δ| <= r, the Newton step
+    where it fits, else towards it from the Cauchy point of the linearised ‖G‖²; r grows and
+    shrinks with the ratio of the actual to the predicted decrease, a step that does not
+    decrease ‖G‖² is rejected), for at most ``max_iterations`` more, and takes that root if
+    it converges. Not converged: the iterate
     (of both tries) with the smallest residual. A step whose
     residual at the start velocity is not finite (a state already NaN, a non-finite force)
     returns the start velocity at once, with 0 iterations: under ``vmap`` such an env
@@ -356,13 +355,33 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
     n = opts.max_iterations
     retries = _second_try(opts, models)
 
+    scale = jnp.sqrt(jnp.diag(pr.Mh))  # the trust region's norm |scale·d|: kinetic-energy-like
+
+    def dogleg(A, G, dn, radius):
+        """Powell's dogleg step within |scale·d| <= radius: the Newton step dn where it fits,
+        else along the Cauchy point (the minimum of the linearised ‖G‖² along steepest
+        descent) towards it, to the boundary."""
+        gs = (A.T @ G) / scale
+        As = A @ (gs / scale)
+        dc = -(gs @ gs) / (As @ As) * gs / scale
+        nc, nn = jnp.linalg.norm(scale * dc), jnp.linalg.norm(scale * dn)
+        a_, b_ = scale * dc, scale * (dn - dc)
+        qa, qb, qc = b_ @ b_, 2.0 * (a_ @ b_), a_ @ a_ - radius**2
+        t = (-qb + jnp.sqrt(jnp.maximum(qb * qb - 4.0 * qa * qc, 0.0))) / (2.0 * qa)
+        return jnp.where(nn <= radius, dn, jnp.where(nc >= radius, dc * radius / nc, dc + t * (dn - dc)))
+
     def body(state):
-        # (the second try's flag ``damped`` is in the state only where there is a second try:
-        # without, the program is the same as before the second try existed)
+        # (the second try's state, its flag ``damped`` and trust radius, is in the loop's state
+        # only where there is a second try: without, the program is the same as before)
         k, v, G, A, _, v_best, G_best, *more = state
-        damped = more[0] if retries else jnp.zeros((), bool)
-        dv = -solve(A, G)
+        damped, radius = more if retries else (jnp.zeros((), bool), None)
+        dn = -solve(A, G)
         phi0 = jnp.sum(G * G)
+        if retries:  # the second try: Powell's dogleg in a trust region, the first radius the Newton step's
+            radius = jnp.where(damped & jnp.isinf(radius), jnp.linalg.norm(scale * dn), radius)
+            dv = jax.lax.cond(damped, lambda: dogleg(A, G, dn, radius), lambda: dn)
+        else:
+            dv = dn
         G1 = residual(v + dv)
 
         def backtrack(_):
@@ -377,33 +396,27 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
                 return 0.5 * a, j + 1, residual(v + 0.5 * a * dv)
 
             a, _, Gn = jax.lax.while_loop(cond, halve, (jnp.ones((), v.dtype), 0, G1))
-            if not retries:
-                return a * dv, Gn
-            # the second try's Levenberg–Marquardt steps (AᵀA + λ·diag(AᵀA))·d = −AᵀG, λ = 1e-3,
-            # 1e-2, ...: they turn from Newton's towards steepest descent of ‖G‖² and shorten as
-            # λ grows (a loop that runs no trip in the first try; the halving none in the second)
-            H, g = A.T @ A, A.T @ G
-            D = jnp.diag(jnp.diag(H))
-
-            def lm(ls):
-                lam, j, _, _, _ = ls
-                d = -solve(H + lam * D, g)
-                Gn = residual(v + d)
-                # the same Armijo test: ∇‖G‖²·d = 2·gᵀd (= −2‖G‖² for the Newton step)
-                return 10.0 * lam, j + 1, d, Gn, jnp.sum(Gn * Gn) <= phi0 + 1e-4 * jnp.dot(g, d)
-
-            lam0 = jnp.asarray(LM_DAMPING, v.dtype)
-            return jax.lax.while_loop(lambda ls: ~ls[4] & (ls[1] < opts.max_backtracks), lm,
-                                      (lam0, 0, a * dv, Gn, ~damped))[2:4]
+            return a * dv, Gn
 
         # a full step that lands at roundoff level is taken as it is: no line search can
         # decrease a residual that is already noise (at rest it would halve to its limit)
         accept = (jnp.sum(G1 * G1) <= (1.0 - 1e-4) * phi0) | ~jnp.isfinite(phi0) | small(G1, G_first)
         step, Gn = jax.lax.cond(accept, lambda _: (dv, G1), backtrack, None)
+        if retries:
+            # the trust region's test: the actual decrease of ‖G‖² over the linearised one
+            linear = G + A @ dv
+            rho = (phi0 - jnp.sum(G1 * G1)) / (phi0 - jnp.sum(linear * linear))
+            rho = jnp.where(jnp.isfinite(rho), rho, -1.0)
+            taken = jnp.linalg.norm(scale * dv)
+            grown = jnp.where(rho < 0.25, 0.25 * taken, jnp.where((rho > 0.75) & (taken >= 0.99 * radius),
+                                                                    2.0 * radius, radius))
+            radius = jnp.where(damped, grown, radius)
+            moved = ~damped | (rho > 1e-4)  # a rejected dogleg step leaves v where it is
+            step, Gn = jnp.where(moved, step, 0.0), jnp.where(moved, Gn, G)
         v_new = v + step
         # converged when the full Newton step is small (not a step shortened by the line
         # search) or the residual is at roundoff level
-        done = (jnp.max(jnp.abs(dv)) <= tol * (1.0 + jnp.max(jnp.abs(v_new)))) | small(Gn, G_first)
+        done = (jnp.max(jnp.abs(dn)) <= tol * (1.0 + jnp.max(jnp.abs(v_new)))) | small(Gn, G_first)
         better = jnp.sum(Gn * Gn) < jnp.sum(G_best * G_best)  # (False for a non-finite residual)
         v_best, G_best = jnp.where(better, v_new, v_best), jnp.where(better, Gn, G_best)
         if not retries:
@@ -415,9 +428,10 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
         suspect = jax.lax.cond(done & ~damped, lambda: turn(v_new) > MAX_TURN, lambda: jnp.zeros((), bool))
         again = (suspect | ((k + 1 == n) & ~done)) & ~damped
         done = done & ~suspect
-        A_new = jax.lax.cond(done | again | (k + 1 >= 2 * n), lambda _: A, lambda _: matrix(v_new), None)
+        A_new = jax.lax.cond(done | again | (k + 1 >= 2 * n) | ~moved, lambda _: A, lambda _: matrix(v_new), None)
         v_new, Gn, A_new = (jnp.where(again, x0, x) for x, x0 in ((v_new, pr.v0), (Gn, G_first), (A_new, A0)))
-        return k + 1, v_new, Gn, A_new, done, v_best, G_best, damped | again
+        radius = jnp.where(again, jnp.inf, radius)  # (the second try's first radius: its first Newton step's)
+        return k + 1, v_new, Gn, A_new, done, v_best, G_best, damped | again, radius
 
     def cond(state):
         k, _, _, _, done, *_ = state
@@ -427,7 +441,7 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
     G_first = -h * (pr.f + Q0)
     A0 = pr.Mh - h * D0
     start = (0, pr.v0, G_first, A0, ~jnp.all(jnp.isfinite(G_first)), pr.v0, G_first)
-    start = start + ((jnp.zeros((), bool),) if retries else ())
+    start = start + ((jnp.zeros((), bool), jnp.asarray(jnp.inf, pr.v0.dtype)) if retries else ())
     k, v, G, _, done, v_best, G_best, *_ = jax.lax.while_loop(cond, body, start)
     # not converged: the iterate with the smallest residual (of both tries; never worse than
     # the step's start), not wherever the last iteration ended
