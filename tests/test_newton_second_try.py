@@ -1,5 +1,5 @@
 """The step's second Newton try (``NewtonConfig.second_try``, on for the per-sample model):
-two per-sample bunny steps from the energy check's random drops (paper Table I parameter
+three per-sample bunny steps from the energy check's random drops (paper Table I parameter
 ranges; ``dano bench --suite energy --contact-model per_sample``) where Newton's method with
 halving alone fails, each checked against MINPACK's hybrid method (``scipy.optimize.root``)
 on the same velocity equation."""
@@ -113,3 +113,11 @@ def test_a_stalled_solve_converges_on_its_second_try(step, case):
     v, info, _ = step(case)
     assert float(info.newton_residual) < 1e-10
     np.testing.assert_allclose(v, _minpack_root(residual, np.asarray(case[1])), atol=1e-8)
+
+
+@pytest.mark.parametrize("bad", ["yes", 1, 0.0])
+def test_second_try_must_be_a_bool_or_none(bad):
+    from dano.errors import DanoError
+
+    with pytest.raises(DanoError, match="NewtonOptions.second_try must be True, False or None"):
+        NewtonConfig(second_try=bad)

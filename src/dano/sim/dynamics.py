@@ -58,9 +58,9 @@ class State:
 class StepInfo:
     """Diagnostics of one step: psi (P,) overlap of each contact pair at the step's start
     (mass units, ``scene.pair_names`` order); newton_iterations (): of both tries where the
-    first did not converge (:func:`~dano.sim.implicit.solve_velocity`: more than
-    ``max_iterations`` then); newton_residual (): final residual of the velocity equation
-    relative to the step's impulses."""
+    solve had a second (:attr:`~dano.sim.NewtonConfig.second_try`; up to 2·``max_iterations``,
+    :func:`~dano.sim.implicit.iteration_limit`); newton_residual (): final residual of the
+    velocity equation relative to the step's impulses."""
 
     psi: jax.Array
     newton_iterations: jax.Array

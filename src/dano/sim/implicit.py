@@ -19,10 +19,11 @@ ring. At rest (v' = 0) nothing advances: resting states and ψ = m·g/k are unch
 
 Newton: A = M + h·B − h·∂Q/∂v', step −A⁻¹G, backtracking on ‖G‖² (Armijo), stop when the
 residual is at roundoff level relative to the step's impulses or the step is below
-``tolerance``; a step that has not converged after ``max_iterations``, or converged to a
-velocity that turns a contact pair by more than a radian, tries again with
-Powell's dogleg steps in a trust region in place of the backtracking. ∂Q/∂v' = Σ J·(∂wrench/∂u)·Jᵀ, the
-6×6 wrench Jacobians by forward-mode AD. The tangent of the converged
+``tolerance``. Where the contact model asks for it (``NewtonConfig.second_try``), a step
+that has not converged after ``max_iterations``, or converged to a velocity that turns a
+contact pair by more than a radian, tries again with Powell's dogleg steps in a trust region
+in place of the backtracking. ∂Q/∂v' = Σ J·(∂wrench/∂u)·Jᵀ, the 6×6 wrench Jacobians by
+forward-mode AD. The tangent of the converged
 solution is −A⁻¹·(∂G/∂θ·dθ) (implicit function theorem), so gradients are exact and cost
 one linear solve, whatever the iteration count.
 """
@@ -47,7 +48,7 @@ class NewtonConfig:
     not an integer."""
 
     max_iterations: int = 25
-    """Newton iterations per step, >= 1 (with :attr:`second_try`, as many again for the second try)."""
+    """Newton iterations per step, >= 1 (with :attr:`second_try`: up to twice as many in all, both tries')."""
     tolerance: float | None = None
     """Relative step size below which the solve has converged; None: 1e-10 in float64, 1e-5 in float32."""
     max_backtracks: int = 12
@@ -328,9 +329,9 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
     (MINPACK's hybrid method: within a trust region |√diag(M + h·B)·Δ| <= r, the Newton step
     where it fits, else towards it from the Cauchy point of the linearised ‖G‖²; r grows and
     shrinks with the ratio of the actual to the predicted decrease, a step that does not
-    decrease ‖G‖² is rejected), for at most ``max_iterations`` more, and takes that root if
-    it converges. Not converged: the iterate
-    (of both tries) with the smallest residual. A step whose
+    decrease ‖G‖² is rejected), until 2·``max_iterations`` iterations in all, and takes that
+    root if it converges. Not converged: the iterate (of both tries) with the smallest
+    residual. A step whose
     residual at the start velocity is not finite (a state already NaN, a non-finite force)
     returns the start velocity at once, with 0 iterations: under ``vmap`` such an env
     otherwise ran all ``max_iterations`` on every step for the whole batch, to the same
@@ -378,8 +379,11 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
         dn = -solve(A, G)
         phi0 = jnp.sum(G * G)
         if retries:  # the second try: Powell's dogleg in a trust region, the first radius the Newton step's
-            radius = jnp.where(damped & jnp.isinf(radius), jnp.linalg.norm(scale * dn), radius)
-            dv = jax.lax.cond(damped, lambda: dogleg(A, G, dn, radius), lambda: dn)
+            def trust_region(_):
+                r = jnp.where(jnp.isinf(radius), jnp.linalg.norm(scale * dn), radius)
+                return dogleg(A, G, dn, r), r
+
+            dv, radius = jax.lax.cond(damped, trust_region, lambda _: (dn, radius), None)
         else:
             dv = dn
         G1 = residual(v + dv)
@@ -402,17 +406,21 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
         # decrease a residual that is already noise (at rest it would halve to its limit)
         accept = (jnp.sum(G1 * G1) <= (1.0 - 1e-4) * phi0) | ~jnp.isfinite(phi0) | small(G1, G_first)
         step, Gn = jax.lax.cond(accept, lambda _: (dv, G1), backtrack, None)
-        if retries:
-            # the trust region's test: the actual decrease of ‖G‖² over the linearised one
-            linear = G + A @ dv
-            rho = (phi0 - jnp.sum(G1 * G1)) / (phi0 - jnp.sum(linear * linear))
-            rho = jnp.where(jnp.isfinite(rho), rho, -1.0)
-            taken = jnp.linalg.norm(scale * dv)
-            grown = jnp.where(rho < 0.25, 0.25 * taken, jnp.where((rho > 0.75) & (taken >= 0.99 * radius),
-                                                                    2.0 * radius, radius))
-            radius = jnp.where(damped, grown, radius)
-            moved = ~damped | (rho > 1e-4)  # a rejected dogleg step leaves v where it is
-            step, Gn = jnp.where(moved, step, 0.0), jnp.where(moved, Gn, G)
+        if retries:  # (in the second try the halving ran no trip: step = dv, Gn = G1)
+            def judge(_):
+                # the trust region's test: the actual decrease of ‖G‖² over the linearised one;
+                # a rejected dogleg step leaves v where it is
+                linear = G + A @ dv
+                rho = (phi0 - jnp.sum(G1 * G1)) / (phi0 - jnp.sum(linear * linear))
+                rho = jnp.where(jnp.isfinite(rho), rho, -1.0)
+                taken = jnp.linalg.norm(scale * dv)
+                r = jnp.where(rho < 0.25, 0.25 * taken,
+                              jnp.where((rho > 0.75) & (taken >= 0.99 * radius), 2.0 * radius, radius))
+                moved = rho > 1e-4
+                return jnp.where(moved, dv, 0.0), jnp.where(moved, G1, G), r, moved
+
+            step, Gn, radius, moved = jax.lax.cond(damped, judge, lambda _: (step, Gn, radius, jnp.ones((), bool)),
+                                                   None)
         v_new = v + step
         # converged when the full Newton step is small (not a step shortened by the line
         # search) or the residual is at roundoff level
