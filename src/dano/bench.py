@@ -405,7 +405,7 @@ SCALING_BATCHES = {"gpu": (1024, 4096, 16384, 32768, 65536, 131072, 262144), "cp
 
 
 def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats: int = 2,
-                  linear_solver: str = "auto") -> dict:
+                  linear_solver: str = "auto", compiler_options: dict | None = None) -> dict:
     """One point of the scaling suite, in this process: ``batch`` bunny drops of ``steps``
     steps (the batched suite's initial states, seeded by ``batch``) vmapped in one jitted
     program on the default device, in ``dtype`` (float32 or float64): ``engine`` "dano" (the
@@ -417,7 +417,11 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
     env-step, ``loop_trips`` (the sum over steps of the batch's largest count: what the
     vmapped Newton loop runs), ``typical_env_trips`` (the median env's sum), ``envs_at_max``
     (envs whose Newton solve used all its iterations in some step) and ``non_finite_envs``;
-    ``linear_solver``: :attr:`~dano.sim.NewtonConfig.linear_solver` of dano's steps."""
+    ``linear_solver``: :attr:`~dano.sim.NewtonConfig.linear_solver` of dano's steps;
+    ``compiler_options``: XLA options of the jitted rollout (``jax.jit(compiler_options=)``,
+    e.g. ``{"xla_gpu_enable_command_buffer": "FUSION,WHILE"}``), None for XLA's defaults.
+    ``final_height_mean_m``: the envs' mean final height of the body [m] (a check that
+    variants of one point simulate the same drops)."""
     import resource
 
     if dtype == "float64" or engine == "dano":  # plain MJX in float32 runs as MJX users run it: 64-bit mode off
@@ -437,7 +441,7 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
             _, qs, vs, _, iters = scan_steps(scd, pd, as_data(scd, State(q, v)), ctrl, f, newton, False)
             return qs[-1], vs[-1], iters
 
-        run = jax.jit(jax.vmap(roll))
+        run = jax.jit(jax.vmap(roll), compiler_options=compiler_options)
     elif engine == "mjx":
         from ._mjx import mjx
 
@@ -449,7 +453,7 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
             d = jax.lax.scan(lambda d, _: (mjx.step(mx, d), None), d0.replace(qpos=q, qvel=v), None, length=steps)[0]
             return d.qpos, d.qvel, jnp.zeros((steps,), dt)
 
-        run = jax.jit(jax.vmap(roll))
+        run = jax.jit(jax.vmap(roll), compiler_options=compiler_options)
     else:
         raise DanoError(f"unknown engine {engine!r}: dano or mjx")
     last: list = []  # the final states and iterations of the last timed run (not one run more)
@@ -462,6 +466,7 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
     r.update(out, env_steps_per_s=batch * steps / r["median_s"], compile_s=max(r["first_s"] - r["median_s"], 0.0))
     finite = np.isfinite(qf).all(1) & np.isfinite(vf).all(1)
     r["non_finite_envs"] = int((~finite).sum())
+    r["final_height_mean_m"] = float(np.mean(qf[finite, 2])) if finite.any() else None
     if engine == "dano":
         r.update(iterations_mean=float(iters.mean()), loop_trips=int(iters.max(0).sum()),
                  typical_env_trips=float(np.median(iters.sum(1))),
