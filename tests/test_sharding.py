@@ -77,6 +77,13 @@ def test_sharded_vmap_on_one_device_is_vmap():
     got = sharding.sharded_vmap(f, (0, 0, None), devices=1)(x, y, w)
     ref = jax.vmap(f, in_axes=(0, 0, None))(x, y, w)
     assert all(np.array_equal(a, b) for a, b in zip(got, ref))
+    # compiled with a rollout's XLA options at the top level; inside the user's jit or grad
+    # (JAX takes compiler options on a top-level jit only) traced into theirs, same numbers
+    run = sharding.sharded_vmap(f, (0, 0, None), devices=1)
+    inside = jax.jit(lambda x: run(x, y, w))(x)
+    assert all(np.array_equal(a, b) for a, b in zip(inside, ref))
+    g = jax.grad(lambda x: run(x, y, w)[0].sum())(x)
+    np.testing.assert_allclose(g, w * jnp.cos(x * w), rtol=1e-12)
     with pytest.raises(DanoError, match="in_axes must be 0 or None"):
         sharding.sharded_vmap(f, (0, 1, None))(x, y, w)
     with pytest.raises(DanoError, match="at least one argument with axis 0"):

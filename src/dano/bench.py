@@ -22,7 +22,7 @@ import numpy as np
 import tyro
 
 from . import sharding
-from ._jax_setup import enable_float64
+from ._jax_setup import enable_float64, rollout_compiler_options
 from ._version import __version__
 from .errors import DanoError
 from .asset import build
@@ -418,8 +418,9 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
     vmapped Newton loop runs), ``typical_env_trips`` (the median env's sum), ``envs_at_max``
     (envs whose Newton solve used all its iterations in some step) and ``non_finite_envs``;
     ``linear_solver``: :attr:`~dano.sim.NewtonConfig.linear_solver` of dano's steps;
-    ``compiler_options``: XLA options of the jitted rollout (``jax.jit(compiler_options=)``,
-    e.g. ``{"xla_gpu_enable_command_buffer": "FUSION,WHILE"}``), None for XLA's defaults.
+    ``compiler_options``: XLA options of the jitted rollout (``jax.jit(compiler_options=)``);
+    None: dano's as it runs its rollouts (:func:`dano.sim.rollout_compiler_options`: on an
+    NVIDIA GPU, loops in CUDA graphs) and XLA's defaults for plain MJX (as MJX users run it).
     ``final_height_mean_m``: the envs' mean final height of the body [m] (a check that
     variants of one point simulate the same drops)."""
     import resource
@@ -441,7 +442,8 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
             _, qs, vs, _, iters = scan_steps(scd, pd, as_data(scd, State(q, v)), ctrl, f, newton, False)
             return qs[-1], vs[-1], iters
 
-        run = jax.jit(jax.vmap(roll), compiler_options=compiler_options)
+        options = rollout_compiler_options() if compiler_options is None else compiler_options
+        run = jax.jit(jax.vmap(roll), compiler_options=options)
     elif engine == "mjx":
         from ._mjx import mjx
 
@@ -453,7 +455,8 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
             d = jax.lax.scan(lambda d, _: (mjx.step(mx, d), None), d0.replace(qpos=q, qvel=v), None, length=steps)[0]
             return d.qpos, d.qvel, jnp.zeros((steps,), dt)
 
-        run = jax.jit(jax.vmap(roll), compiler_options=compiler_options)
+        options = compiler_options or {}
+        run = jax.jit(jax.vmap(roll), compiler_options=options)
     else:
         raise DanoError(f"unknown engine {engine!r}: dano or mjx")
     last: list = []  # the final states and iterations of the last timed run (not one run more)
@@ -461,6 +464,7 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
     def call():
         last[:] = [jax.block_until_ready(run(qpos, qvel))]
 
+    out["compiler_options"] = options
     r = _time(call, repeats)
     qf, vf, iters = (np.asarray(x) for x in last[0])
     r.update(out, env_steps_per_s=batch * steps / r["median_s"], compile_s=max(r["first_s"] - r["median_s"], 0.0))

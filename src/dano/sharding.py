@@ -34,6 +34,8 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from ._compiled import _tracing
+from ._jax_setup import rollout_compiler_options
 from .errors import DanoError
 
 #: the name of the mesh axis that batches are split along
@@ -156,7 +158,8 @@ def split_rows(fn: Callable, mesh: Mesh | None, in_axes) -> Callable:
     return jax.shard_map(mapped, mesh=mesh, in_specs=specs, out_specs=PartitionSpec(AXIS), check_vma=False)
 
 
-def sharded_vmap(fn: Callable, in_axes: Sequence[int | None] | int = 0, devices: int | None = None) -> Callable:
+def sharded_vmap(fn: Callable, in_axes: Sequence[int | None] | int = 0, devices: int | None = None,
+                 compiler_options: dict | None = None) -> Callable:
     """``jax.jit(jax.vmap(fn, in_axes))`` with the batch split over the devices in use (or the
     first ``devices`` local ones of each process): the batch (the leading axis of the
     arguments with axis 0; every leaf of a pytree argument) is padded to a multiple of the
@@ -164,13 +167,21 @@ def sharded_vmap(fn: Callable, in_axes: Sequence[int | None] | int = 0, devices:
     in_axes: 0 or None per positional argument (None: the same for every row). One device:
     ``jax.jit(jax.vmap(fn))`` itself. Results are those of one device (the per-device
     program is the same; float64 agrees to rounding). Across processes every process passes
-    the whole batch (the same values) and gets the whole result."""
+    the whole batch (the same values) and gets the whole result. compiler_options: XLA
+    options of the program (``jax.jit(compiler_options=)``); None: a rollout's
+    (:func:`dano.sim.rollout_compiler_options`: on an NVIDIA GPU the Newton loops run as
+    CUDA graphs), ``{}``: XLA's defaults."""
     compiled: dict = {}
+    options = rollout_compiler_options() if compiler_options is None else dict(compiler_options)
 
     def run(*args):
         axes = tuple(in_axes) if isinstance(in_axes, (tuple, list)) else (in_axes,) * len(args)
         if len(axes) != len(args) or any(a not in (0, None) for a in axes):
             raise DanoError(f"in_axes must be 0 or None for each of the {len(args)} arguments, got {in_axes!r}")
+        # (inside the user's jit, vmap or grad the program is traced into theirs: JAX takes
+        # compiler options on a top-level jit only)
+        traced = _tracing() or any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(args))
+        jit_options = {} if traced or not options else {"compiler_options": options}
         per = devices_in_use() if devices is None else check_devices(devices)
         batched = [a for a, ax in zip(args, axes) if ax == 0]
         if not batched:
@@ -178,18 +189,20 @@ def sharded_vmap(fn: Callable, in_axes: Sequence[int | None] | int = 0, devices:
         size = int(np.shape(jax.tree_util.tree_leaves(batched[0])[0])[0])
         mesh = mesh_of_size(shards_for(size, per))
         if mesh is None:
-            if None not in compiled:
-                compiled[None] = jax.jit(jax.vmap(fn, in_axes=axes))
-            return compiled[None](*args)
+            key = (None, bool(jit_options))
+            if key not in compiled:
+                compiled[key] = jax.jit(jax.vmap(fn, in_axes=axes), **jit_options)
+            return compiled[key](*args)
         padded = padded_size(size, mesh.size)
         args = tuple(pad_rows(a, padded) if ax == 0 else a for a, ax in zip(args, axes))
-        if mesh not in compiled:
+        key = (mesh, bool(jit_options))
+        if key not in compiled:
             if jax.process_count() > 1:  # every process holds the whole batch and gets the whole result
                 shard = dict(in_shardings=replicated(mesh), out_shardings=replicated(mesh))
             else:
                 shard = dict(in_shardings=tuple(rows(mesh) if ax == 0 else replicated(mesh) for ax in axes))
-            compiled[mesh] = jax.jit(split_rows(fn, mesh, axes), **shard)
-        out = compiled[mesh](*args)
+            compiled[key] = jax.jit(split_rows(fn, mesh, axes), **jit_options, **shard)
+        out = compiled[key](*args)
         return out if padded == size else jax.tree_util.tree_map(lambda x: x[:size], out)
 
     return run
