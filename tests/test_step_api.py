@@ -354,6 +354,20 @@ def test_unrolled_rollout_has_no_lapack_call_and_agrees_with_lapack():
         def prepare(self, g, h):
             return Centroid.prepare(self, g, h)
 
+    # on a GPU "auto" takes the unrolled LU for any rollout length and either model (no
+    # cuSOLVER call per Newton iteration), not for a scene with MuJoCo constraints; only the
+    # backend's name is swapped here (the choice is made when the rollout is traced)
+    import dano.sim.implicit as implicit
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(implicit.jax, "default_backend", lambda: "gpu")
+        assert resolve_linear_solver(auto, sc, 1).linear_solver == "unrolled"
+        assert resolve_linear_solver(auto, other, 200).linear_solver == "unrolled"
+        constrained = load_scene("sphere-hits-bunny").scene  # (the sphere on the ground: MuJoCo contacts)
+        assert constrained.has_constraints and resolve_linear_solver(auto, constrained, 200).linear_solver == "lapack"
+        mp.setattr(implicit.jax, "default_backend", lambda: "tpu")
+        assert resolve_linear_solver(auto, sc, UNROLLED_MIN_STEPS).linear_solver == "lapack"
+
     legacy = load_scene("bunny-drop", contact_model=TwoArgumentPrepare())
     np.testing.assert_array_equal(rollout_arrays(legacy.scene, s0, None, p, 80)[0],  # (it lands at ~48)
                                   rollout_arrays(sc, s0, None, p, 80)[0])
