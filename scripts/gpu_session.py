@@ -1,21 +1,25 @@
 """One prepared run of the GPU checks of docs/scaling.md, for a lent GPU machine (the device tool).
 
 Each point is :func:`dano.bench.scaling_point` in a fresh Python process (fresh compile, no
-persistent cache), with its own XLA flags, compiler options and time limit; a point past its
-limit has its Python stacks dumped (``faulthandler``) into ``OUT/stacks.txt`` and is recorded
-as timed out. Results go, one JSON object per line, to ``OUT/points.jsonl`` as they come, so
-that a run cut short keeps what it measured. Stages, in order of priority, each point skipped
-when it could not finish within ``--budget`` seconds of the start:
+persistent cache), with its own XLA flags, compiler options and time limit. While a point runs,
+``nvidia-smi`` samples the GPU every 0.5 s into ``OUT/smi.csv`` (each line tagged with the
+point); a point past its limit has its Python stacks dumped (``faulthandler``) into
+``OUT/stacks.txt`` and a full ``nvidia-smi -q`` snapshot appended there before it is killed,
+and is recorded as timed out. Results go, one JSON object per line, to ``OUT/points.jsonl`` as
+they come, so that a run cut short keeps what it measured. Stages (``--stages``, in the order
+given), each point skipped when it could not finish within ``--budget`` seconds of the start:
 
-1. B = 16,384 float32: dano with the Newton systems by LAPACK (the GPU's default) and by the
-   unrolled LU, each with XLA's default command buffers and with while loops and conditionals
-   in command buffers (CUDA graphs' conditional nodes: the Newton loop's test stays on the
-   GPU); plain MJX on the bunny's hull with and without;
-2. the fastest dano variant at B = 65,536 and 131,072, and in float64 at 16,384;
-3. float32 at B = 131,072 again and again (the stalls of docs/scaling.md), with XLA's default
-   autotuning and with ``--xla_gpu_autotune_level=0``.
+* ``launches``: B = 16,384 float32: dano with the Newton systems by LAPACK and by the unrolled
+  LU, each with XLA's default command buffers (``{}``) and with dano's rollout options (while
+  loops and conditionals in CUDA graphs: :func:`dano.sim.batched_compiler_options`, the
+  default); plain MJX on the bunny's hull with XLA's defaults and with the graphs;
+* ``stalls``: float32 at ``--stall-batch`` (131,072) again and again (the stalls of
+  docs/scaling.md): dano's defaults, then ``--xla_gpu_deterministic_ops=true``, then LAPACK
+  without graphs (the configuration of the first stalls);
+* ``far``: dano's defaults at ``--far-batch`` (65,536), 131,072 and 262,144 float32 and at
+  16,384 and 131,072 float64.
 
-Usage: ``python scripts/gpu_session.py OUT_DIR [--budget SECONDS]``.
+Usage: ``python scripts/gpu_session.py OUT_DIR [--budget SECONDS] [--stages launches,stalls,far]``.
 """
 
 from __future__ import annotations
@@ -28,11 +32,6 @@ import sys
 import time
 from pathlib import Path
 
-#: command buffers (CUDA graphs) for XLA's default commands plus while loops and conditionals
-GRAPH_OPTIONS = {"xla_gpu_enable_command_buffer": "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,CONDITIONAL,WHILE",
-                 "xla_gpu_graph_min_graph_size": 1}
-GRAPH_FLAGS = " ".join(f"--{k}={v}" for k, v in GRAPH_OPTIONS.items())
-
 CHILD = """
 import faulthandler, json, sys
 stacks = open(sys.argv[1], "a")
@@ -44,6 +43,8 @@ faulthandler.cancel_dump_traceback_later()
 print("RESULT " + json.dumps(r), flush=True)
 """
 
+SMI_FIELDS = "timestamp,utilization.gpu,utilization.memory,memory.used,clocks.sm,power.draw,pstate"
+
 
 class Session:
     def __init__(self, out: Path, budget: float):
@@ -53,6 +54,17 @@ class Session:
     def elapsed(self) -> float:
         return time.time() - self.t0
 
+    def _sampler(self, key: str):
+        """nvidia-smi every 0.5 s, each line prefixed by the point's key (None without nvidia-smi)."""
+        try:
+            smi = subprocess.Popen(["nvidia-smi", f"--query-gpu={SMI_FIELDS}", "--format=csv,noheader", "-lms", "500"],
+                                   stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        except OSError:
+            return None
+        tagger = subprocess.Popen(["sed", "-u", f"s/^/{key}, /"], stdin=smi.stdout,
+                                  stdout=open(self.out / "smi.csv", "a"))
+        return smi, tagger
+
     def point(self, key: str, timeout: float, xla_flags: str = "", **kwargs) -> dict | None:
         if self.elapsed() + timeout > self.budget:
             print(f"skip {key}: {self.elapsed():.0f} s of {self.budget:.0f} used", flush=True)
@@ -60,15 +72,28 @@ class Session:
         env = dict(os.environ)
         if xla_flags:
             env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + xla_flags).strip()
+        sampler = self._sampler(key)
         start = time.time()
+        proc = subprocess.Popen([sys.executable, "-c", CHILD, str(self.out / "stacks.txt"), key,
+                                 str(max(timeout - 5, 1)), json.dumps(kwargs)],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         try:
-            proc = subprocess.run([sys.executable, "-c", CHILD, str(self.out / "stacks.txt"), key,
-                                   str(max(timeout - 5, 1)), json.dumps(kwargs)],
-                                  capture_output=True, text=True, env=env, timeout=timeout)
-            lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
-            r = json.loads(lines[-1][7:]) if lines else {"error": proc.stderr.strip().splitlines()[-8:]}
+            stdout, stderr = proc.communicate(timeout=timeout)
+            lines = [ln for ln in stdout.splitlines() if ln.startswith("RESULT ")]
+            r = json.loads(lines[-1][7:]) if lines else {"error": stderr.strip().splitlines()[-8:]}
         except subprocess.TimeoutExpired:
+            with open(self.out / "stacks.txt", "a") as f:  # the GPU's state while the point hangs
+                f.write(f"--- nvidia-smi -q of {key} at {time.time() - start:.0f} s\n")
+                f.flush()
+                subprocess.run(["nvidia-smi", "-q", "-d", "UTILIZATION,PERFORMANCE,CLOCK,MEMORY,PIDS"],
+                               stdout=f, stderr=subprocess.STDOUT, check=False)
+            proc.kill()
+            proc.communicate()
             r = {"timed_out_s": timeout}
+        finally:
+            if sampler:
+                for p in sampler:
+                    p.terminate()
         r.update(key=key, xla_flags=xla_flags, kwargs=kwargs, started_unix=start, wall_s=time.time() - start)
         self.points[key] = r
         with open(self.out / "points.jsonl", "a") as f:
@@ -86,9 +111,11 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("out", type=Path)
     ap.add_argument("--budget", type=float, default=480.0)
+    ap.add_argument("--stages", default="launches,stalls,far")
     ap.add_argument("--batch", type=int, default=16384)
     ap.add_argument("--stall-batch", type=int, default=131072)
     ap.add_argument("--far-batch", type=int, default=65536)
+    ap.add_argument("--attempts", type=int, default=3)
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     s = Session(args.out, args.budget)
@@ -96,33 +123,32 @@ def main() -> None:
                          capture_output=True, text=True)
     (args.out / "environment.json").write_text(env.stdout or env.stderr)
     print(env.stdout or env.stderr, flush=True)
-    b = args.batch
-    f32 = dict(engine="dano", dtype="float32", batch=b)
-    # 1. the step's launches at B = 16,384
-    s.point("dano_f32_lapack", 90, **f32, linear_solver="lapack")
-    s.point("dano_f32_unrolled", 90, **f32, linear_solver="unrolled")
-    s.point("dano_f32_lapack_graphs", 90, **f32, linear_solver="lapack", compiler_options=GRAPH_OPTIONS)
-    s.point("dano_f32_unrolled_graphs", 90, **f32, linear_solver="unrolled", compiler_options=GRAPH_OPTIONS)
-    s.point("mjx_f32", 90, engine="mjx", dtype="float32", batch=b)
-    s.point("mjx_f32_graphs", 90, engine="mjx", dtype="float32", batch=b, compiler_options=GRAPH_OPTIONS)
-    variants = {k: r for k, r in s.points.items() if k.startswith("dano_f32") and "env_steps_per_s" in r}
-    best = max(variants, key=lambda k: variants[k]["env_steps_per_s"]) if variants else "dano_f32_lapack"
-    opts = dict(s.points[best]["kwargs"]) if best in s.points else dict(f32, linear_solver="lapack")
-    print(f"fastest at B={b}: {best}", flush=True)
-    # 3 first (the stalls): default autotuning, then without
-    sb = args.stall_batch
-    for i in range(3):
-        s.point(f"stall_default_{i + 1}", 45, engine="dano", dtype="float32", batch=sb, linear_solver="lapack")
-    for i in range(3):
-        s.point(f"stall_autotune0_{i + 1}", 45, xla_flags="--xla_gpu_autotune_level=0",
-                engine="dano", dtype="float32", batch=sb, linear_solver="lapack")
-    # 2. the fastest variant further out, and in float64
-    for bb in (args.far_batch, sb):
-        s.point(f"best_f32_{bb}", 60, **dict(opts, batch=bb))
-    s.point("best_f64", 60, **dict(opts, dtype="float64"))
-    s.point("dano_f64_lapack", 60, **dict(f32, dtype="float64", linear_solver="lapack"))
-    s.point("best_f32_xla_flags", 60, xla_flags=GRAPH_FLAGS,
-            **{k: v for k, v in opts.items() if k != "compiler_options"})
+    b, sb = args.batch, args.stall_batch
+    f32 = dict(engine="dano", dtype="float32")
+    graphs = subprocess.run([sys.executable, "-c", "import json; from dano.sim import batched_compiler_options as o; "
+                             "print(json.dumps(o()))"], capture_output=True, text=True, env=dict(os.environ))
+    graph_options = json.loads(graphs.stdout or "{}")
+    print(f"dano's rollout options here: {graph_options}", flush=True)
+    for stage in args.stages.split(","):
+        if stage == "launches":  # the step's launches at B = 16,384
+            for solver in ("lapack", "unrolled"):
+                s.point(f"dano_f32_{solver}", 90, **f32, batch=b, linear_solver=solver, compiler_options={})
+                s.point(f"dano_f32_{solver}_graphs", 90, **f32, batch=b, linear_solver=solver)
+            s.point("mjx_f32", 90, engine="mjx", dtype="float32", batch=b)
+            s.point("mjx_f32_graphs", 90, engine="mjx", dtype="float32", batch=b, compiler_options=graph_options)
+        elif stage == "stalls":
+            for name, flags, kw in (("default", "", {}),
+                                    ("deterministic", "--xla_gpu_deterministic_ops=true", {}),
+                                    ("lapack_nographs", "", dict(linear_solver="lapack", compiler_options={}))):
+                for i in range(args.attempts):
+                    s.point(f"stall_{name}_{i + 1}", 45, xla_flags=flags, **f32, batch=sb, **kw)
+        elif stage == "far":
+            for bb in (args.far_batch, sb, 2 * sb):
+                s.point(f"dano_f32_{bb}", 75, **f32, batch=bb)
+            for bb in (b, sb):
+                s.point(f"dano_f64_{bb}", 75, engine="dano", dtype="float64", batch=bb)
+        else:
+            raise SystemExit(f"--stages: unknown stage {stage!r} (launches, stalls, far)")
     print(f"done at {s.elapsed():.0f} s", flush=True)
 
 

@@ -77,9 +77,12 @@ def test_sharded_vmap_on_one_device_is_vmap():
     got = sharding.sharded_vmap(f, (0, 0, None), devices=1)(x, y, w)
     ref = jax.vmap(f, in_axes=(0, 0, None))(x, y, w)
     assert all(np.array_equal(a, b) for a, b in zip(got, ref))
-    # compiled with a rollout's XLA options at the top level; inside the user's jit or grad
-    # (JAX takes compiler options on a top-level jit only) traced into theirs, same numbers
-    run = sharding.sharded_vmap(f, (0, 0, None), devices=1)
+    # compiled with XLA options at the top level; inside the user's jit or grad (JAX takes
+    # compiler options on a top-level jit only) traced into theirs, same numbers
+    from dano._jax_setup import YNN_OPTION
+
+    run = sharding.sharded_vmap(f, (0, 0, None), devices=1, compiler_options={YNN_OPTION: ""})
+    assert all(np.array_equal(a, b) for a, b in zip(run(x, y, w), ref))
     inside = jax.jit(lambda x: run(x, y, w))(x)
     assert all(np.array_equal(a, b) for a, b in zip(inside, ref))
     g = jax.grad(lambda x: run(x, y, w)[0].sum())(x)

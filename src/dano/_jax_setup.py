@@ -126,6 +126,38 @@ def _nvidia() -> bool:
     return "cuda" in version or "nvidia" in str(getattr(device, "device_kind", "")).lower()
 
 
+def _compiles_with(options: dict) -> bool:
+    """Whether this jaxlib compiles a tiny function with a loop under these XLA options."""
+    import jax
+
+    try:
+        jax.jit(lambda x: jax.lax.while_loop(lambda c: c < 3.0, lambda c: c + 1.0, x),
+                compiler_options=options).lower(1.0).compile()
+    except Exception:  # noqa: BLE001 - an XLA without the option: compile as it comes
+        return False
+    return True
+
+
+@functools.lru_cache(maxsize=1)
+def batched_compiler_options() -> dict:
+    """XLA options of a batched (``vmap``-ed) rollout's compile: on an NVIDIA GPU, while loops
+    and conditionals in command buffers (:data:`GPU_COMMAND_BUFFERS`, with graphs of any size).
+    A data-dependent loop (the step's Newton iterations, its line search) then runs as a CUDA
+    graph conditional node with its test on the GPU, not one host round trip per iteration:
+    16,384 vmapped 200-step bunny drops in float32 ran at 8.07M env-steps/s instead of 7.18M
+    (LAPACK solves) and 8.86M instead of 7.56M (unrolled LU) on one H200 (docs/scaling.md).
+    Plain MJX's step ran slower so (2.38M -> 2.03M): an option of dano's rollouts, not a
+    process-wide flag. Empty on other backends (on the CPU the batched bunny drops ran 14–17 %
+    faster with XLA's defaults than with :func:`rollout_compiler_options`' YNNPACK setting), where
+    the user's XLA_FLAGS set the option, or where this jaxlib does not take it (tried once)."""
+    import jax
+
+    if jax.default_backend() != "gpu" or COMMAND_BUFFER_OPTION in os.environ.get("XLA_FLAGS", "") or not _nvidia():
+        return {}
+    options = {COMMAND_BUFFER_OPTION: GPU_COMMAND_BUFFERS, "xla_gpu_graph_min_graph_size": 1}
+    return options if _compiles_with(options) else {}
+
+
 @functools.lru_cache(maxsize=1)
 def rollout_compiler_options() -> dict:
     """XLA options of a rollout's compile (``jax.jit(..., compiler_options=)``), for the
@@ -137,29 +169,16 @@ def rollout_compiler_options() -> dict:
       fusions, so its rollouts ran op by op (bunny drop, 2-core CPU: 50–53 µs per step, 22
       µs as one kernel). The centroid model's rollout has none in its loop and steps as fast
       either way (7.4 µs).
-    * CUDA GPU: while loops and conditionals in command buffers (:data:`GPU_COMMAND_BUFFERS`,
-      with graphs of any size): 16,384 vmapped 200-step bunny drops in float32 ran at 8.07M
-      env-steps/s instead of 7.18M (LAPACK solves) and 8.86M instead of 7.56M (unrolled LU),
-      on one H200 (docs/scaling.md). Plain MJX's step ran slower so (2.38M -> 2.03M), which
-      is why it is an option of dano's rollouts and not a process-wide flag.
+    * NVIDIA GPU: :func:`batched_compiler_options` (loops in CUDA graphs).
 
     Empty where the user's XLA_FLAGS set the option, on other backends, or where this
     jaxlib does not take it (tried once on a tiny function with a loop)."""
     import jax
 
-    backend = jax.default_backend()
-    if backend == "cpu" and YNN_OPTION not in os.environ.get("XLA_FLAGS", ""):
+    if jax.default_backend() == "cpu" and YNN_OPTION not in os.environ.get("XLA_FLAGS", ""):
         options = {YNN_OPTION: ""}
-    elif backend == "gpu" and COMMAND_BUFFER_OPTION not in os.environ.get("XLA_FLAGS", "") and _nvidia():
-        options = {COMMAND_BUFFER_OPTION: GPU_COMMAND_BUFFERS, "xla_gpu_graph_min_graph_size": 1}
-    else:
-        return {}
-    try:
-        jax.jit(lambda x: jax.lax.while_loop(lambda c: c < 3.0, lambda c: c + 1.0, x),
-                compiler_options=options).lower(1.0).compile()
-    except Exception:  # noqa: BLE001 - an XLA without the option: compile as it comes
-        return {}
-    return options
+        return options if _compiles_with(options) else {}
+    return batched_compiler_options()
 
 
 def check_xla_flags() -> bool:

@@ -22,7 +22,7 @@ import numpy as np
 import tyro
 
 from . import sharding
-from ._jax_setup import enable_float64, rollout_compiler_options
+from ._jax_setup import batched_compiler_options, enable_float64
 from ._version import __version__
 from .errors import DanoError
 from .asset import build
@@ -419,7 +419,7 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
     (envs whose Newton solve used all its iterations in some step) and ``non_finite_envs``;
     ``linear_solver``: :attr:`~dano.sim.NewtonConfig.linear_solver` of dano's steps;
     ``compiler_options``: XLA options of the jitted rollout (``jax.jit(compiler_options=)``);
-    None: dano's as it runs its rollouts (:func:`dano.sim.rollout_compiler_options`: on an
+    None: dano's as it runs its batched rollouts (:func:`dano.sim.batched_compiler_options`: on an
     NVIDIA GPU, loops in CUDA graphs) and XLA's defaults for plain MJX (as MJX users run it).
     ``final_height_mean_m``: the envs' mean final height of the body [m] (a check that
     variants of one point simulate the same drops)."""
@@ -442,7 +442,7 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
             _, qs, vs, _, iters = scan_steps(scd, pd, as_data(scd, State(q, v)), ctrl, f, newton, False)
             return qs[-1], vs[-1], iters
 
-        options = rollout_compiler_options() if compiler_options is None else compiler_options
+        options = batched_compiler_options() if compiler_options is None else compiler_options
         run = jax.jit(jax.vmap(roll), compiler_options=options)
     elif engine == "mjx":
         from ._mjx import mjx

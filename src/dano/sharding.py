@@ -35,7 +35,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ._compiled import _tracing
-from ._jax_setup import rollout_compiler_options
+from ._jax_setup import batched_compiler_options
 from .errors import DanoError
 
 #: the name of the mesh axis that batches are split along
@@ -168,11 +168,11 @@ def sharded_vmap(fn: Callable, in_axes: Sequence[int | None] | int = 0, devices:
     ``jax.jit(jax.vmap(fn))`` itself. Results are those of one device (the per-device
     program is the same; float64 agrees to rounding). Across processes every process passes
     the whole batch (the same values) and gets the whole result. compiler_options: XLA
-    options of the program (``jax.jit(compiler_options=)``); None: a rollout's
-    (:func:`dano.sim.rollout_compiler_options`: on an NVIDIA GPU the Newton loops run as
+    options of the program (``jax.jit(compiler_options=)``); None: a batched rollout's
+    (:func:`dano.sim.batched_compiler_options`: on an NVIDIA GPU the Newton loops run as
     CUDA graphs), ``{}``: XLA's defaults."""
     compiled: dict = {}
-    options = rollout_compiler_options() if compiler_options is None else dict(compiler_options)
+    options = batched_compiler_options() if compiler_options is None else dict(compiler_options)
 
     def run(*args):
         axes = tuple(in_axes) if isinstance(in_axes, (tuple, list)) else (in_axes,) * len(args)

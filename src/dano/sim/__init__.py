@@ -5,7 +5,7 @@ the pure, jittable, vmappable, differentiable step on MJX ``Data``; ``rollout`` 
 ``rollout_arrays`` run it inside one ``jax.lax.scan``.
 """
 
-from .._jax_setup import check_xla_flags, rollout_compiler_options
+from .._jax_setup import batched_compiler_options, check_xla_flags, rollout_compiler_options
 
 check_xla_flags()  # warn once if JAX started without the CPU fusion-emitter fix
 
@@ -18,4 +18,4 @@ from .dynamics import State, StepInfo, make_data, overlaps, step, step_with_info
 __all__ = ["DanoObject", "NewtonConfig", "NewtonOptions",
            "Scene", "SimParams", "SimulationDiverged", "State", "StepInfo",
            "Trajectory", "compose", "load_trajectory", "make_data", "overlaps", "rollout", "rollout_arrays",
-           "rollout_compiler_options", "save_trajectory", "scan_steps", "step", "step_with_info"]
+           "batched_compiler_options", "rollout_compiler_options", "save_trajectory", "scan_steps", "step", "step_with_info"]
