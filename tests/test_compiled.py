@@ -170,7 +170,7 @@ def test_compiler_options_on_top_level_calls_only(tmp_path, monkeypatch, cache):
     # them on a call with concrete arguments; called inside the user's jax.jit, even with
     # concrete arguments only (closed over), it is traced into that jit as plain jax.jit
     # (JAX refuses compiler_options on a nested jit), with the disk cache on or off
-    from dano._jax_setup import YNN_OPTION, rollout_compiler_options
+    from dano._jax_setup import YNN_OPTION, batched_compiler_options, rollout_compiler_options
 
     if cache:
         monkeypatch.delenv("DANO_EXPORT_CACHE", raising=False)
@@ -186,6 +186,7 @@ def test_compiler_options_on_top_level_calls_only(tmp_path, monkeypatch, cache):
         np.testing.assert_array_equal(inside, top)
         if jax.default_backend() == "cpu":  # this jaxlib knows the option
             assert rollout_compiler_options() == {YNN_OPTION: ""}
+            assert batched_compiler_options() == {}  # batched programs keep XLA's defaults on the CPU
             assert f.lower(2.0, x, y).compile() is not None  # lower: that of the top-level jit
     finally:
         _compiled.set_directory(None)

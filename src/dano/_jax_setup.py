@@ -160,25 +160,24 @@ def batched_compiler_options() -> dict:
 
 @functools.lru_cache(maxsize=1)
 def rollout_compiler_options() -> dict:
-    """XLA options of a rollout's compile (``jax.jit(..., compiler_options=)``), for the
-    default backend:
+    """XLA options of a rollout's compile (``jax.jit(..., compiler_options=)``): on the CPU,
+    no YNNPACK fusions. A YNNPACK fusion runs as a library call, and XLA's CPU compiler
+    turns a while loop into one kernel only when nothing in it calls out
+    (:data:`SMALL_LOOP_FLAG`): the per-sample model's sums over its samples became such
+    fusions, so its rollouts ran op by op (bunny drop, 2-core CPU: 50–53 µs per step, 22
+    µs as one kernel). The centroid model's rollout has none in its loop and steps as fast
+    either way (7.4 µs).
 
-    * CPU: no YNNPACK fusions. A YNNPACK fusion runs as a library call, and XLA's CPU
-      compiler turns a while loop into one kernel only when nothing in it calls out
-      (:data:`SMALL_LOOP_FLAG`): the per-sample model's sums over its samples became such
-      fusions, so its rollouts ran op by op (bunny drop, 2-core CPU: 50–53 µs per step, 22
-      µs as one kernel). The centroid model's rollout has none in its loop and steps as fast
-      either way (7.4 µs).
-    * NVIDIA GPU: :func:`batched_compiler_options` (loops in CUDA graphs).
-
-    Empty where the user's XLA_FLAGS set the option, on other backends, or where this
-    jaxlib does not take it (tried once on a tiny function with a loop)."""
+    Empty where the backend is not the CPU (batched programs on a GPU:
+    :func:`batched_compiler_options`; a single rollout on a GPU was not measured with them),
+    where the user's XLA_FLAGS set the option, or where this jaxlib does not know it (tried
+    once on a tiny function with a loop)."""
     import jax
 
-    if jax.default_backend() == "cpu" and YNN_OPTION not in os.environ.get("XLA_FLAGS", ""):
-        options = {YNN_OPTION: ""}
-        return options if _compiles_with(options) else {}
-    return batched_compiler_options()
+    if jax.default_backend() != "cpu" or YNN_OPTION in os.environ.get("XLA_FLAGS", ""):
+        return {}
+    options = {YNN_OPTION: ""}
+    return options if _compiles_with(options) else {}
 
 
 def check_xla_flags() -> bool:
