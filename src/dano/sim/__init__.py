@@ -17,5 +17,5 @@ from .dynamics import State, StepInfo, make_data, overlaps, step, step_with_info
 
 __all__ = ["DanoObject", "NewtonConfig", "NewtonOptions",
            "Scene", "SimParams", "SimulationDiverged", "State", "StepInfo",
-           "Trajectory", "compose", "load_trajectory", "make_data", "overlaps", "rollout", "rollout_arrays",
-           "batched_compiler_options", "rollout_compiler_options", "save_trajectory", "scan_steps", "step", "step_with_info"]
+           "Trajectory", "batched_compiler_options", "compose", "load_trajectory", "make_data", "overlaps", "rollout",
+           "rollout_arrays", "rollout_compiler_options", "save_trajectory", "scan_steps", "step", "step_with_info"]
