@@ -17,9 +17,12 @@ given), each point skipped when it could not finish within ``--budget`` seconds 
   docs/scaling.md): dano's defaults, then ``--xla_gpu_deterministic_ops=true``, then LAPACK
   without graphs (the configuration of the first stalls);
 * ``far``: dano's defaults at ``--far-batch`` (65,536), 131,072 and 262,144 float32 and at
-  16,384 and 131,072 float64.
+  16,384 and 131,072 float64;
+* ``dump``: XLA's optimised program of dano's B = 16,384 float32 rollout
+  (``--xla_dump_to``, as text) into ``OUT/hlo_dump.tar.gz``: how many kernels a Newton
+  iteration launches, to be counted offline.
 
-Usage: ``python scripts/gpu_session.py OUT_DIR [--budget SECONDS] [--stages launches,stalls,far]``.
+Usage: ``python scripts/gpu_session.py OUT_DIR [--budget SECONDS] [--stages launches,stalls,far,dump]``.
 """
 
 from __future__ import annotations
@@ -27,7 +30,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
+import tarfile
 import sys
 import time
 from pathlib import Path
@@ -147,8 +152,17 @@ def main() -> None:
                 s.point(f"dano_f32_{bb}", 75, **f32, batch=bb)
             for bb in (b, sb):
                 s.point(f"dano_f64_{bb}", 75, engine="dano", dtype="float64", batch=bb)
+        elif stage == "dump":  # XLA's optimised program of the B = 16,384 rollout, to count its kernels offline
+            where = Path("/tmp/dano_xla_dump")
+            shutil.rmtree(where, ignore_errors=True)
+            s.point("dump_f32", 120, xla_flags=f"--xla_dump_to={where} --xla_dump_hlo_as_text", **f32, batch=b)
+            kept = [p for p in where.glob("*jit_roll*") if p.suffix not in (".ll", ".ptx", ".o")]
+            with tarfile.open(args.out / "hlo_dump.tar.gz", "w:gz") as tar:
+                for p in kept:
+                    tar.add(p, arcname=p.name)
+            print(f"dumped {len(kept)} files of the rollout's program", flush=True)
         else:
-            raise SystemExit(f"--stages: unknown stage {stage!r} (launches, stalls, far)")
+            raise SystemExit(f"--stages: unknown stage {stage!r} (launches, stalls, far, dump)")
     print(f"done at {s.elapsed():.0f} s", flush=True)
 
 
