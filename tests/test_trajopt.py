@@ -246,6 +246,27 @@ def test_push_sphere_cli_reaches_both_goals(tmp_path, capsys, monkeypatch, push_
     assert (out / "push-sphere.mp4").stat().st_size > 10_000 and (out / "convergence.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
+def test_unconverged_sphere_push_is_solved_again_from_a_weaker_push(push_task):
+    """A sphere push whose solve does not converge is solved once more from the plain push
+    scaled by RESTART_GUESS_SCALE: the solution kept violates the constraints no more than
+    the one it replaced, which the report records (here 3 iterations are too few for both)."""
+    import dataclasses
+
+    from dano.experiments.push import solve_task
+    from dano.experiments.trajopt_run import report
+
+    task = dataclasses.replace(push_task, config=dataclasses.replace(push_task.config, max_iterations=3))
+    sol = solve_task(task)
+    assert not sol.converged and sol.status == "max_iterations" and sol.iterations == 3
+    (other,) = sol.restarts
+    assert other["status"] == "max_iterations" and other["iterations"] == 3
+    assert sol.max_violation <= other["max_violation"]
+    rep = report(task, sol)
+    assert rep["restarts"] == [other]
+    assert rep["first_guess"] == ("plain push x0.5" if other["guess"] == "plain push" else "plain push")
+
+
 def test_trajopt_cli_bad_input(tmp_path, capsys, monkeypatch):
     with monkeypatch.context() as m:  # no OpenGL for MuJoCo: refused before the solve, not after it
         m.setenv("MUJOCO_GL", "disable")

@@ -22,7 +22,8 @@ from ..sim import State, rollout
 from ..viz.plot import plot_trajopt
 from ..viz.video import check_mujoco_video, write_video
 from .grasp import GraspPandaConfig, run_grasp
-from .push import TASKS, final_errors, limit_report, model_error_run, pusher_positions, solve_task, unknown_task
+from .push import (RESTART_GUESS_SCALE, TASKS, final_errors, limit_report, model_error_run, pusher_positions,
+                   solve_task, unknown_task)
 
 #: every built-in task: name -> its configuration class
 CONFIGS = {**{name: cls for name, (_, cls) in TASKS.items()}, "grasp-panda": GraspPandaConfig}
@@ -53,13 +54,23 @@ def load_config(source: str, **overrides):
     return dataclasses.replace(cfg, **given)  # checked as it is built
 
 
+def first_guess(solution) -> str:
+    """The first guess the solution was solved from: the plain push, or the scaled one where
+    the plain push's solve did not converge (:func:`~dano.experiments.push.solve_task`)."""
+    replaced = [r["guess"] for r in solution.restarts]
+    return f"plain push x{RESTART_GUESS_SCALE:g}" if "plain push" in replaced else "plain push"
+
+
 def report(task, solution, model_error=None) -> dict:
     """The JSON report: ``bunny_final_error`` (also ``object_final_error``: the pushed
     object, whatever it is), ``pusher_final_error`` [m] (null for a pusher without a goal),
     ``max_constraint_violation``, ``iterations``, ``converged``, ``status``, ``cost``,
     ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final`` (where the initial guess
     leaves the bunny), goals, ``max_control_ratio`` and (arm)
-    ``joint_limit_violation`` and, with a model error, ``model_error``: world friction,
+    ``joint_limit_violation``, ``first_guess`` (the plain push, or the plain push scaled by
+    :data:`~dano.experiments.push.RESTART_GUESS_SCALE` where the first solve did not
+    converge), ``restarts`` (the solves it replaced: guess, status, iterations,
+    max_violation) and, with a model error, ``model_error``: world friction,
     open-loop and receding-horizon final errors."""
     eb, ep = final_errors(task, solution.states)
     out = {
@@ -72,6 +83,7 @@ def report(task, solution, model_error=None) -> dict:
         "pusher_goal": None if task.pusher_goal is None else task.pusher_goal.tolist(),
         "plain_push_bunny_final": task.X_plain[-1, task.bunny_qpos].tolist(),
         "horizon": task.problem.horizon, "dt": task.scene.dt,
+        "first_guess": first_guess(solution), "restarts": list(solution.restarts),
         **limit_report(task, solution.states, solution.controls),
     }
     if model_error is not None:

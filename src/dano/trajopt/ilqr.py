@@ -114,7 +114,10 @@ class Solution:
     the constraints still violated, or their violation no longer decreasing as μ grows)
     or "max_iterations"; log: per iteration, a dict of arrays
     ``iteration, outer, cost, merit, max_violation, step, penalty, regularization,
-    gradient``; wall_time_s, compile_time_s: seconds in all, and of those in compiling.
+    gradient``; wall_time_s, compile_time_s: seconds in all, and of those in compiling;
+    restarts: earlier solves of the same problem from other first guesses that this one
+    replaced, each a dict ``guess, status, iterations, max_violation`` (empty for one solve;
+    their seconds are counted in wall_time_s and compile_time_s).
     """
 
     states: jax.Array
@@ -130,6 +133,7 @@ class Solution:
     log: Any = dataclasses.field(default=None, metadata=dict(static=True))
     wall_time_s: float = dataclasses.field(default=0.0, metadata=dict(static=True))
     compile_time_s: float = dataclasses.field(default=0.0, metadata=dict(static=True))
+    restarts: tuple = dataclasses.field(default=(), metadata=dict(static=True))
 
 
 #: stages linearised at once in the expansion (jax.lax.map's batch_size)
