@@ -77,10 +77,15 @@ def test_sharded_vmap_on_one_device_is_vmap():
     got = sharding.sharded_vmap(f, (0, 0, None), devices=1)(x, y, w)
     ref = jax.vmap(f, in_axes=(0, 0, None))(x, y, w)
     assert all(np.array_equal(a, b) for a, b in zip(got, ref))
-    # compiled with XLA options at the top level; inside the user's jit or grad (JAX takes
-    # compiler options on a top-level jit only) traced into theirs, same numbers
+    # compiled with its XLA options at the top level (an unknown one is refused there, so
+    # they are passed); inside the user's jit or grad (JAX takes compiler options on a
+    # top-level jit only) traced into theirs without them, same numbers
     from dano._jax_setup import YNN_OPTION
 
+    with pytest.raises(Exception, match="no_such_option"):
+        sharding.sharded_vmap(f, (0, 0, None), devices=1, compiler_options={"no_such_option": 1})(x, y, w)
+    bogus = sharding.sharded_vmap(f, (0, 0, None), devices=1, compiler_options={"no_such_option": 1})
+    assert all(np.array_equal(a, b) for a, b in zip(jax.jit(lambda x: bogus(x, y, w))(x), ref))
     run = sharding.sharded_vmap(f, (0, 0, None), devices=1, compiler_options={YNN_OPTION: ""})
     assert all(np.array_equal(a, b) for a, b in zip(run(x, y, w), ref))
     inside = jax.jit(lambda x: run(x, y, w))(x)
@@ -107,7 +112,8 @@ def test_distributed_settings_are_checked(monkeypatch):
     monkeypatch.setenv("DANO_NUM_PROCESSES", "2")
     monkeypatch.setenv("DANO_PROCESS_ID", "1")
     monkeypatch.setenv("DANO_COORDINATOR_ADDRESS", "127.0.0.1:1234")
-    with pytest.raises(DanoError, match="before any JAX computation"):  # this process has computed already
+    jnp.zeros(1).block_until_ready()  # this process has computed (whichever tests ran before this one)
+    with pytest.raises(DanoError, match="before any JAX computation"):
         sharding.initialize_from_environment()
     monkeypatch.delenv("DANO_NUM_PROCESSES")
     assert sharding.initialize_from_environment() is None

@@ -356,16 +356,17 @@ def test_unrolled_rollout_has_no_lapack_call_and_agrees_with_lapack():
 
     # on a GPU "auto" takes the unrolled LU for any rollout length and either model (no
     # cuSOLVER call per Newton iteration), not for a scene with MuJoCo constraints; only the
-    # backend's name is swapped here (the choice is made when the rollout is traced)
+    # backend's name is swapped here (the choice is made when the rollout is traced); a
+    # single step resolves "auto" too (on the CPU: LAPACK)
     import dano.sim.implicit as implicit
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(implicit.jax, "default_backend", lambda: "gpu")
+        mp.setattr(implicit, "_backend", lambda: "gpu")
         assert resolve_linear_solver(auto, sc, 1).linear_solver == "unrolled"
         assert resolve_linear_solver(auto, other, 200).linear_solver == "unrolled"
         constrained = load_scene("sphere-hits-bunny").scene  # (the sphere on the ground: MuJoCo contacts)
         assert constrained.has_constraints and resolve_linear_solver(auto, constrained, 200).linear_solver == "lapack"
-        mp.setattr(implicit.jax, "default_backend", lambda: "tpu")
+        mp.setattr(implicit, "_backend", lambda: "tpu")
         assert resolve_linear_solver(auto, sc, UNROLLED_MIN_STEPS).linear_solver == "lapack"
 
     legacy = load_scene("bunny-drop", contact_model=TwoArgumentPrepare())

@@ -262,9 +262,9 @@ def test_unconverged_sphere_push_is_solved_again_from_a_weaker_push(push_task):
     (other,) = sol.restarts
     assert other["status"] == "max_iterations" and other["iterations"] == 3
     assert sol.max_violation <= other["max_violation"]
-    rep = report(task, sol)
-    assert rep["restarts"] == [other]
-    assert rep["first_guess"] == ("plain push x0.5" if other["guess"] == "plain push" else "plain push")
+    rep = json.loads(json.dumps(report(task, sol)))  # (JSON as the command line writes it)
+    assert rep["restarts"] == [other] and other["guess"] in ("plain push", "plain push x0.5")
+    assert rep["first_guess"] in ("plain push", "plain push x0.5") and rep["first_guess"] != other["guess"]
 
 
 def test_trajopt_cli_bad_input(tmp_path, capsys, monkeypatch):

@@ -111,9 +111,10 @@ YNN_OPTION = "xla_cpu_experimental_ynn_fusion_type"
 
 #: XLA's GPU option listing the commands that run as command buffers (CUDA graphs)
 COMMAND_BUFFER_OPTION = "xla_gpu_enable_command_buffer"
-#: on a GPU, XLA's default commands and also while loops and conditionals: a data-dependent
-#: loop (the step's Newton iterations, its line search) then runs as a CUDA graph
-#: conditional node, its test on the GPU, instead of one host round trip per iteration
+#: on a GPU, an explicit list: XLA's usual commands (fusions, cuBLAS, custom calls, cuDNN)
+#: and also while loops and conditionals: a data-dependent loop (the step's Newton
+#: iterations, its line search) then runs as a CUDA graph conditional node, its test on the
+#: GPU, instead of one host round trip per iteration
 GPU_COMMAND_BUFFERS = "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,CONDITIONAL,WHILE"
 
 
@@ -127,12 +128,13 @@ def _nvidia() -> bool:
 
 
 def _compiles_with(options: dict) -> bool:
-    """Whether this jaxlib compiles a tiny function with a loop under these XLA options."""
+    """Whether this jaxlib compiles and runs a tiny function with a loop under these XLA
+    options (a driver without CUDA graph conditional nodes fails at run time)."""
     import jax
 
     try:
         jax.jit(lambda x: jax.lax.while_loop(lambda c: c < 3.0, lambda c: c + 1.0, x),
-                compiler_options=options).lower(1.0).compile()
+                compiler_options=options).lower(1.0).compile()(1.0).block_until_ready()
     except Exception:  # noqa: BLE001 - an XLA without the option: compile as it comes
         return False
     return True

@@ -619,9 +619,10 @@ def bench_trajopt(repeats: int = 3) -> dict:
 
 def _solve_summary(sol) -> dict:
     per = sol.wall_time_s - sol.compile_time_s
+    every = sol.iterations + sum(r["iterations"] for r in sol.restarts)  # (the seconds count every solve's)
     return {"iterations": sol.iterations, "status": sol.status, "wall_time_s": sol.wall_time_s,
-            "compile_time_s": sol.compile_time_s, "s_per_iteration": per / max(sol.iterations, 1),
-            "max_violation": sol.max_violation}
+            "compile_time_s": sol.compile_time_s, "s_per_iteration": per / max(every, 1),
+            "max_violation": sol.max_violation, "restarts": list(sol.restarts)}
 
 
 def environment() -> dict:

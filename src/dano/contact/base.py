@@ -225,7 +225,8 @@ class ContactModel(Protocol):
     A model may set ``single_kernel_rollout = True`` (a class attribute; False if absent)
     where XLA's CPU compiler turns a rollout of its step into one kernel once the Newton
     solve calls no LAPACK: only then does ``NewtonConfig.linear_solver="auto"`` choose the
-    unrolled solve (:func:`dano.sim.implicit.resolve_linear_solver`). ``spurious_roots = True``
+    unrolled solve for a rollout on the CPU (on a GPU it does for every model:
+    :func:`dano.sim.implicit.resolve_linear_solver`). ``spurious_roots = True``
     (False if absent) says the step's equation can have roots far from the physical one, and
     turns on the solve's second try (:attr:`dano.sim.NewtonConfig.second_try`)."""
 

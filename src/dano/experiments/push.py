@@ -527,8 +527,8 @@ def solve_task(task: PushTask, callback=None) -> Solution:
     """Solve a built task from its plain push. A sphere push (``apply == "qfrc"``) that does
     not converge is solved once more from the plain push scaled by
     :data:`RESTART_GUESS_SCALE`; the second solution is kept if it converges or violates the
-    constraints less, and the first is recorded in its ``restarts`` (both solves' seconds
-    counted in its ``wall_time_s`` and ``compile_time_s``)."""
+    constraints less, else the first. The solve not kept is recorded in the kept one's
+    ``restarts``; both solves' seconds count in its ``wall_time_s`` and ``compile_time_s``."""
     options, p = solver_options(task.config), task.problem_params()
     first = solve(task.problem, task.x0, task.U_plain, p, options, callback=callback)
     if first.converged or task.apply != "qfrc":

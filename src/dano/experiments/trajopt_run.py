@@ -55,8 +55,9 @@ def load_config(source: str, **overrides):
 
 
 def first_guess(solution) -> str:
-    """The first guess the solution was solved from: the plain push, or the scaled one where
-    the plain push's solve did not converge (:func:`~dano.experiments.push.solve_task`)."""
+    """The first guess the kept solution was solved from: the plain push, or the plain push
+    scaled by :data:`~dano.experiments.push.RESTART_GUESS_SCALE` where the plain push's
+    solve did not converge and the scaled one's was kept (:func:`~dano.experiments.push.solve_task`)."""
     replaced = [r["guess"] for r in solution.restarts]
     return f"plain push x{RESTART_GUESS_SCALE:g}" if "plain push" in replaced else "plain push"
 
@@ -65,12 +66,11 @@ def report(task, solution, model_error=None) -> dict:
     """The JSON report: ``bunny_final_error`` (also ``object_final_error``: the pushed
     object, whatever it is), ``pusher_final_error`` [m] (null for a pusher without a goal),
     ``max_constraint_violation``, ``iterations``, ``converged``, ``status``, ``cost``,
-    ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final`` (where the initial guess
+    ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final`` (where the plain push
     leaves the bunny), goals, ``max_control_ratio`` and (arm)
-    ``joint_limit_violation``, ``first_guess`` (the plain push, or the plain push scaled by
-    :data:`~dano.experiments.push.RESTART_GUESS_SCALE` where the first solve did not
-    converge), ``restarts`` (the solves it replaced: guess, status, iterations,
-    max_violation) and, with a model error, ``model_error``: world friction,
+    ``joint_limit_violation``, ``first_guess`` (:func:`first_guess`), ``restarts`` (the
+    other solves of the problem, not kept: guess, status, iterations, max_violation) and,
+    with a model error, ``model_error``: world friction,
     open-loop and receding-horizon final errors."""
     eb, ep = final_errors(task, solution.states)
     out = {
@@ -129,7 +129,7 @@ def run(source: str, progress=None, **overrides):
 def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: bool = True, progress=None) -> list:
     """Write ``report.json``, ``config.json`` (the resolved configuration), ``solution.npz``
     (time (T+1,) [s], states (T+1, nx), controls (T, nu), qpos, qvel, gains, the plain push
-    (the initial guess), the goals and, with a model error, the world's open-loop and receding-horizon states),
+    (the first guess, or twice it: the report's ``first_guess``), the goals and, with a model error, the world's open-loop and receding-horizon states),
     ``log.csv`` (the iteration log), ``convergence.png`` and, if ``video``, ``<task>.mp4``
     into ``out_dir``: all published together, or none. Returns the paths."""
     if isinstance(task.config, GraspPandaConfig):
@@ -170,9 +170,9 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
 
 
 def _plot(task, solution, model_error, path) -> None:
-    """convergence.png: the solver's log and the paths of the initial guess, the plan and,
+    """convergence.png: the solver's log and the paths of the plain push, the plan and,
     with a model error, the open-loop and receding-horizon runs (:func:`dano.viz.plot_trajopt`)."""
-    runs = [("initial guess", task.X_plain, ":"), ("optimised", np.asarray(solution.states), "-")]
+    runs = [("plain push", task.X_plain, ":"), ("optimised", np.asarray(solution.states), "-")]
     if model_error is not None:
         runs += [(f"open loop, μ={model_error.friction:.3g}", model_error.open_loop_states, "--"),
                  ("receding horizon", model_error.receding.states, "-.")]

@@ -36,7 +36,7 @@ from .._mjx import mjx
 from ..contact import PAIR_KINDS
 from ..contact.base import pose_linearised_geometry, prepare_pair
 from ..pose import normalize_quat, quat_multiply, rotvec_to_quat
-from .implicit import ImplicitProblem, NewtonConfig, contact_force, solve_velocity
+from .implicit import ImplicitProblem, NewtonConfig, contact_force, resolve_linear_solver, solve_velocity
 from .scene import Scene, SimParams, cast_floats
 
 
@@ -193,6 +193,7 @@ PASS_CHANGE = 0.05
 
 def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig = NewtonConfig()):
     """:func:`step`, also returning its :class:`StepInfo`."""
+    newton = resolve_linear_solver(newton, scene, 1)  # ("auto": the unrolled LU on a GPU, LAPACK on the CPU)
     m = model_with_params(scene, params)
     h = scene.dt
     user_qfrc = data.qfrc_applied

@@ -70,11 +70,11 @@ class NewtonConfig:
     (:func:`dense_solve`: an LU in plain operations, with no LAPACK call, so that on the CPU XLA compiles a rollout
     of the step into one kernel: the bunny drop's step 20.2 -> 7.3 µs, its compile 1.5 -> 3.6 s) or ``auto``: for a
     scene without MuJoCo constraints, with at most :data:`UNROLLED_LU_MAX` degrees of freedom, ``unrolled`` on a
-    GPU (no cuSOLVER call per iteration: 16,384 vmapped float32 bunny drops 7.56M env-steps/s against 7.18M on one
-    H200, the same compile time), and on the CPU for a rollout of at least :data:`UNROLLED_MIN_STEPS` steps whose
-    contact models compile into one kernel (``single_kernel_rollout``: the centroid model, not the per-sample one),
-    where the faster steps repay the longer compile; ``lapack`` otherwise (on the CPU also for single steps).
-    Derivatives always use LAPACK."""
+    GPU, for single steps and rollouts alike (no cuSOLVER call per iteration: 16,384 vmapped float32 bunny drops
+    7.56M env-steps/s against 7.18M on one H200, compiling in 6.3 s against 6.6 s), and on the CPU for a rollout of
+    at least :data:`UNROLLED_MIN_STEPS` steps whose contact models compile into one kernel
+    (``single_kernel_rollout``: the centroid model, not the per-sample one), where the faster steps repay the
+    longer compile; ``lapack`` otherwise (on the CPU also for single steps). Derivatives always use LAPACK."""
     second_try: bool | None = None
     """Whether a step whose Newton solve has not converged in ``max_iterations``, or has converged where a contact
     pair turns by more than :data:`MAX_TURN` over the step, tries again from the start velocity with Powell's
@@ -220,13 +220,18 @@ UNROLLED_LU_MAX = 16
 UNROLLED_MIN_STEPS = 10_000
 
 
+def _backend() -> str:
+    """The default backend's name (``cpu``, ``gpu``, ``tpu``): where the step is compiled."""
+    return jax.default_backend()
+
+
 def resolve_linear_solver(newton: NewtonConfig, scene, steps: int) -> NewtonConfig:
     """``newton`` with ``linear_solver="auto"`` resolved for a rollout of ``steps`` steps of
     ``scene`` (:attr:`NewtonConfig.linear_solver`); other settings returned as they are."""
     if newton.linear_solver != "auto":
         return newton
     unrolled = not scene.has_constraints and scene.nv <= UNROLLED_LU_MAX and bool(scene.groups)
-    backend = jax.default_backend()
+    backend = _backend()
     if backend == "cpu":  # where the rollout compiles into one kernel, and the faster steps repay the compile
         unrolled = (unrolled and steps >= UNROLLED_MIN_STEPS
                     and all(getattr(g.model, "single_kernel_rollout", False) for g in scene.groups))

@@ -115,9 +115,9 @@ class Solution:
     or "max_iterations"; log: per iteration, a dict of arrays
     ``iteration, outer, cost, merit, max_violation, step, penalty, regularization,
     gradient``; wall_time_s, compile_time_s: seconds in all, and of those in compiling;
-    restarts: earlier solves of the same problem from other first guesses that this one
-    replaced, each a dict ``guess, status, iterations, max_violation`` (empty for one solve;
-    their seconds are counted in wall_time_s and compile_time_s).
+    restarts: other solves of the same problem from other first guesses, not kept, each a
+    dict ``guess, status, iterations, max_violation`` (empty for one solve; their seconds
+    are counted in wall_time_s and compile_time_s).
     """
 
     states: jax.Array
