@@ -66,8 +66,9 @@ class Session:
                                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         except OSError:
             return None
-        tagger = subprocess.Popen(["sed", "-u", f"s/^/{key}, /"], stdin=smi.stdout,
-                                  stdout=open(self.out / "smi.csv", "a"))
+        with open(self.out / "smi.csv", "a") as log:  # (the child keeps its own copy of the handle)
+            tagger = subprocess.Popen(["sed", "-u", f"s/^/{key}, /"], stdin=smi.stdout, stdout=log)
+        smi.stdout.close()
         return smi, tagger
 
     def point(self, key: str, timeout: float, xla_flags: str = "", **kwargs) -> dict | None:
@@ -99,6 +100,7 @@ class Session:
             if sampler:
                 for p in sampler:
                     p.terminate()
+                    p.wait()
         r.update(key=key, xla_flags=xla_flags, kwargs=kwargs, started_unix=start, wall_s=time.time() - start)
         self.points[key] = r
         with open(self.out / "points.jsonl", "a") as f:
@@ -132,7 +134,9 @@ def main() -> None:
     f32 = dict(engine="dano", dtype="float32")
     graphs = subprocess.run([sys.executable, "-c", "import json; from dano.sim import batched_compiler_options as o; "
                              "print(json.dumps(o()))"], capture_output=True, text=True, env=dict(os.environ))
-    graph_options = json.loads(graphs.stdout or "{}")
+    if graphs.returncode:
+        raise SystemExit(f"dano.sim.batched_compiler_options() failed: {graphs.stderr.strip()[-500:]}")
+    graph_options = json.loads(graphs.stdout)
     print(f"dano's rollout options here: {graph_options}", flush=True)
     for stage in args.stages.split(","):
         if stage == "launches":  # the step's launches at B = 16,384
