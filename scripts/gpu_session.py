@@ -1,7 +1,8 @@
 """One prepared run of the GPU checks of docs/scaling.md, for a lent GPU machine (the device tool).
 
-Each point is :func:`dano.bench.scaling_point` in a fresh Python process (fresh compile, no
-persistent cache), with its own XLA flags, compiler options and time limit. While a point runs,
+Each point is :func:`dano.bench.scaling_point` in a fresh Python process
+(:func:`dano.bench.scaling_point_in_process`: fresh compile, no persistent cache), with its own
+XLA flags, compiler options and time limit. While a point runs,
 ``nvidia-smi`` samples the GPU every 0.5 s into ``OUT/smi.csv`` (each line tagged with the
 point); a point past its limit has its Python stacks dumped (``faulthandler``) into
 ``OUT/stacks.txt`` and a full ``nvidia-smi -q`` snapshot appended there before it is killed,
@@ -37,16 +38,7 @@ import sys
 import time
 from pathlib import Path
 
-CHILD = """
-import faulthandler, json, sys
-stacks = open(sys.argv[1], "a")
-stacks.write("=== " + sys.argv[2] + "\\n"); stacks.flush()
-faulthandler.dump_traceback_later(float(sys.argv[3]), exit=False, file=stacks)
-import dano.bench as b
-r = b.scaling_point(**json.loads(sys.argv[4]))
-faulthandler.cancel_dump_traceback_later()
-print("RESULT " + json.dumps(r), flush=True)
-"""
+from dano.bench import scaling_point_in_process
 
 SMI_FIELDS = "timestamp,utilization.gpu,utilization.memory,memory.used,clocks.sm,power.draw,pstate"
 
@@ -75,33 +67,27 @@ class Session:
         if self.elapsed() + timeout > self.budget:
             print(f"skip {key}: {self.elapsed():.0f} s of {self.budget:.0f} used", flush=True)
             return None
-        env = dict(os.environ)
-        if xla_flags:
-            env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + xla_flags).strip()
-        sampler = self._sampler(key)
+        stacks = self.out / "stacks.txt"
+        with open(stacks, "a") as f:
+            f.write(f"=== {key}\n")
         start = time.time()
-        proc = subprocess.Popen([sys.executable, "-c", CHILD, str(self.out / "stacks.txt"), key,
-                                 str(max(timeout - 5, 1)), json.dumps(kwargs)],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-        try:
-            stdout, stderr = proc.communicate(timeout=timeout)
-            lines = [ln for ln in stdout.splitlines() if ln.startswith("RESULT ")]
-            r = json.loads(lines[-1][7:]) if lines else {"error": stderr.strip().splitlines()[-8:]}
-        except subprocess.TimeoutExpired:
-            with open(self.out / "stacks.txt", "a") as f:  # the GPU's state while the point hangs
+
+        def gpu_state():  # the GPU's state while the point hangs
+            with open(stacks, "a") as f:
                 f.write(f"--- nvidia-smi -q of {key} at {time.time() - start:.0f} s\n")
                 f.flush()
                 subprocess.run(["nvidia-smi", "-q", "-d", "UTILIZATION,PERFORMANCE,CLOCK,MEMORY,PIDS"],
                                stdout=f, stderr=subprocess.STDOUT, check=False)
-            proc.kill()
-            proc.communicate()
-            r = {"timed_out_s": timeout}
+
+        sampler = self._sampler(key)
+        try:
+            r = scaling_point_in_process(timeout, xla_flags, str(stacks), gpu_state, **kwargs)
         finally:
             if sampler:
                 for p in sampler:
                     p.terminate()
                     p.wait()
-        r.update(key=key, xla_flags=xla_flags, kwargs=kwargs, started_unix=start, wall_s=time.time() - start)
+        r.update(key=key, xla_flags=xla_flags, kwargs=kwargs, started_unix=start)
         self.points[key] = r
         with open(self.out / "points.jsonl", "a") as f:
             f.write(json.dumps(r) + "\n")

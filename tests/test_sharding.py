@@ -86,6 +86,8 @@ def test_sharded_vmap_on_one_device_is_vmap():
         sharding.sharded_vmap(f, (0, 0, None), devices=1, compiler_options={"no_such_option": 1})(x, y, w)
     bogus = sharding.sharded_vmap(f, (0, 0, None), devices=1, compiler_options={"no_such_option": 1})
     assert all(np.array_equal(a, b) for a, b in zip(jax.jit(lambda x: bogus(x, y, w))(x), ref))
+    with pytest.raises(DanoError, match="compiler_options must be a mapping"):
+        sharding.sharded_vmap(f, compiler_options="WHILE")
     run = sharding.sharded_vmap(f, (0, 0, None), devices=1, compiler_options={YNN_OPTION: ""})
     assert all(np.array_equal(a, b) for a, b in zip(run(x, y, w), ref))
     inside = jax.jit(lambda x: run(x, y, w))(x)

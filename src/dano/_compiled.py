@@ -354,7 +354,7 @@ class CachedFunction:
         statics = tuple(args[i] for i in self.static_argnums)
         dynamic = tuple(a for i, a in enumerate(args) if i not in self.static_argnums)
         leaves, tree = jax.tree_util.tree_flatten(dynamic)
-        traced = _tracing() or any(isinstance(x, jax.core.Tracer) for x in leaves)
+        traced = under_trace(leaves)
         mesh = None if (self.mesh_of is None or traced) else self.mesh_of(*statics)
         if where is None or traced:
             return self._timed_jit(args, mesh, traced)
@@ -442,6 +442,13 @@ class CachedFunction:
         exported = jax.export.export(jax.jit(flat, **_replicated(mesh)))(*(_abstract(x) for x in leaves))
         _save(path, exported, holder["tree"])
         return jax.jit(exported.call, **_replicated(mesh), **self._options()), holder["tree"]
+
+
+def under_trace(*trees) -> bool:
+    """Whether a call with these arguments (pytrees) is traced into a JAX transformation:
+    one is tracing the caller (:func:`_tracing`) or an argument is a tracer. Such a call
+    compiles into the enclosing program, which alone takes compiler options."""
+    return _tracing() or any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(trees))
 
 
 def _tracing() -> bool:

@@ -481,6 +481,49 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
     return r
 
 
+#: the process of :func:`scaling_point_in_process`: argv = (stacks file or "", seconds before
+#: its stacks are dumped there, the point's keyword arguments as JSON); prints the result
+_POINT_PROCESS = """
+import faulthandler, json, sys
+if sys.argv[1]:
+    stacks = open(sys.argv[1], "a")
+    faulthandler.dump_traceback_later(float(sys.argv[2]), exit=False, file=stacks)
+import dano.bench as b
+r = b.scaling_point(**json.loads(sys.argv[3]))
+faulthandler.cancel_dump_traceback_later()
+print("RESULT " + json.dumps(r), flush=True)
+"""
+
+
+def scaling_point_in_process(timeout_s: float, xla_flags: str = "", stacks: str | None = None, on_timeout=None,
+                             **kwargs) -> dict:
+    """:func:`scaling_point` (its arguments ``kwargs``) in a fresh Python process, killed after
+    ``timeout_s`` seconds (compile included) and then reported as ``{"timed_out_s":
+    timeout_s}``; a process that ends without a result as ``{"error": its last lines of
+    stderr}``; ``wall_s`` [s] added either way. ``xla_flags`` is appended to the process's
+    XLA_FLAGS; ``stacks``: a file that the process's Python stacks are appended to 5 s before
+    its limit where it is still running then (faulthandler); ``on_timeout()`` is called
+    before a process past its limit is killed (e.g. to read the GPU's state)."""
+    env = dict(os.environ)
+    if xla_flags:
+        env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + xla_flags).strip()
+    t0 = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-c", _POINT_PROCESS, stacks or "", str(max(timeout_s - 5, 1)),
+                             json.dumps(kwargs)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout_s)
+        lines = [ln for ln in stdout.splitlines() if ln.startswith("RESULT ")]
+        r = json.loads(lines[-1][7:]) if lines else {"error": stderr.strip().splitlines()[-5:]}
+    except subprocess.TimeoutExpired:
+        if on_timeout is not None:
+            on_timeout()
+        proc.kill()
+        proc.communicate()
+        r = {"timed_out_s": timeout_s}
+    r["wall_s"] = time.perf_counter() - t0
+    return r
+
+
 def bench_scaling(repeats: int = 2, steps: int = 200, batches: tuple[int, ...] | None = None,
                   dtypes: tuple[str, ...] = ("float32", "float64"), engines: tuple[str, ...] = ("dano", "mjx"),
                   timeout_s: float = 300.0) -> dict:
@@ -500,18 +543,8 @@ def bench_scaling(repeats: int = 2, steps: int = 200, batches: tuple[int, ...] |
         b_key = f"{b}_{k + 1}" if k else str(b)
         for dtype in dtypes:
             for engine in engines:
-                code = ("import json, dano.bench as b; "
-                        f"print('RESULT ' + json.dumps(b.scaling_point({engine!r}, {dtype!r}, {b}, {steps}, {repeats})))")
-                t0 = time.perf_counter()
-                try:
-                    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False,
-                                          timeout=timeout_s)
-                except subprocess.TimeoutExpired:
-                    r = {"timed_out_s": timeout_s}
-                else:
-                    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
-                    r = json.loads(lines[-1][7:]) if lines else {"error": proc.stderr.strip().splitlines()[-5:]}
-                r["wall_s"] = time.perf_counter() - t0
+                r = scaling_point_in_process(timeout_s, engine=engine, dtype=dtype, batch=b, steps=steps,
+                                             repeats=repeats)
                 out[f"{engine}_{dtype}_{b_key}"] = r
                 print(f"scaling {engine} {dtype} B={b}: " + (f"{r['env_steps_per_s']:.4g} env-steps/s"
                       if "env_steps_per_s" in r else str(r)), file=sys.stderr, flush=True)

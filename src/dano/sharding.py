@@ -28,13 +28,13 @@ import contextlib
 import contextvars
 import os
 import pickle
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from ._compiled import _tracing
+from ._compiled import under_trace
 from ._jax_setup import batched_compiler_options
 from .errors import DanoError
 
@@ -171,6 +171,8 @@ def sharded_vmap(fn: Callable, in_axes: Sequence[int | None] | int = 0, devices:
     options of the program (``jax.jit(compiler_options=)``); None: a batched rollout's
     (:func:`dano.sim.batched_compiler_options`: on an NVIDIA GPU the Newton loops run as
     CUDA graphs), ``{}``: XLA's defaults."""
+    if compiler_options is not None and not isinstance(compiler_options, Mapping):
+        raise DanoError(f"compiler_options must be a mapping of XLA option names to values, got {compiler_options!r}")
     compiled: dict = {}
     options = batched_compiler_options() if compiler_options is None else dict(compiler_options)
 
@@ -180,8 +182,7 @@ def sharded_vmap(fn: Callable, in_axes: Sequence[int | None] | int = 0, devices:
             raise DanoError(f"in_axes must be 0 or None for each of the {len(args)} arguments, got {in_axes!r}")
         # (inside the user's jit, vmap or grad the program is traced into theirs: JAX takes
         # compiler options on a top-level jit only)
-        traced = _tracing() or any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(args))
-        jit_options = {} if traced or not options else {"compiler_options": options}
+        jit_options = {} if under_trace(args) or not options else {"compiler_options": options}
         per = devices_in_use() if devices is None else check_devices(devices)
         batched = [a for a, ax in zip(args, axes) if ax == 0]
         if not batched:

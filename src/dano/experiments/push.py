@@ -521,6 +521,8 @@ def task_names() -> tuple[str, ...]:
 #: push scaled by this (the first guess's forces halved): from the full push the sphere can
 #: pass beside a light object and lose it (docs/trajopt.md)
 RESTART_GUESS_SCALE = 0.5
+#: the names of the two first guesses in a solution's ``restarts`` and the report's ``first_guess``
+PLAIN_PUSH, SCALED_PUSH = "plain push", f"plain push x{RESTART_GUESS_SCALE:g}"
 
 
 def solve_task(task: PushTask, callback=None) -> Solution:
@@ -536,10 +538,16 @@ def solve_task(task: PushTask, callback=None) -> Solution:
     second = solve(task.problem, task.x0, RESTART_GUESS_SCALE * task.U_plain, p, options, callback=callback)
     better = second.converged or second.max_violation < first.max_violation
     kept, other = (second, first) if better else (first, second)
-    record = {"guess": "plain push" if other is first else f"plain push x{RESTART_GUESS_SCALE:g}",
-              "status": other.status, "iterations": other.iterations, "max_violation": other.max_violation}
+    record = {"guess": PLAIN_PUSH if other is first else SCALED_PUSH, "status": other.status,
+              "iterations": other.iterations, "max_violation": other.max_violation}
     return dataclasses.replace(kept, restarts=(record,), wall_time_s=first.wall_time_s + second.wall_time_s,
                                compile_time_s=first.compile_time_s + second.compile_time_s)
+
+
+def first_guess(solution: Solution) -> str:
+    """The first guess the solution was solved from (:func:`solve_task`): :data:`SCALED_PUSH`
+    where the plain push's solve was replaced, else :data:`PLAIN_PUSH`."""
+    return SCALED_PUSH if any(r["guess"] == PLAIN_PUSH for r in solution.restarts) else PLAIN_PUSH
 
 
 def unknown_task(name: str) -> DanoError:

@@ -22,8 +22,8 @@ from ..sim import State, rollout
 from ..viz.plot import plot_trajopt
 from ..viz.video import check_mujoco_video, write_video
 from .grasp import GraspPandaConfig, run_grasp
-from .push import (RESTART_GUESS_SCALE, TASKS, final_errors, limit_report, model_error_run, pusher_positions,
-                   solve_task, unknown_task)
+from .push import (TASKS, final_errors, first_guess, limit_report, model_error_run, pusher_positions, solve_task,
+                   unknown_task)
 
 #: every built-in task: name -> its configuration class
 CONFIGS = {**{name: cls for name, (_, cls) in TASKS.items()}, "grasp-panda": GraspPandaConfig}
@@ -54,21 +54,13 @@ def load_config(source: str, **overrides):
     return dataclasses.replace(cfg, **given)  # checked as it is built
 
 
-def first_guess(solution) -> str:
-    """The first guess the kept solution was solved from: the plain push, or the plain push
-    scaled by :data:`~dano.experiments.push.RESTART_GUESS_SCALE` where the plain push's
-    solve did not converge and the scaled one's was kept (:func:`~dano.experiments.push.solve_task`)."""
-    replaced = [r["guess"] for r in solution.restarts]
-    return f"plain push x{RESTART_GUESS_SCALE:g}" if "plain push" in replaced else "plain push"
-
-
 def report(task, solution, model_error=None) -> dict:
     """The JSON report: ``bunny_final_error`` (also ``object_final_error``: the pushed
     object, whatever it is), ``pusher_final_error`` [m] (null for a pusher without a goal),
     ``max_constraint_violation``, ``iterations``, ``converged``, ``status``, ``cost``,
     ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final`` (where the plain push
     leaves the bunny), goals, ``max_control_ratio`` and (arm)
-    ``joint_limit_violation``, ``first_guess`` (:func:`first_guess`), ``restarts`` (the
+    ``joint_limit_violation``, ``first_guess`` (:func:`~dano.experiments.push.first_guess`), ``restarts`` (the
     other solves of the problem, not kept: guess, status, iterations, max_violation) and,
     with a model error, ``model_error``: world friction,
     open-loop and receding-horizon final errors."""
