@@ -360,6 +360,7 @@ def test_unrolled_rollout_has_no_lapack_call_and_agrees_with_lapack():
     # single step resolves "auto" too (on the CPU: LAPACK)
     import dano.sim.implicit as implicit
 
+    assert resolve_linear_solver(auto, sc, 1).linear_solver == "lapack"  # (this CPU)
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(implicit, "_backend", lambda: "gpu")
         assert resolve_linear_solver(auto, sc, 1).linear_solver == "unrolled"
