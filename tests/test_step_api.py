@@ -176,6 +176,54 @@ def test_a_nan_env_does_not_keep_a_batch_iterating(box_scene):
     assert np.all(np.isnan(np.asarray(out.qvel[1])))
 
 
+def test_a_batch_halves_only_where_an_env_needs_it(box_scene, monkeypatch):
+    """Under vmap both branches of the Newton step's line search run for every env: the
+    halving loop must stop where the envs that need it are done, not run on for an env that
+    took its full step or had finished (before, a box at rest beside a sliding one made the
+    batch halve 209 times in 60 steps, where alone they halved 5 and 0 times), and the
+    batch's steps are each env's own."""
+    from dano.sim.dynamics import step_with_info
+
+    scene, qpos, qvel = box_scene
+    params = scene.default_params()
+    trips = [0]
+    real_while_loop = jax.lax.while_loop
+
+    def counting_while_loop(cond, body, init):  # counts the trips of the halving loop
+        if getattr(body, "__name__", "") == "halve":
+            def counted(carry):
+                jax.debug.callback(lambda: trips.__setitem__(0, trips[0] + 1))
+                return body(carry)
+            return real_while_loop(cond, counted, init)
+        return real_while_loop(cond, body, init)
+
+    monkeypatch.setattr(jax.lax, "while_loop", counting_while_loop)
+
+    def roll(d, n=60):
+        def one(d, _):
+            d, info = step_with_info(scene, params, d)
+            return d, info.newton_iterations
+        d, its = jax.lax.scan(one, d, None, length=n)
+        return d.qvel, its
+
+    sliding = make_data(scene, qpos, qvel)
+    settle = jax.jit(lambda d: jax.lax.scan(lambda d, _: (step(scene, params, d), None), d, None, length=300)[0])
+    resting = make_data(scene, settle(make_data(scene, qpos, np.zeros_like(qvel))).qpos, np.zeros_like(qvel))
+    alone = []
+    for d in (sliding, resting):
+        trips[0] = 0
+        out = jax.block_until_ready(jax.jit(roll)(d))
+        alone.append((trips[0], out))
+    trips[0] = 0
+    pair = jax.tree_util.tree_map(lambda x, y: jnp.stack([x, y]), sliding, resting)
+    qv, its = jax.block_until_ready(jax.jit(jax.vmap(roll))(pair))
+    assert alone[0][0] >= 1 and alone[1][0] == 0, [a[0] for a in alone]  # the sliding box halves, the resting one not
+    assert trips[0] <= alone[0][0] + alone[1][0], (trips[0], [a[0] for a in alone])
+    for i, (_, (qv_one, its_one)) in enumerate(alone):
+        assert np.array_equal(np.asarray(its[i]), np.asarray(its_one))
+        np.testing.assert_allclose(np.asarray(qv[i]), np.asarray(qv_one), rtol=0, atol=1e-9)
+
+
 def test_jacfwd_of_step_matches_central_differences(box_scene):
     scene, qpos, qvel = box_scene
     params = scene.default_params()

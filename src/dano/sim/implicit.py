@@ -385,7 +385,10 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
     def body(state):
         # (the second try's state, its flag ``damped`` and trust radius, is in the loop's state
         # only where there is a second try: without, the program is the same as before)
-        k, v, G, A, _, v_best, G_best, *more = state
+        k, v, G, A, finished, v_best, G_best, *more = state
+        # (always True where this body runs unbatched; under vmap the body runs for the whole
+        # batch, and this keeps an env that has finished out of the halving loop below)
+        active = ~finished
         damped, radius = more if retries else (jnp.zeros((), bool), None)
         dn = -solve(A, G)
         phi0 = jnp.sum(G * G)
@@ -399,11 +402,19 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
             dv = dn
         G1 = residual(v + dv)
 
+        # a full step that lands at roundoff level is taken as it is: no line search can
+        # decrease a residual that is already noise (at rest it would halve to its limit)
+        accept = (jnp.sum(G1 * G1) <= (1.0 - 1e-4) * phi0) | ~jnp.isfinite(phi0) | small(G1, G_first)
+
         def backtrack(_):
             def cond(ls):
                 a, j, Gn = ls
-                # "not decreased enough" (Armijo; a non-finite residual counts as not decreased)
-                go_on = ~(jnp.sum(Gn * Gn) <= (1.0 - 1e-4 * a) * phi0) & (j < opts.max_backtracks)
+                # "not decreased enough" (Armijo; a non-finite residual counts as not decreased);
+                # ``~accept & active`` is True wherever this runs unbatched, but under vmap both
+                # branches run for every env: without it an env that took its full step (or had
+                # finished) kept the whole batch halving to max_backtracks
+                go_on = (~(jnp.sum(Gn * Gn) <= (1.0 - 1e-4 * a) * phi0) & (j < opts.max_backtracks)
+                         & ~accept & active)
                 return go_on & ~damped if retries else go_on
 
             def halve(ls):
@@ -413,9 +424,6 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
             a, _, Gn = jax.lax.while_loop(cond, halve, (jnp.ones((), v.dtype), 0, G1))
             return a * dv, Gn
 
-        # a full step that lands at roundoff level is taken as it is: no line search can
-        # decrease a residual that is already noise (at rest it would halve to its limit)
-        accept = (jnp.sum(G1 * G1) <= (1.0 - 1e-4) * phi0) | ~jnp.isfinite(phi0) | small(G1, G_first)
         step, Gn = jax.lax.cond(accept, lambda _: (dv, G1), backtrack, None)
         if retries:  # (in the second try the halving ran no trip: step = dv, Gn = G1)
             def judge(_):
