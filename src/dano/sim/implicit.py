@@ -366,6 +366,7 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
 
     n = opts.max_iterations
     retries = _second_try(opts, models)
+    limit = 2 * n if retries else n  # the loop's trips at most
 
     scale = jnp.sqrt(jnp.diag(pr.Mh))  # the trust region's norm |scale·d|: kinetic-energy-like
 
@@ -387,8 +388,9 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
         # only where there is a second try: without, the program is the same as before)
         k, v, G, A, finished, v_best, G_best, *more = state
         # (always True where this body runs unbatched; under vmap the body runs for the whole
-        # batch, and this keeps an env that has finished out of the halving loop below)
-        active = ~finished
+        # batch, and this keeps an env that has finished, converged or out of iterations, out
+        # of the halving loop below)
+        active = ~finished & (k < limit)
         damped, radius = more if retries else (jnp.zeros((), bool), None)
         dn = -solve(A, G)
         phi0 = jnp.sum(G * G)
@@ -455,14 +457,14 @@ def _newton_plain(models, opts: NewtonConfig, h: float, pr: ImplicitProblem, sol
         suspect = jax.lax.cond(done & ~damped, lambda: turn(v_new) > MAX_TURN, lambda: jnp.zeros((), bool))
         again = (suspect | ((k + 1 == n) & ~done)) & ~damped
         done = done & ~suspect
-        A_new = jax.lax.cond(done | again | (k + 1 >= 2 * n) | ~moved, lambda _: A, lambda _: matrix(v_new), None)
+        A_new = jax.lax.cond(done | again | (k + 1 >= limit) | ~moved, lambda _: A, lambda _: matrix(v_new), None)
         v_new, Gn, A_new = (jnp.where(again, x0, x) for x, x0 in ((v_new, pr.v0), (Gn, G_first), (A_new, A0)))
         radius = jnp.where(again, jnp.inf, radius)  # (the second try's first radius: its first Newton step's)
         return k + 1, v_new, Gn, A_new, done, v_best, G_best, damped | again, radius
 
     def cond(state):
         k, _, _, _, done, *_ = state
-        return (k < (2 * n if retries else n)) & ~done
+        return (k < limit) & ~done
 
     Q0, D0 = contact_force_and_jacobian(models, pr, pr.v0)
     G_first = -h * (pr.f + Q0)
