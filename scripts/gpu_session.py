@@ -19,11 +19,17 @@ given), each point skipped when it could not finish within ``--budget`` seconds 
   without graphs (the configuration of the first stalls);
 * ``far``: dano's defaults at ``--far-batch`` (65,536), 131,072 and 262,144 float32 and at
   16,384 and 131,072 float64;
+* with ``--baseline DIR`` (a directory holding an earlier dano's ``src``, e.g. ``git archive
+  REV src | tar -x -C DIR``, carried to the machine): the ``launches`` stage also times dano's
+  defaults with that dano first on PYTHONPATH, between two runs of this one (the same machine,
+  the same call: a fair comparison; each point records its ``env``, and this dano's points
+  their ``dano_path``);
 * ``dump``: XLA's optimised program of dano's B = 16,384 float32 rollout
   (``--xla_dump_to``, as text) into ``OUT/hlo_dump.tar.gz``: how many kernels a Newton
   iteration launches, to be counted offline.
 
-Usage: ``python scripts/gpu_session.py OUT_DIR [--budget SECONDS] [--stages launches,stalls,far,dump]``.
+Usage: ``python scripts/gpu_session.py OUT_DIR [--budget SECONDS] [--stages launches,stalls,far,dump]
+[--baseline DIR]``.
 """
 
 from __future__ import annotations
@@ -63,7 +69,7 @@ class Session:
         smi.stdout.close()
         return smi, tagger
 
-    def point(self, key: str, timeout: float, xla_flags: str = "", **kwargs) -> dict | None:
+    def point(self, key: str, timeout: float, xla_flags: str = "", env: dict | None = None, **kwargs) -> dict | None:
         if self.elapsed() + timeout > self.budget:
             print(f"skip {key}: {self.elapsed():.0f} s of {self.budget:.0f} used", flush=True)
             return None
@@ -81,13 +87,13 @@ class Session:
 
         sampler = self._sampler(key)
         try:
-            r = scaling_point_in_process(timeout, xla_flags, str(stacks), gpu_state, **kwargs)
+            r = scaling_point_in_process(timeout, xla_flags, str(stacks), gpu_state, env, **kwargs)
         finally:
             if sampler:
                 for p in sampler:
                     p.terminate()
                     p.wait()
-        r.update(key=key, xla_flags=xla_flags, kwargs=kwargs, started_unix=start)
+        r.update(key=key, xla_flags=xla_flags, env=env or {}, kwargs=kwargs, started_unix=start)
         self.points[key] = r
         with open(self.out / "points.jsonl", "a") as f:
             f.write(json.dumps(r) + "\n")
@@ -109,7 +115,10 @@ def main() -> None:
     ap.add_argument("--stall-batch", type=int, default=131072)
     ap.add_argument("--far-batch", type=int, default=65536)
     ap.add_argument("--attempts", type=int, default=3)
+    ap.add_argument("--baseline", type=Path, default=None, help="an earlier dano's checkout (its src/) to time beside")
     args = ap.parse_args()
+    if args.baseline is not None and not (args.baseline / "src" / "dano" / "__init__.py").is_file():
+        raise SystemExit(f"--baseline {args.baseline}: no src/dano/__init__.py there")
     args.out.mkdir(parents=True, exist_ok=True)
     s = Session(args.out, args.budget)
     env = subprocess.run([sys.executable, "-c", "import json, dano.bench as b; print(json.dumps(b.environment()))"],
@@ -129,6 +138,12 @@ def main() -> None:
             for solver in ("lapack", "unrolled"):
                 s.point(f"dano_f32_{solver}", 90, **f32, batch=b, linear_solver=solver, compiler_options={})
                 s.point(f"dano_f32_{solver}_graphs", 90, **f32, batch=b, linear_solver=solver)
+            if args.baseline is not None:  # this dano, the earlier one, this dano again: same machine, same call
+                path = os.pathsep.join(p for p in (str(args.baseline.resolve() / "src"), os.environ.get("PYTHONPATH"))
+                                       if p)
+                s.point("dano_f32_default", 90, **f32, batch=b)
+                s.point("baseline_dano_f32_default", 90, env={"PYTHONPATH": path}, **f32, batch=b)
+                s.point("dano_f32_default_again", 90, **f32, batch=b)
             s.point("mjx_f32", 90, engine="mjx", dtype="float32", batch=b)
             s.point("mjx_f32_graphs", 90, engine="mjx", dtype="float32", batch=b, compiler_options=graph_options)
         elif stage == "stalls":

@@ -163,6 +163,17 @@ def test_scaling_benchmark_reports_a_point_past_its_time_and_goes_on(capsys):
     assert "--batches" in capsys.readouterr().err
 
 
+def test_a_scaling_point_runs_with_the_environment_given(tmp_path):
+    # scripts/gpu_session.py --baseline times an earlier dano by putting its src first on the
+    # point process's PYTHONPATH: here a "dano" that fails at import shows whose code ran
+    from dano.bench import scaling_point_in_process
+
+    (tmp_path / "dano").mkdir()
+    (tmp_path / "dano" / "__init__.py").write_text("raise ImportError('the baseline ran')\n")
+    r = scaling_point_in_process(60, env={"PYTHONPATH": str(tmp_path)}, engine="dano", dtype="float32", batch=4)
+    assert "the baseline ran" in " ".join(r["error"]), r
+
+
 @pytest.mark.slow  # a benchmark suite: four processes, ~35 s
 def test_scaling_benchmark_keys():
     from dano.bench import bench_scaling

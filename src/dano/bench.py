@@ -422,7 +422,8 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
     None: dano's as it runs its batched rollouts (:func:`dano.sim.batched_compiler_options`: on an
     NVIDIA GPU, loops in CUDA graphs) and XLA's defaults for plain MJX (as MJX users run it).
     ``final_height_mean_m``: the envs' mean final height of the body [m] (a check that
-    variants of one point simulate the same drops)."""
+    variants of one point simulate the same drops); ``dano_path``: the directory of the dano
+    package that ran the point."""
     import resource
 
     if dtype == "float64" or engine == "dano":  # plain MJX in float32 runs as MJX users run it: 64-bit mode off
@@ -431,7 +432,8 @@ def scaling_point(engine: str, dtype: str, batch: int, steps: int = 200, repeats
     setup = load_scene("bunny-drop")
     sc, s0, p = setup.scene, setup.state0, setup.params
     qpos, qvel = (x.astype(dt) for x in _drops(batch, sc, s0))
-    out: dict = {"engine": engine, "dtype": dtype, "batch": batch, "steps": steps, "backend": jax.default_backend()}
+    out: dict = {"engine": engine, "dtype": dtype, "batch": batch, "steps": steps, "backend": jax.default_backend(),
+                 "dano_path": str(Path(__file__).parent)}
     if engine == "dano":
         scd, pd = sc.astype(dt), cast_floats(p, dt)
         newton = resolve_linear_solver(NewtonConfig(linear_solver=linear_solver), scd, steps)
@@ -496,15 +498,18 @@ print("RESULT " + json.dumps(r), flush=True)
 
 
 def scaling_point_in_process(timeout_s: float, xla_flags: str = "", stacks: str | None = None, on_timeout=None,
-                             **kwargs) -> dict:
+                             env: dict | None = None, **kwargs) -> dict:
     """:func:`scaling_point` (its arguments ``kwargs``) in a fresh Python process, killed after
     ``timeout_s`` seconds (compile included) and then reported as ``{"timed_out_s":
     timeout_s}``; a process that ends without a result as ``{"error": its last lines of
     stderr}``; ``wall_s`` [s] added either way. ``xla_flags`` is appended to the process's
     XLA_FLAGS; ``stacks``: a file that the process's Python stacks are appended to 5 s before
     its limit where it is still running then (faulthandler); ``on_timeout()`` is called
-    before a process past its limit is killed (e.g. to read the GPU's state)."""
-    env = dict(os.environ)
+    before a process past its limit is killed (e.g. to read the GPU's state); ``env``: further
+    environment variables of the process (e.g. a PYTHONPATH that puts another checkout's
+    ``src`` first, to time an earlier dano beside this one on the same machine; the result's
+    ``dano_path`` says which ran)."""
+    env = {**os.environ, **(env or {})}
     if xla_flags:
         env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + xla_flags).strip()
     t0 = time.perf_counter()
