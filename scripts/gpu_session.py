@@ -39,8 +39,8 @@ import json
 import os
 import shutil
 import subprocess
-import tarfile
 import sys
+import tarfile
 import time
 from pathlib import Path
 
