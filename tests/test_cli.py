@@ -100,11 +100,24 @@ def test_bad_input_clear_error_and_no_output(tmp_path, capsys, shared, make_sour
     assert not list(tmp_path.glob("out/*"))
 
 
-def test_inspect_other_version_and_bad_file(tmp_path, capsys):
+def test_inspect_other_version_and_bad_file(tmp_path, capsys, shared):
     p = tmp_path / "x.dano"
     p.write_text("nope")
     code, _, err = run(capsys, "inspect", p)
     assert code == 1 and "x.dano: not a .dano file" in err
+    # a source given where a .dano is expected: how to build one, not NumPy's words about pickles
+    mesh = shared / "meshes" / "spot.obj"
+    code, _, err = run(capsys, "inspect", mesh)
+    err = " ".join(err.split())
+    assert code == 1 and "spot.obj: not a .dano file" in err and f"dano build {mesh} -o NAME.dano" in err
+    assert "pickle" not in err
+
+
+def test_an_error_is_one_line_with_the_progress_bars_on(tmp_path, capsys):
+    """Without --quiet, where standard error is not a terminal (a log, a pipe), the error is
+    its first line: no bar, and no blank line where the bar was."""
+    code, _, err = run(capsys, "build", tmp_path / "missing.obj", "-o", tmp_path / "x.dano")
+    assert code == 1 and err.startswith("error: ") and err.count("\n") == 1, repr(err)
 
 
 def test_parse_errors_exit_non_zero(capsys):

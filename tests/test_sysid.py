@@ -364,9 +364,13 @@ rotation_weight = 0.0
     moved = tmp_path / "elsewhere" / "config.json"
     moved.parent.mkdir()
     saved.rename(moved)
-    assert main(["sysid", str(moved), "--json", "--out-dir", str(tmp_path / "again")]) == 0
-    again = json.loads(capsys.readouterr().out)
+    assert main(["sysid", str(moved), "--out-dir", str(tmp_path / "again")]) == 0
+    again = json.loads((tmp_path / "again" / "result.json").read_text())
     assert again["sliding_friction"] == pytest.approx(report["sliding_friction"], rel=1e-9)
+    # the table shows the calibrated interval beside the (narrower) standard error
+    table = capsys.readouterr().out
+    lower, upper = again["sliding_friction_lower"], again["sliding_friction_upper"]
+    assert "95% interval" in table and f"[{lower:.4g}, {upper:.4g}]" in table
 
     bad = tmp_path / "bad.csv"
     rows = np.column_stack([t, poses])

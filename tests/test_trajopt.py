@@ -274,7 +274,9 @@ def test_trajopt_cli_bad_input(tmp_path, capsys, monkeypatch):
         err = capsys.readouterr().err
         assert code == 1 and "MUJOCO_GL=disable" in err and "--no-video" in err
     code = main(["trajopt", "push-cube"])
-    assert code == 1 and "unknown task 'push-cube'" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert code == 1 and "unknown task 'push-cube'" in err
+    assert all(name in err for name in ("push-sphere", "push-panda", "grasp-panda", "push,"))  # every built-in task
     cfg = tmp_path / "bad.toml"
     cfg.write_text('task = "push-sphere"\nhorizont = 30\n')
     code = main(["trajopt", str(cfg), "--out-dir", str(tmp_path / "o")])
@@ -286,3 +288,23 @@ def test_trajopt_cli_bad_input(tmp_path, capsys, monkeypatch):
     code = main(["trajopt", "push-sphere", "--model-error", "-2", "--out-dir", str(tmp_path / "o")])
     assert code == 1 and "model_error out of range" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_saved_push_config_names_its_object_wherever_it_is_run_from(tmp_path, monkeypatch):
+    """The object of ``push`` is kept as an absolute path: given on the command line, against
+    the folder it was run in; in a TOML/JSON file, against the file's folder. So the
+    config.json a run saves reruns from any folder (it kept "spot.dano" as given, relative)."""
+    from dano.experiments.trajopt_run import load_config
+
+    (tmp_path / "runs").mkdir()
+    monkeypatch.chdir(tmp_path)
+    cfg = load_config("push", object="spot.dano")
+    assert cfg.object == str(tmp_path / "spot.dano")
+    assert load_config("push").object == "builtin:bunny"
+    saved = tmp_path / "runs" / "push.toml"
+    saved.write_text('task = "push"\nobject = "../objects/spot.dano"\n')
+    monkeypatch.chdir(tmp_path / "runs")
+    assert load_config(str(saved.name)).object == str(tmp_path / "objects" / "spot.dano")
+    monkeypatch.chdir("/")
+    assert load_config(str(saved)).object == str(tmp_path / "objects" / "spot.dano")
+    assert load_config(str(saved), object="other.dano").object == "/other.dano"  # (an override: against the folder run in)

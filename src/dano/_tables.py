@@ -60,10 +60,15 @@ def sysid_table(config: str, problem, result, report: dict, out_dir: Path) -> Ta
             t.add_row(key.replace("_", " "), f"{report[key]:.4g}")
         t.caption = f"{report['wall_time_s']:.1f} s (+{report['compile_time_s']:.1f} s compile); wrote {out_dir}/"
         return t
-    for c in ("parameter", "estimate", "std. error", "initial"):
+    interval = result.interval or {"lower": {}, "upper": {}, "level": 0.95}
+    # the calibrated interval (profile likelihood, bootstrap) is the uncertainty where there is
+    # one; the standard error (the local curvature) can be far narrower (docs/sysid.md)
+    for c in ("parameter", "estimate", f"{interval['level']:.0%} interval", "std. error", "initial"):
         t.add_column(c)
     for lab, v, sd, x0 in zip(result.labels, result.estimates, result.standard_errors, result.initial):
-        t.add_row(lab, f"{v:.5g}", f"{sd:.2g}", f"{x0:.4g}")
+        inside = (f"[{interval['lower'][lab]:.4g}, {interval['upper'][lab]:.4g}]" if lab in interval["lower"]
+                  else "-")
+        t.add_row(lab, f"{v:.5g}", inside, f"{sd:.2g}", f"{x0:.4g}")
     t.caption = (f"rms residual {result.rms_residual:.3g} over {result.num_residuals} residuals; "
                  f"{result.nfev} evaluations; {result.wall_time_s:.2f} s (+{result.compile_time_s:.1f} s compile); "
                  f"wrote {out_dir}/result.json, config.json, fit.png")

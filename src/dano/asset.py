@@ -719,6 +719,20 @@ def save(asset: DanoAsset, path: str | Path) -> Path:
     return path
 
 
+def _build_hint(path: Path) -> str:
+    """For a file ``dano build`` reads (a mesh, a voxel grid, a paper collider, a trained
+    field's folder): how to make a DANO of it; else nothing."""
+    from .io import source_kind
+
+    try:
+        kind = source_kind(path)
+    except FileFormatError:
+        return ""
+    what = {"mesh": "a mesh", "voxel": "a voxel grid", "jld2": "a paper collider",
+            "field": "a trained field's folder"}[kind]
+    return f"; if it is {what}, make a DANO of it with `dano build {path} -o NAME.dano`"
+
+
 def load(path: str | Path) -> DanoAsset:
     """Read a ``.dano`` file written by :func:`save`.
 
@@ -727,14 +741,14 @@ def load(path: str | Path) -> DanoAsset:
     """
     path = Path(path)
     if not path.is_file():
-        raise FileFormatError(f"{path}: no such file")
+        raise FileFormatError(f"{path}: {'a folder, not a .dano file' + _build_hint(path) if path.is_dir() else 'no such file'}")
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
-    except Exception as exc:
-        raise FileFormatError(f"{path}: not a .dano file (cannot read it as an npz archive: {exc})") from exc
+    except Exception as exc:  # (NumPy's own message, about pickles, would mislead here)
+        raise FileFormatError(f"{path}: not a .dano file (not an npz archive){_build_hint(path)}") from exc
     if "metadata" not in arrays:
-        raise FileFormatError(f"{path}: not a .dano file (no metadata)")
+        raise FileFormatError(f"{path}: not a .dano file (no metadata){_build_hint(path)}")
     try:
         meta = json.loads(str(arrays["metadata"]))
     except json.JSONDecodeError as exc:

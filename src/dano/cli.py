@@ -91,8 +91,10 @@ def _error_line(exc: BaseException) -> str:
 
 @contextmanager
 def _progress(enabled: bool = True):
-    """A rich progress bar as a ``progress(done, total, description)`` callback."""
-    if not enabled:
+    """A rich progress bar as a ``progress(done, total, description)`` callback; None where
+    not ``enabled`` or where standard error is not a terminal (a log file gets no bar, and no
+    blank line where the bar was)."""
+    if not (enabled and err.is_terminal):
         yield None
         return
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
@@ -109,7 +111,7 @@ def _progress(enabled: bool = True):
 
 def _train_progress(enabled: bool):
     """A rich progress bar over the run's clock (or steps) showing loss and training PSNR."""
-    if not enabled:
+    if not (enabled and err.is_terminal):  # (as _progress)
         return nullcontext()
 
     @contextmanager

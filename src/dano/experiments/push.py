@@ -548,7 +548,3 @@ def first_guess(solution: Solution) -> str:
     """The first guess the solution was solved from (:func:`solve_task`): :data:`SCALED_PUSH`
     where the plain push's solve was replaced, else :data:`PLAIN_PUSH`."""
     return SCALED_PUSH if any(r["guess"] == PLAIN_PUSH for r in solution.restarts) else PLAIN_PUSH
-
-
-def unknown_task(name: str) -> DanoError:
-    return DanoError(f"unknown task {name!r}; built-in tasks: {', '.join(TASKS)} (or a TOML/JSON config)")

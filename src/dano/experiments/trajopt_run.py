@@ -22,8 +22,7 @@ from ..sim import State, rollout
 from ..viz.plot import plot_trajopt
 from ..viz.video import check_mujoco_video, write_video
 from .grasp import GraspPandaConfig, run_grasp
-from .push import (TASKS, final_errors, first_guess, limit_report, model_error_run, pusher_positions, solve_task,
-                   unknown_task)
+from .push import TASKS, final_errors, first_guess, limit_report, model_error_run, pusher_positions, solve_task
 
 #: every built-in task: name -> its configuration class
 CONFIGS = {**{name: cls for name, (_, cls) in TASKS.items()}, "grasp-panda": GraspPandaConfig}
@@ -33,12 +32,13 @@ def load_config(source: str, **overrides):
     """The task configuration: a built-in task name or a TOML/JSON file (key ``task`` and
     the task's settings), with ``overrides`` (None values ignored) applied and validated.
     Raises DanoError for an unknown task, unknown keys, wrong types or values out of range."""
+    base = Path.cwd()  # where a relative object path given on the command line is
     if source in CONFIGS:
         cfg = CONFIGS[source]()
     else:
         path = Path(source)
         if path.suffix.lower() not in (".toml", ".json") and not path.exists():
-            raise unknown_task(source)
+            raise DanoError(f"unknown task {source!r}; built-in tasks: {', '.join(CONFIGS)} (or a TOML/JSON config)")
         raw = read_table(path)
         name = raw.get("task")
         if name not in CONFIGS:
@@ -47,11 +47,21 @@ def load_config(source: str, **overrides):
             cfg = typed_table(raw, CONFIGS[name], "")
         except DanoError as exc:
             raise DanoError(f"{path}: {exc}") from None
+        cfg = _absolute(cfg, path.parent)  # (a relative path in the file: relative to the file's folder)
     given = {k: v for k, v in overrides.items() if v is not None}
     unused = sorted(set(given) - {f.name for f in dataclasses.fields(cfg)})
     if unused:
         raise DanoError(f"{cfg.task} does not use {', '.join('--' + k.replace('_', '-') for k in unused)}")
-    return dataclasses.replace(cfg, **given)  # checked as it is built
+    return _absolute(dataclasses.replace(cfg, **given), base)  # checked as it is built
+
+
+def _absolute(cfg, base: Path):
+    """``cfg`` with its object file (``push``'s ``object``, unless ``builtin:NAME``) made
+    absolute against ``base``, so that the ``config.json`` a run saves reruns from any folder."""
+    obj = getattr(cfg, "object", None)
+    if not isinstance(obj, str) or obj.startswith("builtin:"):
+        return cfg
+    return dataclasses.replace(cfg, object=str((base / obj).resolve()))
 
 
 def report(task, solution, model_error=None) -> dict:
