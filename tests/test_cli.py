@@ -111,6 +111,9 @@ def test_inspect_other_version_and_bad_file(tmp_path, capsys, shared):
     err = " ".join(err.split())
     assert code == 1 and "spot.obj: not a .dano file" in err and f"dano build {mesh} -o NAME.dano" in err
     assert "pickle" not in err
+    # an image format matplotlib cannot write: refused before the work (no table printed)
+    code, out, err = run(capsys, "inspect", "builtin:bunny", "--plot", tmp_path / "s.jpgg")
+    assert code == 1 and "s.jpgg: --plot: cannot write an image as .jpgg" in " ".join(err.split()) and not out
 
 
 def test_an_error_is_one_line_with_the_progress_bars_on(tmp_path, capsys):

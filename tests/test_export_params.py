@@ -27,6 +27,13 @@ def test_identified_friction_reaches_mujoco(tmp_path, capsys):
     assert collision and all(np.allclose(m.geom_friction[g], [0.42, 0.005, 0.003]) for g in collision)
     text = out.read_text()
     assert "Not carried: impact_spring" in text  # said, not silently dropped
+    # only the sliding friction identified (as a sysid result.json often has): the comment still
+    # says that the spring, damper and drags do not cross over (docs/own-object.md)
+    result.write_text(json.dumps({"sliding_friction": 0.5, "rms_residual": 1e-3}))
+    assert main(["export", "builtin:bunny_lowpoly", "-o", str(out), "--params", str(result)]) == 0
+    text = " ".join(out.read_text().split())
+    assert "friction = sliding_friction identified by dano (the rest: MuJoCo defaults)" in text
+    assert "contact spring, damper and drags act on the density overlap psi" in text
 
 
 def test_ambiguous_or_missing_parameters_refused(tmp_path):

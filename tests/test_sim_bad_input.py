@@ -263,8 +263,15 @@ def test_object_orientation_from_the_cli(tmp_path, capsys):
     code, _, err = run(capsys, "simulate", xml, "--object", "builtin:bunny@0,0,0.8,1,1,0,0", "--duration", 0.02,
                        "--out", out, "--quiet")
     assert code == 0, err
+    assert "warning" not in err  # (starts in the air)
     q0 = np.load(out)["qpos"][0]
     np.testing.assert_allclose(q0[:3], [0, 0, 0.8], atol=1e-12)
+    # placed with its centre of mass 6 cm below where it rests (a pose's z is the centre of mass, not the lowest
+    # point): runs, with a warning that it starts inside the floor
+    code, _, err = run(capsys, "simulate", xml, "--object", "builtin:bunny@0,0,0.22", "--duration", 0.02,
+                       "--out", out, "--quiet")
+    err = " ".join(err.split())
+    assert code == 0 and "warning: bunny/floor starts" in err and "deeper in contact than at rest" in err, err
     np.testing.assert_allclose(q0[3:7], np.array([1, 1, 0, 0]) / np.sqrt(2), atol=1e-12)
     for pose, message in (("0,0,1,0,0,0,0", "must not be zero"), ("0,0", "x,y,z or x,y,z,qw,qx,qy,qz"),
                           ("0,0,1,1,nan,0,0", "finite")):

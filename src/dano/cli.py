@@ -167,6 +167,10 @@ def inspect(
     """
     from .asset import density_warning
 
+    if plot is not None:
+        from .viz.plot import check_image_path
+
+        check_image_path(plot, "--plot")
     try:
         asset = load_asset(file)
     except (DanoError, ValueError) as exc:
@@ -187,10 +191,12 @@ def inspect(
 
 
 def _simulate(c):
-    from .sim.run import simulate, write_outputs
+    from .sim.run import simulate, start_warnings, write_outputs
 
     with _progress(not c.quiet) as progress:
         run = simulate(c.resolved(), progress=progress)
+    for line in start_warnings(run):
+        err.print(f"[yellow]warning:[/] {line}", highlight=False, soft_wrap=True)
     out.print(simulation_table(run.setup, run.trajectory, run.wall_time_s))
     with _progress(not c.quiet) as progress:
         for path in write_outputs(run, out=c.out, video=c.video, progress=progress):

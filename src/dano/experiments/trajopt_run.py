@@ -234,7 +234,7 @@ class TrajoptCommandConfig:
     torques pushing a 15 cm bunny 10 cm, needs MENAGERIE_ROOT; grasp-panda: the Panda's hand grasps, lifts and
     holds the 15 cm bunny, needs MENAGERIE_ROOT) or a TOML/JSON configuration (key task and the task's settings, e.g. the config.json a run saved)."""
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False
-    """print one JSON object (bunny_final_error, pusher_final_error, max_constraint_violation, iterations,
+    """print one JSON object (object_final_error (also bunny_final_error), pusher_final_error, max_constraint_violation, iterations,
     converged, status, wall_time_s, compile_time_s, ...; model_error with --model-error; grasp-panda:
     lift_height, slip_mm, slip_deg, grip_force, converged, wall_time_s, contact_models, ...)."""
     out_dir: Annotated[Path | None, tyro.conf.arg(name="out", aliases=("-o", "--out-dir"))] = None

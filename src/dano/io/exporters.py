@@ -273,10 +273,13 @@ def friction_note(contact: dict[str, float]) -> tuple[str, str]:
     values = [contact.get(k, d) for k, d in zip(FRICTION_KEYS, MUJOCO_DEFAULT_FRICTION)]
     carried = [k for k in FRICTION_KEYS if k in contact]
     left = sorted(set(contact) - set(FRICTION_KEYS))
-    note = (f" dano: friction = {', '.join(carried)} identified by dano"
+    # (said whether or not the parameters hold them: a reader of the file should know that
+    # only the friction coefficients cross over)
+    note = (f" dano: friction = {', '.join(carried) or 'none'} identified by dano"
             f"{'' if len(carried) == 3 else ' (the rest: MuJoCo defaults)'}. "
-            + (f"Not carried: {', '.join(left)} (dano's force law acts on the density overlap psi; MuJoCo's "
-               "soft contact has no such term, so solref/solimp keep MuJoCo's defaults). " if left else ""))
+            + (f"Not carried: {', '.join(left)}. " if left else "")
+            + "dano's contact spring, damper and drags act on the density overlap psi, which MuJoCo's soft "
+              "contact does not have: solref/solimp keep MuJoCo's defaults. ")
     return _nums(values), note
 
 

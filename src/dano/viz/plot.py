@@ -8,6 +8,22 @@ from pathlib import Path
 import numpy as np
 
 from .._files import atomic_write
+from ..errors import DanoError
+
+
+def check_image_path(path: str | Path, option: str = "") -> Path:
+    """``path`` as a Path if matplotlib can write an image in the format of its suffix (none:
+    png). Raises DanoError naming the file, ``option`` (e.g. ``--plot``) and the formats
+    that work otherwise: checked before the work, not after it."""
+    from matplotlib.figure import Figure
+
+    path = Path(path)
+    fmt = path.suffix.lstrip(".").lower() or "png"
+    formats = Figure().canvas.get_supported_filetypes()
+    if fmt not in formats:
+        raise DanoError(f"{path}: {option + ': ' if option else ''}cannot write an image as .{fmt}; "
+                        f"use one of {', '.join('.' + f for f in sorted(formats))}")
+    return path
 
 
 def plot_samples(asset, path: str | Path, max_arrows: int = 600, seed: int = 0) -> Path:
