@@ -86,7 +86,10 @@ def plot_sysid(series, cost_history, path, profiles=None, title: str = "") -> Pa
             axes[0].plot(fitted[:, 0], fitted[:, 1], "-", color=c, label="fitted")
             axes[1].plot(t, fitted[:, 0], "-", color=c)
             axes[1].plot(t, fitted[:, 1], "--", color=c)
-    axes[0].set(xlabel="x [m]", ylabel="y [m]", title="paths (top view)", aspect="equal")
+    # equal scales by widening the narrower range (not by squeezing the panel: a straight slide
+    # then ran its tick labels together), at most 5 ticks per axis
+    axes[0].set(xlabel="x [m]", ylabel="y [m]", title="paths (top view)", aspect="equal", adjustable="datalim")
+    axes[0].locator_params(nbins=5)
     axes[0].legend(fontsize=7)
     axes[1].set(xlabel="time [s]", ylabel="position [m]", title="x (o, solid) and y (s, dashed)")
     axes[2].semilogy(np.maximum(np.asarray(cost_history, dtype=float), 1e-300), "o-")
