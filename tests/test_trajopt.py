@@ -234,9 +234,13 @@ def test_push_sphere_cli_reaches_both_goals(tmp_path, capsys, monkeypatch, push_
                 "wall_time_s", "compile_time_s"):
         assert key in rep
     assert rep["converged"] and rep["bunny_final_error"] < 0.02 and rep["pusher_final_error"] < 0.02, rep
+    # the floating sphere stays above the floor (its centre at least its radius, 0.25, up, within
+    # the constraint tolerance 1e-3): unconstrained, it dipped to 0.105, half through the ground
+    assert rep["pusher_below_floor"] < 1e-3, rep
     assert abs(rep["bunny_goal"][1] - rep["plain_push_bunny_final"][1] - 1.0) < 1e-12
     sol = np.load(out / "solution.npz")
     assert sol["controls"].shape == (60, 6) and sol["states"].shape == (61, 26)
+    assert sol["qpos"][:, 2].min() > 0.25 - 1e-3  # (the sphere's free joint comes first)
     # the bunny really moved sideways, pushed: it is > 0.9 from where the plain push left it
     assert np.linalg.norm(sol["states"][-1, 7:9] - sol["plain_states"][-1, 7:9]) > 0.9
     log = (out / "log.csv").read_text().splitlines()
@@ -248,9 +252,9 @@ def test_push_sphere_cli_reaches_both_goals(tmp_path, capsys, monkeypatch, push_
 
 @pytest.mark.slow
 def test_unconverged_sphere_push_is_solved_again_from_a_weaker_push(push_task):
-    """A sphere push whose solve does not converge is solved once more from the plain push
-    scaled by RESTART_GUESS_SCALE: the solution kept violates the constraints no more than
-    the one it replaced, which the report records (here 3 iterations are too few for both)."""
+    """A sphere push whose solve does not converge is solved again from the plain push scaled
+    by each of RESTART_GUESS_SCALES: the solution kept violates the constraints no more than
+    those it replaced, which the report records (here 3 iterations are too few for all)."""
     import dataclasses
 
     from dano.experiments.push import solve_task
@@ -259,12 +263,12 @@ def test_unconverged_sphere_push_is_solved_again_from_a_weaker_push(push_task):
     task = dataclasses.replace(push_task, config=dataclasses.replace(push_task.config, max_iterations=3))
     sol = solve_task(task)
     assert not sol.converged and sol.status == "max_iterations" and sol.iterations == 3
-    (other,) = sol.restarts
-    assert other["status"] == "max_iterations" and other["iterations"] == 3
-    assert sol.max_violation <= other["max_violation"]
+    others = list(sol.restarts)
+    assert len(others) == 2 and all(o["status"] == "max_iterations" and o["iterations"] == 3 for o in others)
+    assert sol.max_violation <= min(o["max_violation"] for o in others)
     rep = json.loads(json.dumps(report(task, sol)))  # (JSON as the command line writes it)
-    assert rep["restarts"] == [other] and other["guess"] in ("plain push", "plain push x0.5")
-    assert rep["first_guess"] in ("plain push", "plain push x0.5") and rep["first_guess"] != other["guess"]
+    guesses = {"plain push", "plain push x0.5", "plain push x0.25"}
+    assert rep["restarts"] == others and {o["guess"] for o in others} | {rep["first_guess"]} == guesses
 
 
 def test_trajopt_cli_bad_input(tmp_path, capsys, monkeypatch):

@@ -186,12 +186,16 @@ class PushParams:
     object's size, mass and pusher: the same programs, loaded from disk). sim: the
     :class:`~dano.sim.SimParams`; goal: (2,) object goal x–y, then (3,) pusher goal where the
     task has one [m], or None (the plain push); scene: the task's :class:`~dano.sim.Scene`;
-    u_ref: (6,) the control scale of the cost [N, N m]."""
+    u_ref: (6,) the control scale of the cost [N, N m]; floor: () the lowest height of the
+    pusher's centre [m] (its radius: the sphere floats, without MuJoCo contact with the ground,
+    and the solve keeps it above the floor by a stage inequality), or None (no such constraint:
+    the plain push)."""
 
     sim: Any
     goal: Any
     scene: Any
     u_ref: Any
+    floor: Any = None
 
 
 @dataclass(frozen=True)
@@ -219,6 +223,8 @@ class PushTask:
     config: PushConfig
     goal_parameter: bool = False
     scene_parameter: bool = False
+    pusher_floor: float | None = None
+    """The lowest height of a floating pusher's centre [m] (:attr:`PushParams.floor`), or None."""
 
     def problem_params(self, params=None):
         """The problem's parameters p for SimParams ``params`` (default: the task's): a
@@ -232,7 +238,8 @@ class PushTask:
             goals = [self.bunny_goal] + ([] if self.pusher_goal is None else [self.pusher_goal])
             goal = jnp.asarray(np.concatenate(goals), dtype=float)
         if self.scene_parameter:
-            return PushParams(params, goal, self.scene, jnp.asarray(self.u_ref, dtype=float))
+            floor = None if self.pusher_floor is None else jnp.asarray(self.pusher_floor, dtype=float)
+            return PushParams(params, goal, self.scene, jnp.asarray(self.u_ref, dtype=float), floor)
         return params if goal is None else (params, goal)
 
 
@@ -305,11 +312,15 @@ def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mas
             return x[object_q][:2] - p.goal
         return jnp.concatenate([x[object_q][:2] - p.goal[:2], x[pusher] - p.goal[2:]])
 
-    problem = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, terminal_equality=terminal,
+    def above_floor(x, u, t, p: PushParams):  # the sphere floats through the ground unless kept above it
+        return (p.floor - x[pa + 2])[None]
+
+    problem = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, inequality=above_floor,
+                      terminal_equality=terminal,
                       key=key + ("goal parameter", (int(ba), int(ba) + 3),
-                                 None if pusher_goal is None else (int(pa), int(pa) + 3)))
+                                 None if pusher_goal is None else (int(pa), int(pa) + 3), "floor", int(pa) + 2))
     return PushTask(scene, params, problem, x0, U_plain, X_plain, np.asarray(object_goal), pusher_goal, object_q,
-                    "qfrc", dofs, u_ref, config, goal_parameter=True, scene_parameter=True)
+                    "qfrc", dofs, u_ref, config, goal_parameter=True, scene_parameter=True, pusher_floor=radius)
 
 
 def push_sphere_task(config: PushSphereConfig = PushSphereConfig()) -> PushTask:
@@ -471,11 +482,14 @@ def limit_report(task: PushTask, X, U) -> dict:
     """How the controls and (for the arm) the joints sit against their limits:
     ``max_control_ratio`` max|u|/u_max over the task's bounded controls (≤ 1 within
     tolerance), ``joint_limit_violation`` the largest excursion beyond a joint limit
-    [rad] (0 if none; arm tasks only)."""
+    [rad] (0 if none; arm tasks only), ``pusher_below_floor`` how far the floating sphere's
+    centre dips below its floor (its radius) [m] (0 if not; sphere tasks only)."""
     out = {}
     if task.problem.u_upper is not None:
         out["max_control_ratio"] = float(np.max(np.abs(np.asarray(U)) / np.asarray(task.problem.u_upper)))
-    if task.problem.inequality is not None:
+    if task.pusher_floor is not None:  # how far the floating pusher's centre dips below its floor [m]
+        out["pusher_below_floor"] = float(max(0.0, task.pusher_floor - np.min(pusher_positions(task, np.asarray(X))[:, 2])))
+    elif task.problem.inequality is not None:
         m = task.scene.mj_model
         q = np.asarray(X)[:, :7]
         out["joint_limit_violation"] = float(max(0.0, np.max(q - m.jnt_range[:7, 1]), np.max(m.jnt_range[:7, 0] - q)))
@@ -518,33 +532,49 @@ def task_names() -> tuple[str, ...]:
 
 
 #: a sphere push that does not converge from its plain push is solved again from the plain
-#: push scaled by this (the first guess's forces halved): from the full push the sphere can
-#: pass beside a light object and lose it (docs/trajopt.md)
-RESTART_GUESS_SCALE = 0.5
-#: the names of the two first guesses in a solution's ``restarts`` and the report's ``first_guess``
-PLAIN_PUSH, SCALED_PUSH = "plain push", f"plain push x{RESTART_GUESS_SCALE:g}"
+#: push scaled by each of these in turn (the first guess's forces halved, then quartered),
+#: until one converges: from the full push the sphere can pass beside a light object and lose
+#: it (docs/trajopt.md)
+RESTART_GUESS_SCALES = (0.5, 0.25)
+RESTART_GUESS_SCALE = RESTART_GUESS_SCALES[0]  # (the first restart's scale: its name before 2026-11-26)
+
+
+def guess_name(scale: float) -> str:
+    """The name of the first guess ``scale`` × the plain push in a solution's ``restarts``
+    and the report's ``first_guess``: ``plain push``, ``plain push x0.5``, ..."""
+    return "plain push" if scale == 1.0 else f"plain push x{scale:g}"
+
+
+#: the names of the first two first guesses
+PLAIN_PUSH, SCALED_PUSH = guess_name(1.0), guess_name(RESTART_GUESS_SCALE)
 
 
 def solve_task(task: PushTask, callback=None) -> Solution:
     """Solve a built task from its plain push. A sphere push (``apply == "qfrc"``) that does
-    not converge is solved once more from the plain push scaled by
-    :data:`RESTART_GUESS_SCALE`; the second solution is kept if it converges or violates the
-    constraints less, else the first. The solve not kept is recorded in the kept one's
-    ``restarts``; both solves' seconds count in its ``wall_time_s`` and ``compile_time_s``."""
+    not converge is solved again from the plain push scaled by each of
+    :data:`RESTART_GUESS_SCALES` in turn, until one converges; the solution kept is the
+    first that converges, else the one that violates the constraints least. The solves not
+    kept are recorded in the kept one's ``restarts`` (guess, status, iterations,
+    max_violation); every solve's seconds count in its ``wall_time_s`` and
+    ``compile_time_s``."""
     options, p = solver_options(task.config), task.problem_params()
     first = solve(task.problem, task.x0, task.U_plain, p, options, callback=callback)
     if first.converged or task.apply != "qfrc":
         return first
-    second = solve(task.problem, task.x0, RESTART_GUESS_SCALE * task.U_plain, p, options, callback=callback)
-    better = second.converged or second.max_violation < first.max_violation
-    kept, other = (second, first) if better else (first, second)
-    record = {"guess": PLAIN_PUSH if other is first else SCALED_PUSH, "status": other.status,
-              "iterations": other.iterations, "max_violation": other.max_violation}
-    return dataclasses.replace(kept, restarts=(record,), wall_time_s=first.wall_time_s + second.wall_time_s,
-                               compile_time_s=first.compile_time_s + second.compile_time_s)
+    tried = [(1.0, first)]
+    for scale in RESTART_GUESS_SCALES:
+        tried.append((scale, solve(task.problem, task.x0, scale * task.U_plain, p, options, callback=callback)))
+        if tried[-1][1].converged:
+            break
+    kept = tried[-1][1] if tried[-1][1].converged else min((sol for _, sol in tried), key=lambda s: s.max_violation)
+    records = tuple({"guess": guess_name(scale), "status": sol.status, "iterations": sol.iterations,
+                     "max_violation": sol.max_violation} for scale, sol in tried if sol is not kept)
+    return dataclasses.replace(kept, restarts=records, wall_time_s=sum(sol.wall_time_s for _, sol in tried),
+                               compile_time_s=sum(sol.compile_time_s for _, sol in tried))
 
 
 def first_guess(solution: Solution) -> str:
-    """The first guess the solution was solved from (:func:`solve_task`): :data:`SCALED_PUSH`
-    where the plain push's solve was replaced, else :data:`PLAIN_PUSH`."""
-    return SCALED_PUSH if any(r["guess"] == PLAIN_PUSH for r in solution.restarts) else PLAIN_PUSH
+    """The first guess the solution was solved from (:func:`solve_task`): the first of the
+    plain push and its :data:`RESTART_GUESS_SCALES` that its ``restarts`` do not name."""
+    replaced = {r["guess"] for r in solution.restarts}
+    return next(name for name in map(guess_name, (1.0,) + RESTART_GUESS_SCALES) if name not in replaced)

@@ -144,7 +144,7 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
     nq = task.scene.nq
     arrays = dict(time=np.arange(len(X)) * task.scene.dt, states=X, controls=U, qpos=X[:, :nq], qvel=X[:, nq:],
                   gains=np.asarray(solution.gains), plain_states=task.X_plain, plain_controls=task.U_plain,
-                  bunny_goal=task.bunny_goal)
+                  bunny_goal=task.bunny_goal, object_goal=task.bunny_goal)  # (the same: any object)
     if task.pusher_goal is not None:
         arrays["pusher_goal"] = task.pusher_goal
     if model_error is not None:
@@ -178,9 +178,10 @@ def _plot(task, solution, model_error, path) -> None:
     if model_error is not None:
         runs += [(f"open loop, μ={model_error.friction:.3g}", model_error.open_loop_states, "--"),
                  ("receding horizon", model_error.receding.states, "-.")]
-    paths = [(f"bunny, {label}", X[:, task.bunny_qpos][:, :2], pusher_positions(task, X)[:, :2], style)
+    pushed = "object" if task.config.task == "push" else "bunny"  # (push: any object)
+    paths = [(f"{pushed}, {label}", X[:, task.bunny_qpos][:, :2], pusher_positions(task, X)[:, :2], style)
              for label, X, style in runs]
-    goals = [("bunny goal", task.bunny_goal, "k*")]
+    goals = [(f"{pushed} goal", task.bunny_goal, "k*")]
     if task.pusher_goal is not None:
         goals.append(("pusher goal", task.pusher_goal, "kx"))
     plot_trajopt(solution.log, solution.status, solution.iterations, paths, path, goals=goals)
