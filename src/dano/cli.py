@@ -58,7 +58,9 @@ def _verb(verb: str):
     An error that does not name the verb's input file gets it as a prefix."""
     cls, runner, named = config_class(verb), globals()[VERBS[verb][1]], VERBS[verb][2]
     hints = typing.get_type_hints(cls, include_extras=True)
-    params = [_inspect.Parameter(f.name, _inspect.Parameter.KEYWORD_ONLY, annotation=hints[f.name],
+    docs = field_docs(cls)
+    params = [_inspect.Parameter(f.name, _inspect.Parameter.KEYWORD_ONLY,
+                                 annotation=_shown(hints[f.name], f.default, docs.get(f.name, "")),
                                  default=_inspect.Parameter.empty if f.default is dataclasses.MISSING else f.default)
               for f in dataclasses.fields(cls)]
 
@@ -74,10 +76,23 @@ def _verb(verb: str):
     run.__signature__ = _inspect.Signature(params)
     run.__annotations__ = {p.name: p.annotation for p in params}
     run.__name__ = run.__qualname__ = verb.replace("-", "_")
-    docs = field_docs(cls)
     run.__doc__ = (_inspect.getdoc(cls) or "").split("\n\n")[0] + "\n\nArgs:\n" + "\n".join(
         f"    {k}: {v}" for k, v in docs.items())
     return run
+
+
+def _shown(annotation, default, doc: str):
+    """An option's annotation as its help shows it: an optional value left out by default
+    reads FLOAT, not {None}|FLOAT (``None`` is not taken on the command line: leaving the
+    option out gives it), and tyro's "(default: ...)" is left out where it would say None or
+    nothing (an empty list) or where the option's own text already says what the default is."""
+    extra = []
+    args = typing.get_args(typing.get_args(annotation)[0] if typing.get_origin(annotation) is Annotated else annotation)
+    if default is None and type(None) in args:
+        extra.append(tyro.conf.DisallowNone)
+    if default is None or (isinstance(default, tuple) and not default) or "default" in doc.lower():
+        extra.append(tyro.conf.arg(help_behavior_hint=""))
+    return Annotated[(annotation, *extra)] if extra else annotation
 
 
 def _error_line(exc: BaseException) -> str:
@@ -154,7 +169,7 @@ def _build(c) -> None:
 def inspect(
     file: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="FILE.dano")],
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False,
-    plot: Path | None = None,
+    plot: Annotated[Path | None, tyro.conf.DisallowNone, tyro.conf.arg(help_behavior_hint="")] = None,
 ) -> None:
     """Show a .dano asset: mass, centre of mass, inertia, principal moments, N, band, valid normals,
     extents, volume and mean density (a warning when the density is implausible, 10-25,000 kg/m³).
