@@ -85,6 +85,8 @@ def _wrong_shape_voxels(tmp_path, shared):
         (lambda t, s: s / "dano" / "bluesoap.jld2", [], "stored density gradients are zero"),
         (lambda t, s: t / "missing.obj", [], "missing.obj: no such file"),
         (lambda t, s: s / "real" / "soap_pose_traj.csv", [], "unknown source type '.csv'"),
+        (lambda t, s: s / "meshes" / "spot.obj", ["--mass", -0.7], "--mass must be a finite positive number"),
+        (lambda t, s: s / "meshes" / "spot.obj", ["--size", 0], "--size must be a finite positive number"),
     ],
 )
 def test_bad_input_clear_error_and_no_output(tmp_path, capsys, shared, make_source, extra, message):

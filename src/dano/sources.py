@@ -9,6 +9,8 @@ source like any other.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated
@@ -229,6 +231,10 @@ class BuildConfig:
         check_resolution(self.resolution)
         if not 1 <= self.samples <= MAX_SAMPLES:
             raise DanoError(f"--samples {self.samples}: must be 1 to {MAX_SAMPLES}")
+        for option in ("mass", "alpha", "size", "scale"):  # (checked now, before the source is read)
+            value = getattr(self, option)
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise DanoError(f"--{option} must be a finite positive number, got {value:g}")
 
 
 def build_file(config: BuildConfig, progress=None) -> BuildResult:
