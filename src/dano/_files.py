@@ -14,6 +14,29 @@ import numpy as np
 from .errors import DanoError, FileFormatError
 
 
+#: the mesh files ``dano build`` reads (trimesh's formats), units m
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
+
+
+def source_kind(path: str | Path) -> str:
+    """What ``dano build`` reads ``path`` as: 'mesh', 'voxel', 'jld2' from the file suffix,
+    or 'field' for a folder (a field directory written by ``dano train-field``); raises
+    FileFormatError otherwise."""
+    if Path(path).is_dir():
+        return "field"
+    suffix = Path(path).suffix.lower()
+    if suffix in MESH_SUFFIXES:
+        return "mesh"
+    if suffix in (".npy", ".npz"):
+        return "voxel"
+    if suffix == ".jld2":
+        return "jld2"
+    raise FileFormatError(
+        f"{path}: unknown source type {suffix!r}; expected a mesh ({', '.join(MESH_SUFFIXES)}), "
+        "a voxel grid (.npy/.npz), a paper collider (.jld2) or a trained field's folder"
+    )
+
+
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path`` (same suffix, so writers that pick a format

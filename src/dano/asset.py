@@ -27,7 +27,7 @@ import numpy as np
 
 from ._version import __version__
 from ._compiled import HOST_ONLY
-from ._files import atomic_write
+from ._files import atomic_write, source_kind
 from ._jax_setup import in_float64
 from .errors import DanoError, FileFormatError
 from .fields import DensityField, TransformedField, from_arrays, to_arrays
@@ -722,8 +722,6 @@ def save(asset: DanoAsset, path: str | Path) -> Path:
 def _build_hint(path: Path) -> str:
     """For a file ``dano build`` reads (a mesh, a voxel grid, a paper collider, a trained
     field's folder): how to make a DANO of it; else nothing."""
-    from .io import source_kind
-
     try:
         kind = source_kind(path)
     except FileFormatError:

@@ -7,14 +7,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._files import MESH_SUFFIXES
 from ..errors import DanoError, FileFormatError
 from .grid import SdfGridField
 
 if TYPE_CHECKING:  # (trimesh takes 0.2 s to import: only where meshes are read)
     import trimesh
 
-
-MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
 
 
 def _check_binary_stl(path: Path) -> None:

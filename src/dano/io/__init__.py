@@ -3,9 +3,7 @@ URDF, MjSpec bodies: :mod:`dano.io.exporters`)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from ..errors import FileFormatError
+from .._files import source_kind
 from .jld2 import PAPER_ALPHA, load_paper_collider, normals_from_mesh
 from .mesh import MESH_SUFFIXES, load_mesh
 
@@ -23,21 +21,3 @@ def __getattr__(name: str):
 
         return getattr(exporters, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def source_kind(path: str | Path) -> str:
-    """'mesh', 'voxel', 'jld2' from the file suffix, or 'field' for a folder (a field
-    directory written by ``dano train-field``); raises FileFormatError otherwise."""
-    if Path(path).is_dir():
-        return "field"
-    suffix = Path(path).suffix.lower()
-    if suffix in MESH_SUFFIXES:
-        return "mesh"
-    if suffix in (".npy", ".npz"):
-        return "voxel"
-    if suffix == ".jld2":
-        return "jld2"
-    raise FileFormatError(
-        f"{path}: unknown source type {suffix!r}; expected a mesh ({', '.join(MESH_SUFFIXES)}), "
-        "a voxel grid (.npy/.npz), a paper collider (.jld2) or a trained field's folder"
-    )
