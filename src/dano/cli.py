@@ -60,7 +60,7 @@ def _verb(verb: str):
     hints = typing.get_type_hints(cls, include_extras=True)
     docs = field_docs(cls)
     params = [_inspect.Parameter(f.name, _inspect.Parameter.KEYWORD_ONLY,
-                                 annotation=_shown(hints[f.name], f.default, docs.get(f.name, "")),
+                                 annotation=_shown(hints[f.name], f.default, docs.get(f.name, ""), f.name),
                                  default=_inspect.Parameter.empty if f.default is dataclasses.MISSING else f.default)
               for f in dataclasses.fields(cls)]
 
@@ -81,12 +81,15 @@ def _verb(verb: str):
     return run
 
 
-def _shown(annotation, default, doc: str):
+def _shown(annotation, default, doc: str, name: str = ""):
     """An option's annotation as its help shows it: an optional value left out by default
     reads FLOAT, not {None}|FLOAT (``None`` is not taken on the command line: leaving the
     option out gives it), and tyro's "(default: ...)" is left out where it would say None or
-    nothing (an empty list) or where the option's own text already says what the default is."""
+    nothing (an empty list) or where the option's own text already says what the default is;
+    a flag named no_* is only --no-*, without tyro's --no-no-* twin."""
     extra = []
+    if name.startswith("no_") and default is False:
+        extra.append(tyro.conf.FlagCreatePairsOff)
     args = typing.get_args(typing.get_args(annotation)[0] if typing.get_origin(annotation) is Annotated else annotation)
     if default is None and type(None) in args:
         extra.append(tyro.conf.DisallowNone)
