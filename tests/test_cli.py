@@ -228,3 +228,22 @@ def test_sim_benchmark_keys_and_interleaved_ratios(monkeypatch):
     assert r["ratio_lapack_over_default_time"] > 0
     assert r["panda_push_bunny"].startswith("skipped")
     assert r["jacfwd_200"]["parameters"] == ["sliding_friction", "alpha"]
+
+
+def test_bad_inputs_of_the_image_route_and_build_say_what_is_wrong(tmp_path, capsys, shared):
+    """Found by a new user's run (2026-11-26): each is refused in one line before any work,
+    naming the file or option, with nothing written."""
+    code, _, err = run(capsys, "build", shared / "meshes" / "spot.obj", "-o", tmp_path)  # a folder as the output
+    assert code == 1 and f"-o {tmp_path}: is a folder" in " ".join(err.split())
+    assert not list(tmp_path.iterdir())
+    fake = tmp_path / "views.npz"
+    fake.write_text("x")
+    code, _, err = run(capsys, "train-field", fake, "-o", tmp_path / "f")
+    err = " ".join(err.split())
+    assert code == 1 and "views.npz: cannot read image set (not an npz archive)" in err and "pickle" not in err
+    views = tmp_path / "views"
+    views.mkdir()
+    (views / "transforms.json").write_text('{"frames": []}')
+    code, _, err = run(capsys, "train-field", views, "-o", tmp_path / "f")
+    assert code == 1 and 'the "frames" list is empty' in err
+    assert not (tmp_path / "f").exists()

@@ -163,3 +163,23 @@ def test_write_errors_name_the_output_not_a_temporary_file(tmp_path, capsys):
     assert main(["export", "builtin:bunny", "-o", str(out)]) == 1
     err = " ".join(capsys.readouterr().err.split())
     assert err.startswith(f"error: {out}: cannot write") and ".x." not in err
+
+
+def test_the_compare_mesh_table_shows_the_mass_error():
+    """`dano compare-mesh`'s table has the mass error column of docs/mesh-route.md (the JSON's
+    ``mass_error``; "-" where the source has no interior density to define it)."""
+    from rich.console import Console
+
+    from dano._tables import compare_table
+
+    row = {"pieces": 1, "com_error": 0.041, "inertia_error": 0.161, "rest_height_error": -0.0005,
+           "rest_tilt_deg": 0.21, "slide_divergence": 0.008}
+    report = {"source": "bunny", "dano": {"rest_height": 0.2981, "slide_distance": 0.2617},
+              "levels": [{"label": "φ = 0.5", "components": 1,
+                          "collision": {"hull": {**row, "mass_error": 0.56}, "decomposition": {**row, "mass_error": None}}}]}
+    console = Console(width=200, record=True)
+    console.print(compare_table(report))
+    text = console.export_text()
+    assert "mass err" in text and "+56 %" in text
+    hull, decomposition = (line for line in text.splitlines() if "0.0410" in line)
+    assert "+56 %" in hull and "+56 %" not in decomposition and " - " in decomposition

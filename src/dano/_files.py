@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+import zipfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -111,7 +112,9 @@ def read_npz(path: str | Path, required=(), what: str = "") -> dict:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
     except Exception as exc:
-        raise FileFormatError(f"{path}: cannot read{' ' + what if what else ''} ({exc})") from exc
+        # (NumPy reads a file that is not a zip archive as a pickle, and says so: misleading here)
+        reason = exc if not path.is_file() or zipfile.is_zipfile(path) else "not an npz archive"
+        raise FileFormatError(f"{path}: cannot read{' ' + what if what else ''} ({reason})") from exc
     missing = sorted(set(required) - set(arrays))
     if missing:
         raise FileFormatError(f"{path}: missing arrays {missing}; expected {', '.join(required)}")

@@ -102,12 +102,13 @@ def trajopt_table(task: str, report: dict, paths) -> Table:
 def compare_table(report) -> Table:
     t = Table(title=f"mesh route vs DANO: {report['source']} (DANO rest height {report['dano']['rest_height']:.4f}, "
                     f"slide {report['dano']['slide_distance']:.4f})")
-    for col in ("level", "collider", "comp.", "pieces", "CoM err", "inertia err", "rest Δz", "tilt [deg]",
-                "slide diverg."):
+    for col in ("level", "collider", "comp.", "pieces", "mass err", "CoM err", "inertia err", "rest Δz",
+                "tilt [deg]", "slide diverg."):
         t.add_column(col)
     for e in report["levels"]:
         for c, r in e["collision"].items():
-            t.add_row(e["label"], c, str(e["components"]), str(r["pieces"]), f"{r['com_error']:.4f}",
+            mass = "-" if r["mass_error"] is None else f"{100 * r['mass_error']:+.0f} %"  # (None: no interior density)
+            t.add_row(e["label"], c, str(e["components"]), str(r["pieces"]), mass, f"{r['com_error']:.4f}",
                       f"{100 * r['inertia_error']:.1f} %", f"{r['rest_height_error']:+.4f}",
                       f"{r['rest_tilt_deg']:.2f}", f"{r['slide_divergence']:.4f}")
     return t

@@ -9,6 +9,7 @@ import gc
 import importlib
 import inspect as _inspect
 import json
+import os
 import signal
 import sys
 import time
@@ -27,8 +28,18 @@ from ._files import json_safe
 from .data import load_asset
 from .errors import DanoError
 
-err = Console(stderr=True)
-out = Console()
+def _console(stderr: bool = False) -> Console:
+    """rich's console on standard output or error; where that is not a terminal (a pipe, a
+    log) and COLUMNS does not say otherwise, 200 columns wide instead of rich's 80, so that
+    tables keep every value and messages their lines."""
+    console = Console(stderr=stderr)
+    if console.is_terminal or os.environ.get("COLUMNS"):
+        return console
+    return Console(stderr=stderr, width=200)
+
+
+err = _console(stderr=True)
+out = _console()
 
 #: verb -> (its configuration "module:Class", the runner below, the option naming its input file)
 VERBS = {

@@ -164,6 +164,8 @@ def build_from_source(source: str | Path, *, mass: float | None = None, alpha: f
         factor = scale if scale is not None else size / occupied_extent(dens)
         dens = VoxelField.create(np.asarray(dens.values), np.stack([np.asarray(dens.lower), np.asarray(dens.upper)])
                                  * factor)
+        if "surface_offset" in calibration:  # [m] of the object as built, as the grid
+            calibration = {**calibration, "surface_offset": calibration["surface_offset"] * factor}
     if kind != "mesh" and rotation is not UP_ROTATIONS["z"]:
         dens = rotate_grid(dens, rotation)
     asset = build_asset(dens, alpha=alpha, mass=mass, num_samples=samples, band=band, seed=seed,
@@ -179,7 +181,8 @@ class BuildConfig:
 
     source: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="SOURCE")]
     """a watertight mesh (.obj/.stl/.ply/.off, read as uniform density, units m), a voxel grid (.npz with
-    arrays 'density' (nx, ny, nz) and 'bounds' (2, 3) [m]) or a paper collider (.jld2)."""
+    arrays 'density' (nx, ny, nz) and 'bounds' (2, 3) [m]), a paper collider (.jld2) or a trained field's
+    folder (written by dano train-field; the options marked 'field folders:')."""
     out: Annotated[Path, tyro.conf.arg(aliases=("-o",))]
     """the .dano file to write (written atomically)."""
     mass: float | None = None
@@ -231,6 +234,8 @@ class BuildConfig:
         check_resolution(self.resolution)
         if not 1 <= self.samples <= MAX_SAMPLES:
             raise DanoError(f"--samples {self.samples}: must be 1 to {MAX_SAMPLES}")
+        if Path(self.out).is_dir():  # (checked now, not when the finished asset is written)
+            raise DanoError(f"-o {self.out}: is a folder; give the file to write, e.g. {Path(self.out) / 'object.dano'}")
         for option in ("mass", "alpha", "size", "scale"):  # (checked now, before the source is read)
             value = getattr(self, option)
             if value is not None and not (math.isfinite(value) and value > 0):

@@ -170,8 +170,10 @@ def _from_transforms(path: Path) -> Dataset:
     except Exception as exc:
         raise FileFormatError(f"{path}: cannot read JSON ({exc})") from exc
     frames = meta.get("frames") if isinstance(meta, dict) else None
-    if not isinstance(frames, list) or not frames:
+    if not isinstance(frames, list):
         raise DanoError("no \"frames\" list")
+    if not frames:
+        raise DanoError("the \"frames\" list is empty: no views")
     images, alphas, poses, focal, principal, names = [], [], [], [], [], []
     size = None
     for i, frame in enumerate(frames):
