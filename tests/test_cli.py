@@ -246,4 +246,6 @@ def test_bad_inputs_of_the_image_route_and_build_say_what_is_wrong(tmp_path, cap
     (views / "transforms.json").write_text('{"frames": []}')
     code, _, err = run(capsys, "train-field", views, "-o", tmp_path / "f")
     assert code == 1 and 'the "frames" list is empty' in err
+    code, _, err = run(capsys, "train-field", views, "-o", tmp_path / "f", "--minutes", 0.2, "--eval-at", 0.1, 1)
+    assert code == 1 and "--eval-at 1: after the end of the run (--minutes 0.2)" in " ".join(err.split())
     assert not (tmp_path / "f").exists()

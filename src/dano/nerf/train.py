@@ -400,6 +400,10 @@ class TrainFieldConfig:
             raise DanoError(f"{out}: exists and is not empty{hint}; choose a new output folder")
         if self.resume and not (out / "field.json").exists():
             raise DanoError(f"{out}: --resume needs a field directory written by `dano train-field`")
+        late = [m for m in self.eval_at if m > self.minutes]
+        if late:  # (the run would end before them: psnr_at_minutes would leave them out without a word)
+            raise DanoError(f"--eval-at {' '.join(f'{m:g}' for m in late)}: after the end of the run "
+                            f"(--minutes {self.minutes:g})")
 
 
 def train_field(config: TrainFieldConfig, progress: Callable[[dict], None] | None = None) -> tuple[dict, TrainResult]:
