@@ -24,8 +24,11 @@ def run(capsys, *args):
 def test_build_voxel_then_inspect_json_and_plot(tmp_path, capsys):
     src = sphere_voxels(tmp_path / "ball.npz")
     out = tmp_path / "ball.dano"
-    code, _, err = run(capsys, "build", src, "-o", out, "--mass", 2.0, "--samples", 500, "--quiet")
+    code, _, err = run(capsys, "build", src, "-o", out, "--mass", 2.0, "--samples", 500, "--quiet", "--name", "ball_2")
     assert code == 0, err
+    from dano.asset import load
+
+    assert load(out).name == "ball_2"  # (--name; default: the source's stem, "ball")
     code, stdout, err = run(capsys, "inspect", out, "--json", "--plot", tmp_path / "ball.png")
     assert code == 0, err
     s = json.loads(stdout)
@@ -233,6 +236,8 @@ def test_sim_benchmark_keys_and_interleaved_ratios(monkeypatch):
 def test_bad_inputs_of_the_image_route_and_build_say_what_is_wrong(tmp_path, capsys, shared):
     """Found by a new user's run (2026-11-26): each is refused in one line before any work,
     naming the file or option, with nothing written."""
+    code, _, err = run(capsys, "build", shared / "meshes" / "spot.obj", "-o", tmp_path / "x.dano", "--name", "a/b")
+    assert code == 1 and "--name 'a/b': letters, digits" in " ".join(err.split())
     code, _, err = run(capsys, "build", shared / "meshes" / "spot.obj", "-o", tmp_path)  # a folder as the output
     assert code == 1 and f"-o {tmp_path}: is a folder" in " ".join(err.split())
     assert not list(tmp_path.iterdir())

@@ -9,8 +9,9 @@ source like any other.
 
 from __future__ import annotations
 
+import dataclasses
 import math
-
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated
@@ -226,6 +227,9 @@ class BuildConfig:
     up: Annotated[str, tyro.conf.arg(metavar="AXIS")] = "z"
     """the source's axis that points up: x, y, z, -x, -y or -z; the DANO is turned so that it becomes +z (dano's
     up). y for a mesh written y-up, as many .obj files are (+90 degrees about x)."""
+    name: str | None = None
+    """the object's name in scenes, pairs (NAME/ground) and options such as --qvel NAME=... (default: the
+    source's file or folder name, e.g. spot for spot.obj)."""
     quiet: bool = False
     """no progress bar."""
 
@@ -234,6 +238,9 @@ class BuildConfig:
         check_resolution(self.resolution)
         if not 1 <= self.samples <= MAX_SAMPLES:
             raise DanoError(f"--samples {self.samples}: must be 1 to {MAX_SAMPLES}")
+        if self.name is not None and not re.fullmatch(r"[A-Za-z0-9_.-]+", self.name):
+            raise DanoError(f"--name {self.name!r}: letters, digits, '_', '.' and '-' only (it names the object "
+                            "in pairs such as NAME/ground and in options such as --qvel NAME=...)")
         if Path(self.out).is_dir():  # (checked now, not when the finished asset is written)
             raise DanoError(f"-o {self.out}: is a folder; give the file to write, e.g. {Path(self.out) / 'object.dano'}")
         for option in ("mass", "alpha", "size", "scale"):  # (checked now, before the source is read)
@@ -250,6 +257,8 @@ def build_file(config: BuildConfig, progress=None) -> BuildResult:
                                                "calibrate_surface", "field_scale", "voxels", "scale", "size",
                                                "up")}
     result = build_from_source(config.source, **options, progress=progress)
+    if config.name is not None:
+        result = dataclasses.replace(result, asset=dataclasses.replace(result.asset, name=config.name))
     save(result.asset, config.out)
     return result
 
