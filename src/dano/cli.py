@@ -28,6 +28,7 @@ from ._files import json_safe
 from .data import load_asset
 from .errors import DanoError
 
+
 def _console(stderr: bool = False) -> Console:
     """rich's console on standard output or error; where that is not a terminal (a pipe, a
     log) and COLUMNS does not say otherwise, 200 columns wide instead of rich's 80, so that
