@@ -161,10 +161,10 @@ def plot_heldout(renders, references, titles, path, max_views: int = 4) -> Path:
     axes = fig.subplots(2, n, squeeze=False)
     for k in range(n):
         axes[0, k].imshow(np.clip(renders[k], 0.0, 1.0))
-        axes[0, k].set_title(titles[k], fontsize=8)
+        axes[0, k].set_title(f"render: {titles[k]}", fontsize=8)
         axes[1, k].imshow(references[k])
+        axes[1, k].set_title("held-out image", fontsize=8)
         for ax in axes[:, k]:
             ax.set_axis_off()
-    axes[1, 0].set_title("images", fontsize=8)
     fig.tight_layout()
     return _save(fig, path, dpi=100)
