@@ -15,7 +15,6 @@ if TYPE_CHECKING:  # (trimesh takes 0.2 s to import: only where meshes are read)
     import trimesh
 
 
-
 def _check_binary_stl(path: Path) -> None:
     """A binary STL states its triangle count: refuse a file too short to hold them
     (trimesh would otherwise retry it as ASCII and report an unrelated error). Trailing

@@ -246,17 +246,21 @@ DEEP_START = 20.0
 
 def start_warnings(run: SimulationRun) -> list[str]:
     """One line per contact pair that starts deep in contact: its overlap ψ at t = 0 above
-    :data:`DEEP_START` times the resting overlap m·g/k of its DANO (m its mass [kg], k the
-    pair's impact spring). The contact then pushes the object out over the first steps, as
-    if launched: a pose's position is the centre of mass, not the object's lowest point."""
+    :data:`DEEP_START` times the resting overlap m·g/k of its DANO (m its mass [kg] under the
+    run's mass scale α, k the pair's impact spring). The contact then pushes the object out
+    over the first steps, as if launched: a pose's position is the centre of mass, not the
+    object's lowest point."""
     scene, traj = run.setup.scene, run.trajectory
     gravity = float(np.linalg.norm(scene.mj_model.opt.gravity))
     if gravity == 0.0 or traj.psi is None:  # (no weight: no resting overlap to compare with)
         return []
     spring = np.broadcast_to(np.asarray(run.params.contact.impact_spring, float), (len(scene.pairs),))
+    alpha = np.asarray(run.params.alpha, float)  # (ψ scales with α: so does the mass compared with it)
     lines = []
     for i, pair in enumerate(scene.pairs):
-        psi0, rest = float(traj.psi[0, i]), scene.assets[pair.a].mass * gravity / float(spring[i])
+        asset = scene.assets[pair.a]
+        mass = asset.mass * alpha[pair.a] / asset.alpha
+        psi0, rest = float(traj.psi[0, i]), mass * gravity / float(spring[i])
         if psi0 > DEEP_START * rest:
             lines.append(f"{pair.name} starts {psi0 / rest:.0f}x deeper in contact than at rest (overlap ψ = "
                          f"{psi0:.3g} at t = 0, m·g/k = {rest:.3g}): the object was placed inside the other "
