@@ -19,6 +19,7 @@ from ..contact import CONTACT_MODELS
 from .._files import atomic_path
 from ..errors import DanoError
 from ..sim import State, rollout
+from ..sim.run import absolute_source
 from ..viz.plot import plot_trajopt
 from ..viz.video import check_mujoco_video, write_video
 from .grasp import GraspPandaConfig, run_grasp
@@ -59,9 +60,7 @@ def _absolute(cfg, base: Path):
     """``cfg`` with its object file (``push``'s ``object``, unless ``builtin:NAME``) made
     absolute against ``base``, so that the ``config.json`` a run saves reruns from any folder."""
     obj = getattr(cfg, "object", None)
-    if not isinstance(obj, str) or obj.startswith("builtin:"):
-        return cfg
-    return dataclasses.replace(cfg, object=str((base / obj).resolve()))
+    return cfg if obj is None else dataclasses.replace(cfg, object=absolute_source(obj, base))
 
 
 def report(task, solution, model_error=None) -> dict:
