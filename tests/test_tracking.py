@@ -17,7 +17,7 @@ import dano
 from dano.cli import main
 from dano.errors import DanoError, FileFormatError
 from dano.fields import SphereField
-from dano.render import Cameras, image_rays, pixel_rays
+from dano.render import Cameras, image_rays, pixel_rays, project_points
 from dano.render.silhouette import silhouette_rays
 from dano.tracking import TrackConfig, TrackedObject, load_video, pose_errors, track, tracked_trajectory
 from dano.experiments.slide import VideoCamera, render_video, surface_mesh, write_video_folder
@@ -59,6 +59,20 @@ def test_sphere_silhouette_area_matches_projection():
     assert float(alpha.min()) >= 0 and float(alpha.max()) <= 1
 
 
+def test_a_ray_missing_the_box_covers_nothing():
+    """Rays that pass the sphere's box, one almost parallel to its top face (its slab crossing
+    1.5e5 m away: α was 0.31 there), cover 0 of their pixels; a grazing ray beside the sphere
+    covers a part, as before."""
+    dano.enable_float64()
+    o = jnp.asarray([[-3.0, 0.0, 2.0], [-3.0, 0.0, 0.0], [-3.0, 0.0, 0.0]])
+    d = jnp.asarray([[1.0, 0.0, -1e-5], [0.0, 1.0, 0.0], [1.0, 0.5 / 3.0, 0.0]])
+    d = d / jnp.linalg.norm(d, axis=1, keepdims=True)
+    out = silhouette_rays(SphereField(radius=0.5, edge_width=0.01), o, d, step=0.01, num_samples=120,
+                          pixel_angle=1.0 / 30.0)
+    np.testing.assert_array_equal(np.asarray(out.alpha[:2]), 0.0)
+    assert 0.2 < float(out.alpha[2]) < 0.8
+
+
 def test_field_silhouette_matches_mujoco_mask_at_the_true_pose(bunny, one_frame):
     """The silhouette dano renders of the field and MuJoCo's mask of its surface mesh cover
     the same pixels at the true pose (area within 0.5 %, barycentre within 0.1 px): no
@@ -80,6 +94,21 @@ def test_field_silhouette_matches_mujoco_mask_at_the_true_pose(bunny, one_frame)
     assert alpha.sum() / mask.sum() == pytest.approx(1.0, abs=0.005)
     bary = lambda a: (a[:, None] * uv).sum(0) / a.sum()  # noqa: E731
     assert np.abs(bary(alpha) - bary(mask)).max() < 0.1
+
+
+@pytest.mark.parametrize("convention", ["blender", "opencv"])
+def test_project_points_inverts_pixel_rays(convention):
+    """A point 2.5 m along the ray through pixel (u, v) projects back to (u, v) at the depth
+    its ray gives; the camera's own position mirrored through it lies behind (depth < 0)."""
+    cams = Cameras.create(LOOK[None], 64, 48, (70.0, 60.0), (30.0, 25.0), convention=convention,
+                          dtype=jnp.float64)
+    u, v = np.array([0.5, 31.25, 63.5]), np.array([0.5, 20.0, 47.5])
+    o, d = (np.asarray(x) for x in pixel_rays(cams, jnp.zeros(3, jnp.int32), jnp.asarray(u), jnp.asarray(v)))
+    uv, depth = project_points(cams, 0, o + 2.5 * d)
+    np.testing.assert_allclose(uv, np.stack([u, v], -1), atol=1e-9)
+    axis = LOOK[:3, 2] * (-1.0 if convention == "blender" else 1.0)  # the optical axis in the world
+    np.testing.assert_allclose(depth, 2.5 * d @ axis, rtol=1e-12)
+    assert project_points(cams, 0, o - 2.5 * d)[1].max() < 0
 
 
 def test_silhouette_pose_gradient_matches_finite_differences(bunny):
@@ -194,6 +223,14 @@ def test_track_cli_refuses_bad_input_and_leaves_nothing(one_frame, tmp_path, cap
     assert not out.exists()
     code = main(["track", str(folder), "--object", "builtin:bunny_lowpoly", "--pose", *pose[:6], "-o", str(out)])
     assert code != 0 and not out.exists()
+    capsys.readouterr()
+    # the pose 5 m to the side: outside the image (it would track at IoU 0, every frame poor)
+    aside = [str(truth[0] + 5.0), *pose[1:]]
+    code = main(["track", str(folder), "--object", "builtin:bunny_lowpoly", "--pose", *aside, "-o", str(out),
+                 "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 1 and "not in view in the first frame" in err and "of the 320x240 image" in err
+    assert "Traceback" not in err and not out.exists()
 
 
 @jax.tree_util.register_dataclass

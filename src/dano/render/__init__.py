@@ -7,7 +7,15 @@ the field, the pose and the rays); :class:`OccupancyGrid` skips empty space;
 from images) and pose tracking.
 """
 
-from .cameras import Cameras, blender_from_opencv, check_poses, image_rays, opencv_from_blender, pixel_rays
+from .cameras import (
+    Cameras,
+    blender_from_opencv,
+    check_poses,
+    image_rays,
+    opencv_from_blender,
+    pixel_rays,
+    project_points,
+)
 from .volume import (
     OccupancyGrid,
     RenderConfig,
@@ -30,6 +38,7 @@ __all__ = [
     "image_rays",
     "opencv_from_blender",
     "pixel_rays",
+    "project_points",
     "psnr",
     "render_image",
     "render_rays",

@@ -140,6 +140,26 @@ def pixel_rays(cameras: Cameras, camera: jax.Array, u: jax.Array, v: jax.Array) 
     return pose[:, :3, 3], d
 
 
+def project_points(cameras: Cameras, camera: int, points) -> tuple[np.ndarray, np.ndarray]:
+    """Where world points fall in one camera's image: the inverse of :func:`pixel_rays`.
+
+    points: (N, 3) float, world frame [m]. Returns ``(uv (N, 2) [px], depth (N,) [m])``: pixel
+    coordinates (a pixel's centre at integer + 0.5) and the distance in front of the camera
+    along its optical axis (negative behind it, where ``uv`` is meaningless).
+    """
+    pose = np.asarray(cameras.camera_to_world[camera], dtype=np.float64)
+    f = np.asarray(cameras.focal[camera], dtype=np.float64)
+    c = np.asarray(cameras.principal[camera], dtype=np.float64)
+    x = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - pose[:3, 3]) @ pose[:3, :3]  # camera frame
+    if cameras.convention == "blender":  # looks along −z, image y down = camera −y
+        depth, right, down = -x[:, 2], x[:, 0], -x[:, 1]
+    else:  # opencv: looks along +z, image y down = camera +y
+        depth, right, down = x[:, 2], x[:, 0], x[:, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = np.stack([c[0] + f[0] * right / depth, c[1] + f[1] * down / depth], axis=-1)
+    return uv, depth
+
+
 def image_rays(cameras: Cameras, camera: int) -> tuple[jax.Array, jax.Array]:
     """All rays of one image, row by row: ``(origins, directions)`` each (H·W, 3)."""
     v, u = np.meshgrid(np.arange(cameras.height), np.arange(cameras.width), indexing="ij")

@@ -12,7 +12,7 @@ covers*, smooth in the pose — so this renders the limit directly from the surf
 * d_min = min_k d_k, refined to the vertex of the parabola through the smallest sample and
   its two neighbours, is the ray's distance to the surface (for the grazing rays that make
   the silhouette's edge; without the refinement it ripples with the step as the object moves
-  along the rays);
+  along the rays); a ray that misses the box has α = 0;
 * coverage α = σ(−d_min / (ℓ/4)), with ℓ = t*·θ the pixel's footprint at the depth t* of the
   closest approach (θ: the pixel's angular size). A straight edge at distance e from a
   pixel's centre covers clip(½ − e/ℓ, 0, 1) of it; the logistic with width ℓ/4 has the same
@@ -100,5 +100,7 @@ def silhouette_rays(field, origins: jax.Array, directions: jax.Array, *, pose=No
     d_min = d_k - jnp.where(usable, 0.5 * curvature * shift * shift, 0.0)
     t_min = t_k + shift * step
     footprint = jnp.maximum(t_min, step) * jnp.asarray(pixel_angle, dtype)
-    alpha = jax.nn.sigmoid(-4.0 * d_min / footprint)
+    # a ray that misses the box covers nothing (its grid starts at the box's far-off slab
+    # crossing: a ray almost parallel to a face had a footprint of km and α up to ~0.4)
+    alpha = jnp.where(jnp.any(valid, axis=1), jax.nn.sigmoid(-4.0 * d_min / footprint), 0.0)
     return SilhouetteOutput(alpha, d_min, t_min)

@@ -43,7 +43,7 @@ import optax
 from ..errors import DanoError
 from ..pose import (normalize_quat, quat_error, quat_inverse, quat_multiply, quat_to_matrix, rotvec_to_quat,
                     velocity_from_poses)
-from ..render.cameras import pixel_rays
+from ..render.cameras import pixel_rays, project_points
 from ..render.silhouette import silhouette_rays
 from ..render.volume import RenderConfig, render_rays
 from .inputs import VideoInput
@@ -291,14 +291,30 @@ class _Problem:
         r = max(1, int(np.ceil(pixels / self.config.stride)))
         return binary_dilation(region.reshape(self.hb, self.wb), iterations=r).ravel()
 
-    def ray_set(self, k: int, previous_alpha: np.ndarray | None, pose: np.ndarray) -> np.ndarray:
-        """Indices of the rays rendered for frame k."""
+    def silhouette(self, pose: np.ndarray) -> np.ndarray:
+        """α at ``pose`` on every pixel block, (hb·wb,)."""
+        return np.asarray(self._alpha_all(jnp.asarray(pose), jnp.asarray(self.origins), jnp.asarray(self.directions)))
+
+    def check_in_view(self, pose: np.ndarray, alpha: np.ndarray) -> None:
+        """Raise DanoError where the object at ``pose`` covers no pixel block of the image."""
+        if (alpha > 0.01).any():
+            return
+        (u, v), depth = (x[0] for x in project_points(self.cam, 0, pose[None, :3]))
+        w, h = self.cam.width, self.cam.height
+        if depth <= 0:
+            where = f"{-depth:.3g} m behind the camera"
+        else:
+            where = f"{depth:.3g} m in front of the camera, at pixel ({u:.0f}, {v:.0f}) of the {w}x{h} image"
+        raise DanoError(f"the object is not in view in the first frame: at the initial pose its centre of mass "
+                        f"{np.round(pose[:3], 4).tolist()} is {where}, and it covers no pixel. Give the pose in "
+                        f"the camera's world frame (centre of mass [m], then the wxyz quaternion)")
+
+    def ray_set(self, k: int, previous_alpha: np.ndarray) -> np.ndarray:
+        """Indices of the rays rendered for frame k: near the mask and near ``previous_alpha``
+        (the previous frame's silhouette, or the initial pose's on every block)."""
         region = np.zeros(self.hb * self.wb, bool)
         if self.masks is not None:
             region |= self.masks[k] > 0
-        if previous_alpha is None:  # the first frame: the silhouette at the initial pose, every ray
-            previous_alpha = np.asarray(self._alpha_all(jnp.asarray(pose), jnp.asarray(self.origins),
-                                                        jnp.asarray(self.directions)))
         region |= previous_alpha > 0.01
         if not region.any():
             region[:] = True
@@ -339,8 +355,9 @@ def track(video: VideoInput, obj: TrackedObject, initial_pose, config: TrackConf
     frame: CoM position [m], wxyz quaternion, world frame).
 
     Returns a :class:`TrackResult`. Raises DanoError for a bad config, a non-finite or zero
-    initial pose, an empty frame selection, no masks and no colour term, or the colour term
-    without a radiance field.
+    initial pose, an object out of view at the initial pose (it covers no pixel of the first
+    frame), an empty frame selection, no masks and no colour term, or the colour term without
+    a radiance field.
     """
     pose = np.asarray(initial_pose, dtype=np.float64).reshape(-1)
     if pose.shape != (7,) or not np.all(np.isfinite(pose)) or np.linalg.norm(pose[3:]) < 1e-9:
@@ -351,12 +368,13 @@ def track(video: VideoInput, obj: TrackedObject, initial_pose, config: TrackConf
     ks = range(video.num_frames)[frames or slice(None)]
     if len(ks) == 0:
         raise DanoError(f"no frames to track ({video.num_frames} frames in the video, selection {frames})")
+    previous_alpha = problem.silhouette(pose)
+    problem.check_in_view(pose, previous_alpha)
     poses, losses, ious, poor, times, alphas = [], [], [], [], [], []
-    previous_alpha = None
     for i, k in enumerate(ks):
         t0 = time.perf_counter()
         base = pose if i == 0 else predict(poses, poor)
-        index = problem.ray_set(k, previous_alpha, base)
+        index = problem.ray_set(k, previous_alpha)
         p, loss, alpha = problem.solve(k, base, index)
         if problem.masks is not None:
             m = problem.masks[k]
