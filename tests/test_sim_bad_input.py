@@ -2,6 +2,7 @@
 
 import json
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -9,7 +10,7 @@ import pytest
 from dano.cli import main
 from dano.data import load_builtin
 from dano.errors import DanoError
-from dano.sim import DanoObject, SimulationDiverged, State, compose, rollout
+from dano.sim import DanoObject, SimulationDiverged, State, compose, make_data, rollout, rollout_arrays
 from dano.sim.scenes import load_scene
 
 
@@ -80,6 +81,11 @@ def test_library_refuses_non_finite_parameters_and_states():
         rollout(s.scene, State(s.state0.qpos, s.state0.qvel.at[0].set(np.nan)), None, s.params, 5)
     with pytest.raises(DanoError, match=r"initial qpos must have shape \(7,\)"):
         rollout(s.scene, State(jnp.zeros(3), s.state0.qvel), None, s.params, 5)
+    # the raw paths (make_data, rollout_arrays, a user's own jit of step): dano's error, not scan's IndexError
+    with pytest.raises(DanoError, match=r"make_data: qpos must have shape \(7,\) for this scene, got \(6,\)"):
+        rollout_arrays(s.scene, State(jnp.zeros(6), s.state0.qvel), None, s.params, 5)
+    with pytest.raises(DanoError, match=r"qvel must have shape \(6,\) for this scene, got \(3,\)"):
+        jax.jit(lambda v: make_data(s.scene, s.state0.qpos, v))(jnp.zeros(3))
     with pytest.raises(DanoError, match="time step dt must be positive"):
         load_scene("bunny-drop", dt=-0.01)
 

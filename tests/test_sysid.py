@@ -274,6 +274,9 @@ def obs_ok(frames=20, dt=0.01):
     (lambda o: dataclasses.replace(o, units="cm"), "poses are in 'cm'"),
     (lambda o: dataclasses.replace(o, time=o.time * 2), "does not match the scene's time step"),
     (lambda o: dataclasses.replace(o, poses={"ball": o.poses["box"]}), "no DANO named 'ball'"),
+    # millimetres given to the Python API (the TOML route refused them already)
+    (lambda o: dataclasses.replace(o, poses={"box": np.c_[1000 * o.poses["box"][:, :3], o.poses["box"][:, 3:]]}),
+     "box moves at up to .* m/s between frames; positions must be in metres"),
 ])
 def test_bad_observations(box_setup, change, message):
     _, scene, _ = box_setup

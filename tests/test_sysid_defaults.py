@@ -2,6 +2,7 @@
 (plain MuJoCo C), calibrated intervals, the noise from the observations, the size-weighted
 rotations, a neutral sliding drag, and one compilation per problem structure."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -72,7 +73,7 @@ def test_rotations_are_weighed_by_size_and_drag_is_neutral(box):
     """By default a rotation counts as the displacement of the mass points it causes,
     √(tr J / 3m) per radian (for a solid box of sides a, b, c: √((a² + b² + c²)/18)); with
     friction identified the sliding drag is held at 0, said in the notes; given base parameters
-    are used as they are."""
+    are used as they are, a drag in them said in the notes too."""
     asset = box.assets[0]
     J = np.asarray(asset.inertia)
     assert rotation_length(asset) == pytest.approx(np.sqrt(np.trace(J) / (3 * asset.mass)))
@@ -85,7 +86,28 @@ def test_rotations_are_weighed_by_size_and_drag_is_neutral(box):
     np.testing.assert_allclose(problem.rotation_weights(), [rotation_length(asset)])
     given = SysIdProblem(box, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], substeps=4,
                          base_params=box.default_params())
-    assert np.asarray(given.base_params.contact.sliding_drag).tolist() == [0.1] and not given.notes
+    assert np.asarray(given.base_params.contact.sliding_drag).tolist() == [0.1]
+    # the README's pattern copied onto data from elsewhere: the given drag is said, once
+    assert len(given.notes) == 1 and "sliding_drag is held at 0.1 (given" in given.notes[0]
+    assert dataclasses.replace(given, substeps=4).notes == given.notes
+    neutral = SysIdProblem(box, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], substeps=4,
+                           base_params=box.default_params(sliding_drag=0.0))
+    assert not neutral.notes
+
+
+def test_a_lone_objects_mass_scale_is_flat_not_at_a_bound(box):
+    """A DANO that touches only the floor moves the same at any mass scale (its contact forces
+    and its mass both scale with α): fitted, α is reported flat with the reason, and no bound
+    is to be widened (on Spot from MuJoCo C the estimate stopped at its lower bound, 0.2 of
+    the asset's α, and was reported "at bound")."""
+    obs = analytic_slides(0, 0.05, 2, noise=0.0, frames=12)
+    alpha = float(box.assets[0].alpha)
+    problem = SysIdProblem(box, obs, [FitParameter("alpha", 0.8 * alpha, 0.2 * alpha, 3.0 * alpha)], substeps=4,
+                           base_params=box.default_params(sliding_friction=0.45, sliding_drag=0.0))
+    r = identify(problem, profile_points=8)
+    assert r.identifiability["alpha"]["status"] == "flat"
+    assert any("alpha is not identifiable" in w and "known mass" in w for w in r.warnings)
+    assert not any("sits at its" in w for w in r.warnings)
 
 
 def test_problems_of_one_structure_share_one_compilation():

@@ -8,10 +8,10 @@ from .jld2 import PAPER_ALPHA, load_paper_collider, normals_from_mesh
 from .mesh import MESH_SUFFIXES, load_mesh
 
 __all__ = ["PAPER_ALPHA", "MESH_SUFFIXES", "Decomposition", "add_to_spec", "body_meshes", "export", "load_mesh",
-           "load_paper_collider", "normals_from_mesh", "source_kind"]
+           "load_paper_collider", "normals_from_mesh", "read_contact_params", "source_kind"]
 
 
-_EXPORTERS = ("Decomposition", "add_to_spec", "body_meshes", "export")
+_EXPORTERS = ("Decomposition", "add_to_spec", "body_meshes", "export", "read_contact_params")
 
 
 def __getattr__(name: str):
@@ -21,3 +21,7 @@ def __getattr__(name: str):
 
         return getattr(exporters, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

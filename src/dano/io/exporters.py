@@ -360,7 +360,7 @@ def export(asset, path: str | Path, *, meshes: BodyMeshes | None = None, collisi
     (``level``, ``mesh``, ``resolution``, ``decomposition``). free: MJCF only, give the
     body a free joint (a URDF root link has no joint; add one when loading, e.g.
     ``spec.body(name).add_freejoint()``). contact: identified contact parameters
-    (:func:`read_contact_params`): MJCF collision geoms get ``friction`` = sliding, torsional,
+    (:func:`dano.io.read_contact_params` of a ``result.json``): MJCF collision geoms get ``friction`` = sliding, torsional,
     rolling friction (MuJoCo's defaults for any not given), and a comment says what is not
     carried (the spring, damper and drags); URDF gets the comment only (it has no friction
     element). MuJoCo compiles the result from a temporary

@@ -78,26 +78,18 @@ from ..errors import DanoError, FileFormatError
 from ..sim.scenes import DEFAULT_DT, stated_timestep
 from ..sim.scene import DanoObject, compose
 from ..trajectory import load_trajectory
-from .problem import (FitParameter, Observation, SysIdProblem, Weights,
+from .problem import (FitParameter, Observation, SysIdProblem, Weights, check_units,
                       identification_params)
 from .outputs import estimates_report
 from .solve import identify
 
 
 
-MAX_OBSERVED_SPEED = 100.0  # m/s: faster observed motion means the positions are not in metres
-
-
 def _check_units(path: Path, obs: Observation) -> Observation:
-    t = np.asarray(obs.time, dtype=np.float64)
-    for name, poses in obs.poses.items():
-        p = np.asarray(poses, dtype=np.float64)[:, :3]
-        if len(t) > 1 and np.all(np.diff(t) > 0):
-            with np.errstate(all="ignore"):  # 1e300 positions: refused below, without a numpy warning
-                speed = float(np.max(np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(t)))
-            if speed > MAX_OBSERVED_SPEED:
-                raise DanoError(f"{path}: {name} moves at up to {speed:.3g} m/s between frames; positions must be in "
-                                "metres and times in seconds")
+    try:
+        check_units(obs)
+    except DanoError as exc:
+        raise DanoError(f"{path}: {exc}") from None
     return obs
 
 
@@ -499,11 +491,13 @@ def template(files) -> str:
                   "velocities = false              # true: start from measured velocities (CSV columns vx,vy,vz",
                   "                                 # world [m/s], wx,wy,wz body [rad/s])",
                   "# add one [[trajectory]] per recording"]
-    lines += ["", "[[parameter]]", 'name = "sliding_friction"       # or alpha (mass scale), impact_spring, impact_damper,',
-              "                                 # torsional_friction, rolling_friction, com_offset_x|y|z, ...",
+    lines += ["", "[[parameter]]", 'name = "sliding_friction"       # or impact_spring, impact_damper, torsional_friction,',
+              "                                 # rolling_friction, com_offset_x|y|z, ...; alpha (mass scale) only",
+              "                                 # where something of known mass pushes the object",
               "initial = 0.5", "lower = 0.0", "upper = 2.0",
               "", "[options]                        # all optional; the defaults shown",
-              "# substeps = 1", '# fit_velocity = "xy"              # nuisance: each start\'s velocity along these axes',
+              "# substeps = 1", '# fit_velocity = ""                # nuisance: each start\'s velocity along these axes,',
+              '                                   # e.g. "xyz" for noisy frames (finite differences amplify noise)',
               '# fit_position = ""                # nuisance: each start\'s position axes, e.g. "xy" for noisy starts',
               "# scan = 15                         # a global scan first (left out: automatic; 0: off)",
               "# profile_points = 32               # verify the estimate and give its interval (0: off)",

@@ -86,7 +86,10 @@ class Observation:
 @dataclass(frozen=True)
 class FitParameter:
     """A parameter to identify: name is a contact parameter (ContactParams field), "alpha"
-    or one of the object's own dynamics (:data:`dano.sim.scene.INERTIAL_PARAMETERS`:
+    (the mass scale α [kg/m³ per unit density], mass = α∫φ dV: the asset's own is
+    ``asset.alpha``, for a mesh built with a mass its mass over its volume; identifiable only
+    where a body of known mass or a known force acts on the DANO) or one of the object's own
+    dynamics (:data:`dano.sim.scene.INERTIAL_PARAMETERS`:
     ``com_offset_x|y|z`` [m, body frame], ``second_moment_scale_x|y|z`` [1, ≥ 0: a physical
     inertia], ``principal_axes_x|y|z`` [rad]); target: a pair name (contact) or DANO name
     (the others), None for all; initial guess and bounds [lower, upper]."""
@@ -112,6 +115,25 @@ class Weights:
     position: Sequence[float] = (1.0, 1.0, 1.0)
     rotation: float | None = None
     joints: float = 1.0
+
+
+MAX_OBSERVED_SPEED = 100.0  # m/s: faster observed motion means the positions are not in metres
+
+
+def check_units(obs: Observation) -> None:
+    """Raise DanoError if a tracked DANO of ``obs`` moves faster than
+    :data:`MAX_OBSERVED_SPEED` between frames: its positions are then not in metres (or its
+    times not in seconds), e.g. millimetres."""
+    t = np.asarray(obs.time, dtype=np.float64)
+    if len(t) < 2 or not np.all(np.diff(t) > 0):
+        return
+    for name, poses in obs.poses.items():
+        p = np.asarray(poses, dtype=np.float64)[:, :3]
+        with np.errstate(all="ignore"):  # 1e300 positions: refused elsewhere, without a numpy warning
+            speed = float(np.max(np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(t)))
+        if speed > MAX_OBSERVED_SPEED:
+            raise DanoError(f"{name} moves at up to {speed:.3g} m/s between frames; positions must be in metres and "
+                            "times in seconds")
 
 
 def _check_observation(obs: Observation, scene: Scene, k: int) -> None:
@@ -148,6 +170,10 @@ def _check_observation_values(obs: Observation, scene: Scene, k: int) -> None:
             raise DanoError(f"{tag}: poses of {name!r} contain NaN or infinite values (first at frame {bad})")
         if np.any(np.abs(np.linalg.norm(p[:, 3:], axis=1) - 1) > 1e-3):
             raise DanoError(f"{tag}: quaternions of {name!r} are not unit length")
+    try:
+        check_units(obs)
+    except DanoError as exc:
+        raise DanoError(f"{tag}: {exc}") from None
     for name, v in obs.velocities.items():
         if name not in obs.poses:
             raise DanoError(f"{tag}: velocities of {name!r}, which the trajectory does not track (its poses are not "
@@ -531,6 +557,25 @@ def identification_params(scene: Scene, parameters: Sequence[FitParameter], give
     return scene.default_params(**{**neutral, **given}), notes
 
 
+def _given_drag_notes(params: SimParams, parameters: Sequence[FitParameter]) -> tuple[str, ...]:
+    """A note where ``sliding_friction`` is identified with given parameters whose
+    non-identified terms of :data:`NEUTRAL_WITH_FRICTION` are not neutral (e.g. the paper's
+    drag of ``scene.default_params()``): such a term biases the friction on data from
+    anywhere but a dano simulation with that value."""
+    fitted = {p.name for p in parameters}
+    if "sliding_friction" not in fitted:
+        return ()
+    notes = []
+    for k, v in NEUTRAL_WITH_FRICTION.items():
+        given = np.unique(np.asarray(getattr(params.contact, k), dtype=np.float64))
+        if k not in fitted and np.any(given != v):
+            notes.append(f"{k} is held at {', '.join(f'{x:g}' for x in given)} (given: base_params or TOML [contact]) "
+                         f"while sliding_friction is identified: right for data simulated with it; on data from "
+                         f"elsewhere (another engine, video) it biases the friction: give {k} = {v:g} or leave it "
+                         f"out for a Coulomb world")
+    return tuple(notes)
+
+
 @dataclass(frozen=True, eq=False)
 class SysIdProblem:
     """Identification of ``parameters`` from ``observations`` of ``scene``: a frozen
@@ -640,6 +685,9 @@ class SysIdProblem:
             params, notes = identification_params(scene, self.parameters)
             put("base_params", params)
             put("notes", self.notes + notes)
+        else:
+            put("notes", self.notes + tuple(n for n in _given_drag_notes(self.base_params, self.parameters)
+                                            if n not in self.notes))  # (dataclasses.replace passes them on)
         n_res = self.num_residuals  # also checks the window
         if n_res < self.num_parameters:
             raise DanoError(f"{n_res} residuals for {self.num_parameters} parameters: observe more frames "

@@ -746,11 +746,11 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
         minima = unc.count_local_minima(pr.costs, 1e-3 * threshold)
         rough = (ratio is not None and (hi0 - lo0) >= 4 * step and not 0.5 <= ratio <= 2.0) or minima >= 2
         span_frac = (upper - lower) / max(box_hi[i] - box_lo[i], 1e-300)
-        if i in bounds_hit:
-            status = "at bound"
-        elif span_frac >= 0.9 or (upper - lower) >= 0.9 * (pr.values[-1] - pr.values[0]) and \
+        if span_frac >= 0.9 or (upper - lower) >= 0.9 * (pr.values[-1] - pr.values[0]) and \
                 pr.values[0] <= lo[i] + 1e-12 and pr.values[-1] >= hi[i] - 1e-12:
-            status = "flat"
+            status = "flat"  # before "at bound": on a flat cost the bound an estimate stops at means nothing
+        elif i in bounds_hit:
+            status = "at bound"
         elif rough:
             status = "rough"
         else:
@@ -758,9 +758,15 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
         best.identifiability[label] = {"status": status, "local_minima_in_profile": minima,
                                        "curvature_ratio": ratio}
         if status == "flat":
+            best.warnings = [w for w in best.warnings  # its "sits at its bound": widening would not help
+                             if not (w.startswith(f"{label} = ") and " sits at its " in w)]
             best.warnings.append(
                 f"{label} is not identifiable from these data: its cost stays within the noise over "
-                f"[{lower:.4g}, {upper:.4g}]; more trajectories, or motions that depend on it more, would help")
+                f"[{lower:.4g}, {upper:.4g}]; more trajectories, or motions that depend on it more, would help"
+                + ("; a DANO that touches only fixed geometry moves the same at any mass scale (its contact "
+                   "forces and its mass both scale with alpha): alpha needs a body of known mass or a known force "
+                   "acting on the object (a robot pushing it, another object)"
+                   if problem.parameters[i].name == "alpha" else ""))
         elif status == "rough":
             if np.isfinite(se):
                 best.standard_errors[i] = np.nan
