@@ -138,7 +138,7 @@ class SimParams:
     frame [m]; the body frame, its samples and its pose (qpos) stay with the geometry, so the
     samples move with the centre of mass consistently. second_moment_scale: (D, 3) factors
     on the principal second moments of mass Σᵢ = ∫xᵢ² dm (the moments are
-    I_x = Σ_y + Σ_z, ...; any factors ≥ 0 give a physically valid inertia, triangle
+    I_x = α(Σ_y + Σ_z), ... with Σ per unit α; any factors ≥ 0 give a physically valid inertia, triangle
     inequalities included; 1: the asset's). principal_axes: (D, 3) rotation vector [rad]
     of the principal axes relative to the asset's (body frame).
     """

@@ -47,7 +47,7 @@
     fit_ground = false            # fit the ground plane's height (nuisance "ground_height" [m])
     fit_tilt = false              # with fit_ground: also its tilt ("ground_tilt_x", "ground_tilt_y" [rad])
     noise_rms = 0.002             # optional: rms residual of the noise alone; warn when the fit is worse
-    bootstrap = 0                 # >0: resample whole trajectories this many times (percentile interval)
+    bootstrap = 0                 # >0: resample whole trajectories this many times and refit (t-interval)
     position_weights = [1.0, 1.0, 1.0]  # [1/m^2]
     rotation_weight = 1.0         # [1/rad^2]; left out: rotations weighed by the object's size (a rotation
                                   # of theta rad counts as theta x sqrt(tr J / 3m) metres)
@@ -292,8 +292,8 @@ class OptionsConfig:
     noise_rms: float | None = None
     """RMS residual of the measurement noise alone [m], > 0: warn when the fit is worse; left out: no check."""
     bootstrap: int = 0
-    """> 0: resample whole trajectories this many times (2 to 10,000; needs two or more ``[[trajectory]]``) for a
-    percentile interval."""
+    """> 0: resample whole trajectories this many times (2 to 10,000; needs two or more ``[[trajectory]]``) and
+    refit, for a t-interval (estimate ∓ t·std of the refits; their percentiles beside it)."""
 
     def __post_init__(self):
         if self.substeps < 1:
