@@ -110,22 +110,29 @@ def test_a_lone_objects_mass_scale_is_flat_not_at_a_bound(box):
     assert not any("sits at its" in w for w in r.warnings)
 
 
-def test_noisy_starts_get_a_warning_that_says_what_to_fit(box):
+def test_noisy_starts_have_their_velocities_fitted_by_default(box):
     """2 mm of noise at 100 Hz makes a start velocity taken by finite differences uncertain by
-    ~0.5 m/s (a quarter of these slides' speeds): the result says so and names the option;
-    fitted (fit_velocity) or given (qvel0), the starts get no such warning."""
+    ~0.5 m/s (a quarter of these slides' speeds): by default (fit_velocity="auto") the starts'
+    velocities are fitted, said in the notes; with fit_velocity="" a warning names the option;
+    given (qvel0), they are neither fitted nor warned of."""
     noisy = analytic_slides(0, 0.05, 4, noise=0.002)
     from_frames = [dataclasses.replace(o, qvel0=None) for o in noisy]
     fit = [FitParameter("sliding_friction", 0.3, 0.0, 2.0)]
     weights = Weights((1.0, 1.0, 0.0), 0.0)
 
-    def said(obs, **options):
-        r = identify(SysIdProblem(box, obs, fit, weights=weights, substeps=4, **options), scan=0, profile_points=0)
-        return [w for w in r.warnings if "finite differences of the observed frames" in w]
+    def run(obs, **options):
+        problem = SysIdProblem(box, obs, fit, weights=weights, substeps=4, **options)
+        r = identify(problem, scan=0, profile_points=0)
+        said = [w for w in r.warnings if "finite differences of the observed frames" in w]
+        auto = [n for n in r.notes if n.startswith('fit_velocity = "xyz" (auto)')]
+        return problem.fit_velocity, said, auto, r.estimates[0]
 
-    (warning,) = said(from_frames)
-    assert 'fit_velocity = "xyz"' in warning and "% of the typical start speed" in warning
-    assert said(from_frames, fit_velocity="xyz") == [] and said(noisy) == []
+    axes, said, (note,), estimate = run(from_frames)
+    assert axes == "xyz" and said == [] and "% of the typical start speed" in note
+    axes, (warning,), auto, unfitted = run(from_frames, fit_velocity="")
+    assert axes == "" and auto == [] and 'fit_velocity = "xyz"' in warning
+    assert abs(estimate - 0.45) < abs(unfitted - 0.45)  # the truth: closer with the starts fitted
+    assert run(noisy)[:3] == ("", [], [])
 
 
 def test_problems_of_one_structure_share_one_compilation():

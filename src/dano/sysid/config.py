@@ -31,7 +31,7 @@
 
     [options]
     substeps = 1
-    fit_velocity = "xy"           # nuisance initial velocity axes
+    fit_velocity = "xy"           # nuisance initial velocity axes (default "auto")
     fit_angular_velocity = ""     # nuisance initial angular velocity axes (body frame)
     fit_position = ""             # nuisance initial position axes (world frame), e.g. "xy" for noisy starts
     fit_rotation = ""             # nuisance initial rotation-vector axes (world frame), e.g. "z" (heading)
@@ -253,8 +253,10 @@ class OptionsConfig:
 
     substeps: int = 1
     """Simulation steps per observed frame interval; >= 1."""
-    fit_velocity: str = ""
-    """Nuisance initial linear velocity axes (world frame) fitted per trajectory (window), e.g. ``"xy"``."""
+    fit_velocity: str = "auto"
+    """Nuisance initial linear velocity axes (world frame) fitted per trajectory (window), e.g. ``"xy"``; ``""``:
+    none; ``"auto"``: ``"xyz"`` where finite differences of noisy frames make the start velocities uncertain by more
+    than 5 % of their typical speed (said in the result's notes), else none."""
     fit_angular_velocity: str = ""
     """Nuisance initial angular velocity axes (body frame), e.g. ``"z"``."""
     fit_position: str = ""
@@ -302,7 +304,7 @@ class OptionsConfig:
             raise DanoError(f"[options].window: must be 0 (no windows) or at least 2 frame intervals, "
                             f"got {self.window}")
         for key in ("fit_velocity", "fit_angular_velocity", "fit_position", "fit_rotation"):
-            if not _axes_ok(getattr(self, key)):
+            if not (_axes_ok(getattr(self, key)) or key == "fit_velocity" and self.fit_velocity == "auto"):
                 raise DanoError(f"[options].{key}: must be made of the letters x, y, z, each at most once, "
                                 f"got {getattr(self, key)!r}")
         if self.fit_tilt and not self.fit_ground:
@@ -496,8 +498,8 @@ def template(files) -> str:
               "                                 # where something of known mass pushes the object",
               "initial = 0.5", "lower = 0.0", "upper = 2.0",
               "", "[options]                        # all optional; the defaults shown",
-              "# substeps = 1", '# fit_velocity = ""                # nuisance: each start\'s velocity along these axes,',
-              '                                   # e.g. "xyz" for noisy frames (finite differences amplify noise)',
+              "# substeps = 1", '# fit_velocity = "auto"            # nuisance: each start\'s velocity along these axes;',
+              '                                   # auto: "xyz" where the frames\' noise makes finite differences poor',
               '# fit_position = ""                # nuisance: each start\'s position axes, e.g. "xy" for noisy starts',
               "# scan = 15                         # a global scan first (left out: automatic; 0: off)",
               "# profile_points = 32               # verify the estimate and give its interval (0: off)",

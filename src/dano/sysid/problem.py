@@ -215,6 +215,41 @@ def finite_difference_velocity(times: np.ndarray, poses: np.ndarray) -> np.ndarr
     return velocity_from_poses(np.asarray(times)[:3], np.asarray(poses)[:3], degree=2)
 
 
+#: start velocities from finite differences uncertain by more than this fraction of the
+#: typical start speed are fitted by ``fit_velocity="auto"`` (and warned of where not fitted)
+START_VELOCITY_NOISE = 0.05
+#: (−3x₀ + 4x₁ − x₂)/(2h): the noise of x amplified √26/2 times, over h
+_FD_GAIN = np.sqrt(26.0) / 2.0
+
+
+def start_velocity_uncertainty(observations, segments, position_noise, axes: str = "xyz"
+                               ) -> tuple[float, float] | None:
+    """How uncertain the rollouts' start velocities are where finite differences of the
+    observed frames give them: (spread, typical) [m/s], spread = √26/2·‖σ_axes‖/Δt (σ the
+    position noise per axis (3,) [m], e.g. from :func:`dano.sysid.uncertainty.
+    noise_of_observations`; Δt the median frame interval) and typical the median start speed.
+    Starts with measured velocities, a given ``qvel0`` or ``rest_frames`` are left out. None
+    where no start comes from finite differences, or the noise is unknown."""
+    if position_noise is None or not axes:
+        return None
+    speeds, dts = [], []
+    for seg in segments:
+        obs = observations[seg.obs]
+        if seg.start == 0 and (obs.qvel0 is not None or obs.rest_frames > 1):
+            continue
+        for name, poses in obs.poses.items():
+            if name in obs.velocities or seg.frames < 3:
+                continue
+            k = seg.start
+            v = finite_difference_velocity(np.asarray(obs.time)[k:k + 3], np.asarray(poses)[k:k + 3])
+            speeds.append(float(np.linalg.norm(v[:3])))
+            dts.append(obs.frame_dt)
+    if not speeds:
+        return None
+    sigma = np.asarray(position_noise, dtype=np.float64)[["xyz".index(a) for a in axes]]
+    return _FD_GAIN * float(np.linalg.norm(sigma)) / float(np.median(dts)), float(np.median(speeds))
+
+
 #: rotation vector of q_obs⁻¹ ⊗ q_sim, (..., 3) [rad]; sign-invariant and NaN-free
 #: (:func:`dano.pose.quat_error`)
 quat_log_error = quat_error
@@ -591,7 +626,10 @@ class SysIdProblem:
     Coulomb world (:data:`NEUTRAL_WITH_FRICTION`; said in :attr:`notes`).
     substeps: simulation steps per frame interval (scene.dt must equal frame_dt/substeps);
     fit_velocity: axes ("x", "y", "z" letters) of each tracked DANO's initial linear
-    velocity to fit as nuisance parameters, per segment (e.g. "xy"); window: split
+    velocity to fit as nuisance parameters, per segment (e.g. "xy"), "" for none, or "auto"
+    (the default): "xyz" where the start velocities come from finite differences of frames
+    noisy enough to make them uncertain by more than :data:`START_VELOCITY_NOISE` of their
+    typical speed, else "" (resolved here; said in :attr:`notes`); window: split
     trajectories into windows of this many frame intervals, each rolled out from its
     observed state (multiple shooting for long or chaotic motions), or "auto": a window
     starting just before each impact the observation shows (:func:`impact_windows`);
@@ -621,7 +659,7 @@ class SysIdProblem:
     weights: Weights = Weights()
     base_params: SimParams | None = None
     substeps: int = 1
-    fit_velocity: str = ""
+    fit_velocity: str = "auto"
     window: int | str | None = None
     fit_ground: bool = False
     fit_angular_velocity: str = ""
@@ -658,6 +696,11 @@ class SysIdProblem:
                     f"{obs.name or f'trajectory {k}'}: frame interval {obs.frame_dt:.6g} s "
                     f"({1 / obs.frame_dt:.4g} frames/s) does not match the scene's time step {scene.dt:.6g} s x "
                     f"{self.substeps} substeps")
+        if self.fit_velocity == "auto":
+            put("fit_velocity", self._auto_fit_velocity())
+            kinds = (("fit_velocity", self.fit_velocity),) + kinds[1:]
+            if not self.parameters and not any(axes for _, axes in kinds):
+                raise DanoError("no parameters to identify")
         w = self.weights
         wp = np.asarray(w.position, dtype=np.float64)
         if wp.shape != (3,) or not np.all(np.isfinite(wp)) or np.any(wp < 0) or not all(
@@ -692,6 +735,24 @@ class SysIdProblem:
         if n_res < self.num_parameters:
             raise DanoError(f"{n_res} residuals for {self.num_parameters} parameters: observe more frames "
                             "or fit fewer parameters")
+
+    def _auto_fit_velocity(self) -> str:
+        """``fit_velocity="auto"``: "xyz" where finite differences of noisy frames make the
+        start velocities uncertain by more than :data:`START_VELOCITY_NOISE` of their typical
+        speed (said in :attr:`notes`), else ""."""
+        from .uncertainty import noise_of_observations  # (it imports this module)
+
+        noise = noise_of_observations(self.observations)["position_m"]
+        found = start_velocity_uncertainty(self.observations, self.segments, noise)
+        if found is None or found[0] <= START_VELOCITY_NOISE * found[1]:
+            return ""
+        spread, typical = found
+        object.__setattr__(self, "notes", self.notes + (
+            f'fit_velocity = "xyz" (auto): finite differences of the observed frames, whose position noise is '
+            f"{1e3 * float(np.linalg.norm(noise)):.3g} mm, would start the rollouts from velocities uncertain by "
+            f"about {spread:.3g} m/s, {100 * spread / typical:.0f} % of the typical start speed ({typical:.3g} m/s); "
+            'each start\'s velocity is fitted as a nuisance parameter (fit_velocity = "" turns this off)',))
+        return "xyz"
 
     def truncated(self, fraction: float) -> "SysIdProblem":
         """The same problem on the first ``fraction`` of every trajectory (at least 3 frames)."""

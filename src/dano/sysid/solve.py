@@ -32,7 +32,7 @@ from scipy.optimize import least_squares
 from ..errors import DanoError
 from . import uncertainty as unc
 from .._compiled import compile_seconds
-from .problem import SysIdProblem
+from .problem import START_VELOCITY_NOISE, SysIdProblem, start_velocity_uncertainty
 
 
 @dataclass
@@ -592,48 +592,23 @@ def _noise_and_misfit(problem: SysIdProblem, result: SysIdResult) -> dict:
     return noise
 
 
-#: start velocities from finite differences uncertain by more than this fraction of the
-#: typical start speed get a warning (fit them as nuisance, or give measured velocities)
-START_VELOCITY_NOISE = 0.05
-#: (−3x₀ + 4x₁ − x₂)/(2h): the noise of x amplified √26/2 times, divided by h
-_FD_GAIN = np.sqrt(26.0) / 2.0
-
-
 def start_velocity_warning(problem: SysIdProblem, noise: dict) -> str | None:
     """A warning when the rollouts start from velocities that finite differences of noisy
     frames make uncertain: by √26/2·σ/Δt per axis not fitted (σ the position noise
     estimated from the observations, Δt the frame interval), more than
     :data:`START_VELOCITY_NOISE` of the median start speed. Starts with measured velocities,
     a given ``qvel0`` or ``rest_frames`` are left out. None where there is nothing to say."""
-    from .problem import finite_difference_velocity
-
-    sigma = noise.get("position_m")
-    axes = [i for i in range(3) if "xyz"[i] not in problem.fit_velocity]
-    if sigma is None or not axes:
+    axes = "".join(a for a in "xyz" if a not in problem.fit_velocity)
+    found = start_velocity_uncertainty(problem.observations, problem.segments, noise.get("position_m"), axes)
+    if found is None or found[1] <= 0 or found[0] <= START_VELOCITY_NOISE * found[1]:
         return None
-    speeds, dts = [], []
-    for seg in problem.segments:
-        obs = problem.observations[seg.obs]
-        if seg.start == 0 and (obs.qvel0 is not None or obs.rest_frames > 1):
-            continue
-        for name, poses in obs.poses.items():
-            if name in obs.velocities or seg.frames < 3:
-                continue
-            k = seg.start
-            v = finite_difference_velocity(np.asarray(obs.time)[k:k + 3], np.asarray(poses)[k:k + 3])
-            speeds.append(float(np.linalg.norm(v[:3])))
-            dts.append(obs.frame_dt)
-    if not speeds:
-        return None
-    typical = float(np.median(speeds))
-    spread = _FD_GAIN * float(np.linalg.norm(np.asarray(sigma)[axes])) / float(np.median(dts))
-    if typical <= 0 or spread <= START_VELOCITY_NOISE * typical:
-        return None
+    spread, typical = found
+    sigma = noise["position_m"]
     return (f"the rollouts start from velocities taken by finite differences of the observed frames; with the "
             f"position noise the observations show ({1e3 * float(np.linalg.norm(sigma)):.3g} mm), each is uncertain "
             f"by about {spread:.3g} m/s, {100 * spread / typical:.0f} % of the typical start speed "
             f"({typical:.3g} m/s), which can move the estimate far: fit them as nuisance parameters (fit_velocity = "
-            f"\"{''.join('xyz'[i] for i in axes)}\"; TOML [options]), or give measured velocities")
+            f"\"{axes}\"; TOML [options]), or give measured velocities")
 
 
 #: a fit whose rms residual exceeds this multiple of what the estimated noise leaves misfits

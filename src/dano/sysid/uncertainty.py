@@ -72,7 +72,7 @@ def least_squares_functions(problem: SysIdProblem, scale: np.ndarray | None = No
 
 
 # ------------------------------------------------------------------ noise from the observations
-def observation_noise(problem: SysIdProblem) -> dict:
+def noise_of_observations(observations) -> dict:
     """The measurement noise of the observations, estimated from the observations alone (no
     model): third differences of positions (per axis x y z, world frame [m]), of the body-frame
     rotation increments log(q_t⁻¹ q_{t+1}) (their second differences, i.e. third differences
@@ -82,7 +82,7 @@ def observation_noise(problem: SysIdProblem) -> dict:
     "rotation_deg", "joints", "method"}; a level the observations are too short for (fewer
     than 5 third differences) or that they do not observe is None."""
     pos, rot, joints = [], [], []
-    for o in problem.observations:
+    for o in observations:
         for p in o.poses.values():
             p = np.asarray(p, dtype=np.float64)
             pos.append(np.diff(p[:, :3], n=3, axis=0))
@@ -105,6 +105,11 @@ def observation_noise(problem: SysIdProblem) -> dict:
             "joints": float(joint[0]) if np.isfinite(joint[0]) else None,
             "method": "third differences of the observed poses (positions, rotation increments, joints), median "
                       "absolute value / 0.6745 / sqrt(20), pooled over frames and trajectories"}
+
+
+def observation_noise(problem: SysIdProblem) -> dict:
+    """:func:`noise_of_observations` of ``problem``'s observations."""
+    return noise_of_observations(problem.observations)
 
 
 def expected_rms(problem: SysIdProblem, noise: dict) -> float | None:
