@@ -697,7 +697,9 @@ class SysIdProblem:
                     f"({1 / obs.frame_dt:.4g} frames/s) does not match the scene's time step {scene.dt:.6g} s x "
                     f"{self.substeps} substeps")
         if self.fit_velocity == "auto":
-            put("fit_velocity", self._auto_fit_velocity())
+            axes, note = self._auto_fit_velocity()
+            put("fit_velocity", axes)
+            put("notes", self.notes + note)
             kinds = (("fit_velocity", self.fit_velocity),) + kinds[1:]
             if not self.parameters and not any(axes for _, axes in kinds):
                 raise DanoError("no parameters to identify")
@@ -736,23 +738,23 @@ class SysIdProblem:
             raise DanoError(f"{n_res} residuals for {self.num_parameters} parameters: observe more frames "
                             "or fit fewer parameters")
 
-    def _auto_fit_velocity(self) -> str:
-        """``fit_velocity="auto"``: "xyz" where finite differences of noisy frames make the
-        start velocities uncertain by more than :data:`START_VELOCITY_NOISE` of their typical
-        speed (said in :attr:`notes`), else ""."""
+    def _auto_fit_velocity(self) -> tuple[str, tuple[str, ...]]:
+        """``fit_velocity="auto"``: ("xyz", a note saying why) where finite differences of
+        noisy frames make the start velocities uncertain by more than
+        :data:`START_VELOCITY_NOISE` of their typical speed, else ("", ())."""
         from .uncertainty import noise_of_observations  # (it imports this module)
 
         noise = noise_of_observations(self.observations)["position_m"]
         found = start_velocity_uncertainty(self.observations, self.segments, noise)
         if found is None or found[0] <= START_VELOCITY_NOISE * found[1]:
-            return ""
+            return "", ()
         spread, typical = found
-        object.__setattr__(self, "notes", self.notes + (
+        share = f"{100 * spread / typical:.0f} % of" if typical > 0 else "against"
+        return "xyz", (
             f'fit_velocity = "xyz" (auto): finite differences of the observed frames, whose position noise is '
             f"{1e3 * float(np.linalg.norm(noise)):.3g} mm, would start the rollouts from velocities uncertain by "
-            f"about {spread:.3g} m/s, {100 * spread / typical:.0f} % of the typical start speed ({typical:.3g} m/s); "
-            'each start\'s velocity is fitted as a nuisance parameter (fit_velocity = "" turns this off)',))
-        return "xyz"
+            f"about {spread:.3g} m/s, {share} the typical start speed ({typical:.3g} m/s); each start's velocity "
+            'is fitted as a nuisance parameter (fit_velocity = "" turns this off)',)
 
     def truncated(self, fraction: float) -> "SysIdProblem":
         """The same problem on the first ``fraction`` of every trajectory (at least 3 frames)."""
