@@ -40,7 +40,7 @@ def test_own_object_from_plain_mujoco_with_the_first_toml(shared, tmp_path, caps
     misfit = any("misfits" in w for w in report["warnings"])
     assert abs(mu / 0.5 - 1) < 0.05 or (lower <= 0.5 <= upper and misfit), report
     assert lower < mu < upper
-    assert any("sliding_drag is held at 0" in n for n in report["notes"])
+    assert any("sliding_drag is held at 0.0 (a Coulomb world)" in n for n in report["notes"])
     assert report["noise_estimate"]["expected_rms_residual"] < 1e-4  # MuJoCo's poses carry no noise
     assert misfit  # two engines' contact models: the residual is far above that
 
@@ -82,7 +82,7 @@ def test_rotations_are_weighed_by_size_and_drag_is_neutral(box):
     obs = analytic_slides(0, 0.05, 2, noise=0.0)
     problem = SysIdProblem(box, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], substeps=4)
     assert np.asarray(problem.base_params.contact.sliding_drag).tolist() == [0.0]
-    assert any("sliding_drag is held at 0" in n for n in problem.notes)
+    assert any("sliding_drag is held at 0.0 (a Coulomb world)" in n for n in problem.notes)
     np.testing.assert_allclose(problem.rotation_weights(), [rotation_length(asset)])
     given = SysIdProblem(box, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], substeps=4,
                          base_params=box.default_params())
@@ -93,21 +93,29 @@ def test_rotations_are_weighed_by_size_and_drag_is_neutral(box):
     neutral = SysIdProblem(box, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], substeps=4,
                            base_params=box.default_params(sliding_drag=0.0))
     assert not neutral.notes
+    # derived anew, not carried over: the drag replaced by 0, the note goes; the Coulomb note stays
+    assert not dataclasses.replace(given, base_params=box.default_params(sliding_drag=0.0)).notes
+    assert dataclasses.replace(problem, substeps=4).notes == problem.notes
 
 
 def test_a_lone_objects_mass_scale_is_flat_not_at_a_bound(box):
     """A DANO that touches only the floor moves the same at any mass scale (its contact forces
-    and its mass both scale with α): fitted, α is reported flat with the reason, and no bound
-    is to be widened (on Spot from MuJoCo C the estimate stopped at its lower bound, 0.2 of
-    the asset's α, and was reported "at bound")."""
+    and its mass both scale with α): fitted, α is reported flat with the reason and no advice
+    to widen a bound (on Spot from MuJoCo C the estimate stopped at its lower bound, 0.2 of
+    the asset's α, and was reported "at bound"). A cost that keeps falling beyond a narrow box
+    stays "at bound", with that advice, though the box is flat at the noise's scale."""
     obs = analytic_slides(0, 0.05, 2, noise=0.0, frames=12)
     alpha = float(box.assets[0].alpha)
-    problem = SysIdProblem(box, obs, [FitParameter("alpha", 0.8 * alpha, 0.2 * alpha, 3.0 * alpha)], substeps=4,
-                           base_params=box.default_params(sliding_friction=0.45, sliding_drag=0.0))
-    r = identify(problem, profile_points=8)
+    fit = [FitParameter("sliding_friction", 0.3, 0.0, 2.0), FitParameter("alpha", 0.8 * alpha, 0.2 * alpha, 3 * alpha)]
+    r = identify(SysIdProblem(box, obs, fit, substeps=4), profile_points=8)
     assert r.identifiability["alpha"]["status"] == "flat"
     assert any("alpha is not identifiable" in w and "known mass" in w for w in r.warnings)
-    assert not any("sits at its" in w for w in r.warnings)
+    assert not any("sits at its" in w and w.startswith("alpha") for w in r.warnings)
+    # a cost that keeps falling beyond a narrow box is "at bound", with the advice to widen it
+    narrow = [FitParameter("sliding_friction", 0.3, 0.3, 0.303)]
+    r = identify(SysIdProblem(box, obs, narrow, substeps=4), profile_points=8)
+    assert r.identifiability["sliding_friction"]["status"] == "at bound"
+    assert any("sits at its upper bound" in w for w in r.warnings)
 
 
 def test_noisy_starts_have_their_velocities_fitted_by_default(box):
@@ -124,15 +132,27 @@ def test_noisy_starts_have_their_velocities_fitted_by_default(box):
         problem = SysIdProblem(box, obs, fit, weights=weights, substeps=4, **options)
         r = identify(problem, scan=0, profile_points=0)
         said = [w for w in r.warnings if "finite differences of the observed frames" in w]
-        auto = [n for n in r.notes if n.startswith('fit_velocity = "xyz" (auto)')]
+        auto = [n for n in r.notes if n.startswith("start velocities (fit_velocity auto)")]
         return problem.fit_velocity, said, auto, r.estimates[0]
 
-    axes, said, (note,), estimate = run(from_frames)
-    assert axes == "xyz" and said == [] and "% of the typical start speed" in note
+    axes, said, (note,), estimate = run(from_frames)  # (x and y weighed: those two)
+    assert axes == "xy" and said == [] and "% of the typical moving start's speed" in note
     axes, (warning,), auto, unfitted = run(from_frames, fit_velocity="")
-    assert axes == "" and auto == [] and 'fit_velocity = "xyz"' in warning
+    assert axes == "" and auto == [] and 'fit_velocity = "xy" or "auto"' in warning
     assert abs(estimate - 0.45) < abs(unfitted - 0.45)  # the truth: closer with the starts fitted
     assert run(noisy)[:3] == ("", [], [])
+    # no noise (rounding only), or still objects: nothing to fit
+    exact = analytic_slides(0, 0.05, 4, noise=0.0)
+    assert SysIdProblem(box, [dataclasses.replace(o, qvel0=None) for o in exact], fit, weights=weights,
+                        substeps=4).fit_velocity == ""
+    still = [dataclasses.replace(o, qvel0=None, poses={"box": np.repeat(o.poses["box"][:1], len(o.time), 0)
+                                                      + np.c_[np.random.default_rng(1).normal(0, 1e-3, (len(o.time), 2)),
+                                                              np.zeros((len(o.time), 5))]}) for o in exact]
+    assert SysIdProblem(box, still, fit, weights=weights, substeps=4).fit_velocity == ""
+    # windows whose nuisance velocities would outnumber the residuals: not fitted, said why
+    windowed = SysIdProblem(box, from_frames, fit, weights=Weights((1.0, 0.0, 0.0), 0.0), substeps=4, window=2,
+                            fit_position="x", fit_angular_velocity="z")
+    assert windowed.fit_velocity == "" and any("would outnumber the residuals" in n for n in windowed.notes)
 
 
 def test_problems_of_one_structure_share_one_compilation():

@@ -229,7 +229,7 @@ def test_track_cli_refuses_bad_input_and_leaves_nothing(one_frame, tmp_path, cap
     code = main(["track", str(folder), "--object", "builtin:bunny_lowpoly", "--pose", *aside, "-o", str(out),
                  "--quiet"])
     err = capsys.readouterr().err
-    assert code == 1 and "not in view in the first frame" in err and "of the 320x240 image" in err
+    assert code == 1 and "not in view in the first frame tracked" in err and "of the 320x240 image" in err
     assert "Traceback" not in err and not out.exists()
 
 

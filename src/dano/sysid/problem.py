@@ -130,10 +130,13 @@ def check_units(obs: Observation) -> None:
     for name, poses in obs.poses.items():
         p = np.asarray(poses, dtype=np.float64)[:, :3]
         with np.errstate(all="ignore"):  # 1e300 positions: refused elsewhere, without a numpy warning
-            speed = float(np.max(np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(t)))
-        if speed > MAX_OBSERVED_SPEED:
-            raise DanoError(f"{name} moves at up to {speed:.3g} m/s between frames; positions must be in metres and "
-                            "times in seconds")
+            speeds = np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(t)
+        k = int(np.argmax(speeds))
+        if speeds[k] > MAX_OBSERVED_SPEED:
+            cause = ("positions must be in metres and times in seconds" if np.median(speeds) > MAX_OBSERVED_SPEED
+                     else "a tracking outlier, or positions not in metres (times in seconds)")
+            raise DanoError(f"{name} moves at up to {speeds[k]:.3g} m/s between frames (frames {k} and {k + 1}, "
+                            f"t = {t[k]:.6g} s): {cause}")
 
 
 def _check_observation(obs: Observation, scene: Scene, k: int) -> None:
@@ -222,15 +225,24 @@ START_VELOCITY_NOISE = 0.05
 _FD_GAIN = np.sqrt(26.0) / 2.0
 
 
+#: position noise below this [m] is rounding, not measurement: no start is fitted for it
+NOISE_FLOOR = 1e-6
+
+
 def start_velocity_uncertainty(observations, segments, position_noise, axes: str = "xyz"
                                ) -> tuple[float, float] | None:
     """How uncertain the rollouts' start velocities are where finite differences of the
     observed frames give them: (spread, typical) [m/s], spread = √26/2·‖σ_axes‖/Δt (σ the
     position noise per axis (3,) [m], e.g. from :func:`dano.sysid.uncertainty.
-    noise_of_observations`; Δt the median frame interval) and typical the median start speed.
-    Starts with measured velocities, a given ``qvel0`` or ``rest_frames`` are left out. None
-    where no start comes from finite differences, or the noise is unknown."""
+    noise_of_observations`; Δt the median frame interval) and typical the median speed of the
+    *moving* starts: those whose segment's net displacement exceeds 3√2‖σ‖ (a still object's
+    start velocity is noise that its contact damps at once). Starts with measured
+    velocities, a given ``qvel0`` or ``rest_frames`` are left out. None where no moving start
+    comes from finite differences, or the noise is unknown or below :data:`NOISE_FLOOR`."""
     if position_noise is None or not axes:
+        return None
+    sigma_all = np.asarray(position_noise, dtype=np.float64)
+    if not np.linalg.norm(sigma_all) > NOISE_FLOOR:
         return None
     speeds, dts = [], []
     for seg in segments:
@@ -240,13 +252,15 @@ def start_velocity_uncertainty(observations, segments, position_noise, axes: str
         for name, poses in obs.poses.items():
             if name in obs.velocities or seg.frames < 3:
                 continue
-            k = seg.start
-            v = finite_difference_velocity(np.asarray(obs.time)[k:k + 3], np.asarray(poses)[k:k + 3])
+            k, p = seg.start, np.asarray(poses, dtype=np.float64)
+            if np.linalg.norm(p[k + seg.frames - 1, :3] - p[k, :3]) <= 3 * np.sqrt(2) * np.linalg.norm(sigma_all):
+                continue  # still within the noise
+            v = finite_difference_velocity(np.asarray(obs.time)[k:k + 3], p[k:k + 3])
             speeds.append(float(np.linalg.norm(v[:3])))
             dts.append(obs.frame_dt)
     if not speeds:
         return None
-    sigma = np.asarray(position_noise, dtype=np.float64)[["xyz".index(a) for a in axes]]
+    sigma = sigma_all[["xyz".index(a) for a in axes]]
     return _FD_GAIN * float(np.linalg.norm(sigma)) / float(np.median(dts)), float(np.median(speeds))
 
 
@@ -592,6 +606,16 @@ def identification_params(scene: Scene, parameters: Sequence[FitParameter], give
     return scene.default_params(**{**neutral, **given}), notes
 
 
+_AUTO_NOTE = "start velocities (fit_velocity auto):"
+_GIVEN_NOTE = " (given: base_params or TOML [contact])"
+
+
+def _derived_anew(note: str, auto: bool) -> bool:
+    """Whether ``note`` is one that SysIdProblem derives again on this construction: a given
+    drag's (always), the start velocities' (when fit_velocity is "auto" again)."""
+    return _GIVEN_NOTE in note or auto and note.startswith(_AUTO_NOTE)
+
+
 def _given_drag_notes(params: SimParams, parameters: Sequence[FitParameter]) -> tuple[str, ...]:
     """A note where ``sliding_friction`` is identified with given parameters whose
     non-identified terms of :data:`NEUTRAL_WITH_FRICTION` are not neutral (e.g. the paper's
@@ -604,7 +628,7 @@ def _given_drag_notes(params: SimParams, parameters: Sequence[FitParameter]) -> 
     for k, v in NEUTRAL_WITH_FRICTION.items():
         given = np.unique(np.asarray(getattr(params.contact, k), dtype=np.float64))
         if k not in fitted and np.any(given != v):
-            notes.append(f"{k} is held at {', '.join(f'{x:g}' for x in given)} (given: base_params or TOML [contact]) "
+            notes.append(f"{k} is held at {', '.join(f'{x:g}' for x in given)}{_GIVEN_NOTE} "
                          f"while sliding_friction is identified: right for data simulated with it; on data from "
                          f"elsewhere (another engine, video) it biases the friction: give {k} = {v:g} or leave it "
                          f"out for a Coulomb world")
@@ -696,13 +720,6 @@ class SysIdProblem:
                     f"{obs.name or f'trajectory {k}'}: frame interval {obs.frame_dt:.6g} s "
                     f"({1 / obs.frame_dt:.4g} frames/s) does not match the scene's time step {scene.dt:.6g} s x "
                     f"{self.substeps} substeps")
-        if self.fit_velocity == "auto":
-            axes, note = self._auto_fit_velocity()
-            put("fit_velocity", axes)
-            put("notes", self.notes + note)
-            kinds = (("fit_velocity", self.fit_velocity),) + kinds[1:]
-            if not self.parameters and not any(axes for _, axes in kinds):
-                raise DanoError("no parameters to identify")
         w = self.weights
         wp = np.asarray(w.position, dtype=np.float64)
         if wp.shape != (3,) or not np.all(np.isfinite(wp)) or np.any(wp < 0) or not all(
@@ -712,8 +729,11 @@ class SysIdProblem:
         if len(set(labels)) != len(labels):
             raise DanoError(f"parameters are listed twice: {sorted({x for x in labels if labels.count(x) > 1})}")
         for name, axes in kinds:
+            if name == "fit_velocity" and axes == "auto":
+                continue
             if not isinstance(axes, str) or set(axes) - set("xyz") or len(set(axes)) != len(axes):
-                raise DanoError(f"{name} must be made of the letters x, y, z, each at most once, got {axes!r}")
+                raise DanoError(f"{name} must be made of the letters x, y, z, each at most once"
+                                + (', or "auto"' if name == "fit_velocity" else "") + f", got {axes!r}")
         for p in self.parameters:
             if p.name not in ("alpha",) + INERTIAL_PARAMETERS + ContactParams.names():
                 raise DanoError(f"unknown parameter {p.name!r}; known: alpha, {', '.join(INERTIAL_PARAMETERS)}, "
@@ -726,35 +746,51 @@ class SysIdProblem:
                 raise DanoError(f"bounds [{p.lower}, {p.upper}] of {p.label} are empty: lower must be below upper")
             if not (p.lower <= p.initial <= p.upper) or not np.isfinite(p.initial):
                 raise DanoError(f"bounds [{p.lower}, {p.upper}] of {p.label} exclude the initial guess {p.initial}")
+        # notes this method derives are made anew (dataclasses.replace passes the old ones on)
+        put("notes", tuple(n for n in self.notes if not _derived_anew(n, self.fit_velocity == "auto")))
         if self.base_params is None:
             params, notes = identification_params(scene, self.parameters)
             put("base_params", params)
             put("notes", self.notes + notes)
         else:
-            put("notes", self.notes + tuple(n for n in _given_drag_notes(self.base_params, self.parameters)
-                                            if n not in self.notes))  # (dataclasses.replace passes them on)
+            put("notes", self.notes + _given_drag_notes(self.base_params, self.parameters))
+        if self.fit_velocity == "auto":
+            axes, note = self._auto_fit_velocity()
+            put("fit_velocity", axes)
+            put("notes", self.notes + note)
+            if not self.parameters and not any(a for _, a in (("", axes),) + kinds[1:]):
+                raise DanoError("no parameters to identify")
         n_res = self.num_residuals  # also checks the window
         if n_res < self.num_parameters:
             raise DanoError(f"{n_res} residuals for {self.num_parameters} parameters: observe more frames "
                             "or fit fewer parameters")
 
     def _auto_fit_velocity(self) -> tuple[str, tuple[str, ...]]:
-        """``fit_velocity="auto"``: ("xyz", a note saying why) where finite differences of
-        noisy frames make the start velocities uncertain by more than
-        :data:`START_VELOCITY_NOISE` of their typical speed, else ("", ())."""
+        """``fit_velocity="auto"``: (the axes, a note saying why) where finite differences of
+        noisy frames make the moving starts' velocities uncertain by more than
+        :data:`START_VELOCITY_NOISE` of their typical speed (:func:`start_velocity_uncertainty`):
+        the axes whose positions are weighed, on every segment start; ("", ()) otherwise, and
+        where those parameters would outnumber the residuals (then with a note)."""
         from .uncertainty import noise_of_observations  # (it imports this module)
 
+        axes = "".join(a for a, w in zip("xyz", self.weights.position) if w > 0)
         noise = noise_of_observations(self.observations)["position_m"]
-        found = start_velocity_uncertainty(self.observations, self.segments, noise)
+        found = start_velocity_uncertainty(self.observations, self.segments, noise, axes)
         if found is None or found[0] <= START_VELOCITY_NOISE * found[1]:
             return "", ()
         spread, typical = found
-        share = f"{100 * spread / typical:.0f} % of" if typical > 0 else "against"
-        return "xyz", (
-            f'fit_velocity = "xyz" (auto): finite differences of the observed frames, whose position noise is '
-            f"{1e3 * float(np.linalg.norm(noise)):.3g} mm, would start the rollouts from velocities uncertain by "
-            f"about {spread:.3g} m/s, {share} the typical start speed ({typical:.3g} m/s); each start's velocity "
-            'is fitted as a nuisance parameter (fit_velocity = "" turns this off)',)
+        sigma = 1e3 * float(np.linalg.norm(np.asarray(noise)[["xyz".index(a) for a in axes]]))
+        why = (f"finite differences of the observed frames, whose position noise along {axes} is {sigma:.3g} mm, "
+               f"would start the rollouts from velocities uncertain by about {spread:.3g} m/s, "
+               f"{100 * spread / typical:.0f} % of the typical moving start's speed ({typical:.3g} m/s)")
+        tracked = sum(len(self.observations[seg.obs].poses) for seg in self.segments)
+        others = len(self.fit_angular_velocity + self.fit_position + self.fit_rotation)
+        count = len(self.parameters) + len(self.ground_labels) + (others + len(axes)) * tracked
+        if self.num_residuals < count:
+            return "", (f'{_AUTO_NOTE} not fitted: {why}, but {len(axes) * tracked} nuisance parameters would '
+                        'outnumber the residuals (fewer or longer windows would allow them)',)
+        return axes, (f'{_AUTO_NOTE} fit_velocity = "{axes}": {why}; each segment start\'s velocity is fitted as '
+                      'a nuisance parameter (fit_velocity = "" turns this off)',)
 
     def truncated(self, fraction: float) -> "SysIdProblem":
         """The same problem on the first ``fraction`` of every trajectory (at least 3 frames)."""

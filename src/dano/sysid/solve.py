@@ -598,17 +598,19 @@ def start_velocity_warning(problem: SysIdProblem, noise: dict) -> str | None:
     estimated from the observations, Δt the frame interval), more than
     :data:`START_VELOCITY_NOISE` of the median start speed. Starts with measured velocities,
     a given ``qvel0`` or ``rest_frames`` are left out. None where there is nothing to say."""
-    axes = "".join(a for a in "xyz" if a not in problem.fit_velocity)
-    found = start_velocity_uncertainty(problem.observations, problem.segments, noise.get("position_m"), axes)
+    weighed = [a for a, w in zip("xyz", problem.weights.position) if w > 0]
+    missing = "".join(a for a in weighed if a not in problem.fit_velocity)
+    found = start_velocity_uncertainty(problem.observations, problem.segments, noise.get("position_m"), missing)
     if found is None or found[1] <= 0 or found[0] <= START_VELOCITY_NOISE * found[1]:
         return None
     spread, typical = found
-    sigma = noise["position_m"]
+    sigma = 1e3 * float(np.linalg.norm(np.asarray(noise["position_m"])[["xyz".index(a) for a in missing]]))
+    suggest = "".join(a for a in "xyz" if a in missing or a in problem.fit_velocity)
     return (f"the rollouts start from velocities taken by finite differences of the observed frames; with the "
-            f"position noise the observations show ({1e3 * float(np.linalg.norm(sigma)):.3g} mm), each is uncertain "
-            f"by about {spread:.3g} m/s, {100 * spread / typical:.0f} % of the typical start speed "
+            f"position noise the observations show along {missing} ({sigma:.3g} mm), each is uncertain by about "
+            f"{spread:.3g} m/s, {100 * spread / typical:.0f} % of the typical moving start's speed "
             f"({typical:.3g} m/s), which can move the estimate far: fit them as nuisance parameters (fit_velocity = "
-            f"\"{axes}\"; TOML [options]), or give measured velocities")
+            f"\"{suggest}\" or \"auto\"; TOML [options]), or give measured velocities")
 
 
 #: a fit whose rms residual exceeds this multiple of what the estimated noise leaves misfits
@@ -743,7 +745,7 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
                              if n_obs >= unc.BOOTSTRAP_MIN_TRAJECTORIES
                              else "; no bootstrap (fewer than "
                                   f"{unc.BOOTSTRAP_MIN_TRAJECTORIES} trajectories)")}
-    bounds_hit = {i for i, _ in at_bound(problem, best.estimates)}
+    bounds_hit = dict(at_bound(problem, best.estimates))
     for i in range(n):
         label = problem.parameters[i].label
         pr = profiles[i]
@@ -768,8 +770,9 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
         minima = unc.count_local_minima(pr.costs, 1e-3 * threshold)
         rough = (ratio is not None and (hi0 - lo0) >= 4 * step and not 0.5 <= ratio <= 2.0) or minima >= 2
         span_frac = (upper - lower) / max(box_hi[i] - box_lo[i], 1e-300)
-        if span_frac >= 0.9 or (upper - lower) >= 0.9 * (pr.values[-1] - pr.values[0]) and \
-                pr.values[0] <= lo[i] + 1e-12 and pr.values[-1] >= hi[i] - 1e-12:
+        flat = span_frac >= 0.9 or (upper - lower) >= 0.9 * (pr.values[-1] - pr.values[0]) and \
+            pr.values[0] <= lo[i] + 1e-12 and pr.values[-1] >= hi[i] - 1e-12
+        if flat and not _falls_toward_bound(pr, bounds_hit.get(i), 1e-3 * threshold):
             status = "flat"  # before "at bound": on a flat cost the bound an estimate stops at means nothing
         elif i in bounds_hit:
             status = "at bound"
@@ -804,6 +807,20 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
     best.profiles = {problem.parameters[i].label: {"values": pr.values.tolist(),
                                                    "cost": [float(c) if np.isfinite(c) else None for c in pr.costs]}
                      for i, pr in sorted(profiles.items())}
+
+
+def _falls_toward_bound(profile, side: str | None, tolerance: float) -> bool:
+    """Whether a profile's cost is lower at the end on ``side`` ("lower" | "upper", the bound
+    the estimate sits at) than at its other end by more than ``tolerance``: the data pull the
+    parameter beyond the bound (widen it), however small the box."""
+    if side is None:
+        return False
+    costs = np.asarray(profile.costs, dtype=np.float64)
+    ok = np.flatnonzero(np.isfinite(costs))
+    if len(ok) < 2:
+        return False
+    near, far = (costs[ok[0]], costs[ok[-1]]) if side == "lower" else (costs[ok[-1]], costs[ok[0]])
+    return bool(near < far - tolerance)
 
 
 def _disagreement(problem: SysIdProblem, best: SysIdResult, results: list, scan_best: float) -> list[str]:

@@ -305,7 +305,7 @@ class _Problem:
             where = f"{-depth:.3g} m behind the camera"
         else:
             where = f"{depth:.3g} m in front of the camera, at pixel ({u:.0f}, {v:.0f}) of the {w}x{h} image"
-        raise DanoError(f"the object is not in view in the first frame: at the initial pose its centre of mass "
+        raise DanoError(f"the object is not in view in the first frame tracked: at the initial pose its centre of mass "
                         f"{np.round(pose[:3], 4).tolist()} is {where}, and it covers no pixel. Give the pose in "
                         f"the camera's world frame (centre of mass [m], then the wxyz quaternion)")
 
