@@ -132,6 +132,7 @@ def test_noisy_starts_have_their_velocities_fitted_by_default(box):
         problem = SysIdProblem(box, obs, fit, weights=weights, substeps=4, **options)
         r = identify(problem, scan=0, profile_points=0)
         said = [w for w in r.warnings if "finite differences of the observed frames" in w]
+        assert not any("evaluation limit" in w for w in r.warnings)  # (10 per parameter, nuisance included)
         auto = [n for n in r.notes if n.startswith("start velocities (fit_velocity auto)")]
         return problem.fit_velocity, said, auto, r.estimates[0]
 

@@ -428,7 +428,7 @@ def solver_options(solver: dict) -> dict:
     (``jacobian``, ``horizons`` and optionally ``scan``, ``starts``, ``max_iterations``,
     ``noise_rms``, ``bootstrap_samples``, ``profile_points``, ``level``)."""
     return {"jacobian": solver["jacobian"], "horizons": solver["horizons"], "scan": solver.get("scan"),
-            "starts": solver.get("starts", 2), "max_iterations": solver.get("max_iterations", 50),
+            "starts": solver.get("starts", 2), "max_iterations": solver.get("max_iterations"),
             "noise_rms": solver.get("noise_rms"), "bootstrap_samples": solver.get("bootstrap_samples", 0),
             "profile_points": solver.get("profile_points"), "level": solver.get("level", 0.95)}
 
