@@ -600,10 +600,12 @@ def _noise_and_misfit(problem: SysIdProblem, result: SysIdResult) -> dict:
 
 def start_velocity_warning(problem: SysIdProblem, noise: dict) -> str | None:
     """A warning when the rollouts start from velocities that finite differences of noisy
-    frames make uncertain: by √26/2·σ/Δt per axis not fitted (σ the position noise
-    estimated from the observations, Δt the frame interval), more than
-    :data:`START_VELOCITY_NOISE` of the median start speed. Starts with measured velocities,
-    a given ``qvel0`` or ``rest_frames`` are left out. None where there is nothing to say."""
+    frames make uncertain along the weighed axes not fitted: by √26/2·σ/Δt (σ the position
+    noise estimated from the observations, Δt the frame interval), more than
+    :data:`START_VELOCITY_NOISE` of the moving starts' median speed
+    (:func:`~dano.sysid.problem.start_velocity_uncertainty`, which leaves out starts with
+    measured velocities, a given ``qvel0`` or ``rest_frames``). None where there is nothing
+    to say."""
     weighed = [a for a, w in zip("xyz", problem.weights.position) if w > 0]
     missing = "".join(a for a in weighed if a not in problem.fit_velocity)
     found = start_velocity_uncertainty(problem.observations, problem.segments, noise.get("position_m"), missing)
