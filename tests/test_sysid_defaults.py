@@ -3,11 +3,15 @@
 rotations, a neutral sliding drag, and one compilation per problem structure."""
 
 import dataclasses
+import io
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
+from rich.console import Console
 
+from dano._tables import sysid_table
 from dano.asset import build
 from dano.cli import main
 from dano.fields import BoxField
@@ -134,10 +138,16 @@ def test_noisy_starts_have_their_velocities_fitted_by_default(box):
         said = [w for w in r.warnings if "finite differences of the observed frames" in w]
         assert not any("evaluation limit" in w for w in r.warnings)  # (10 per parameter, nuisance included)
         auto = [n for n in r.notes if n.startswith("start velocities (fit_velocity auto)")]
+        run.last = (problem, r)
         return problem.fit_velocity, said, auto, r.estimates[0]
 
     axes, said, (note,), estimate = run(from_frames)  # (x and y weighed: those two)
     assert axes == "xy" and said == [] and "% of the typical moving start's speed" in note
+    # the CLI's table: the 8 start offsets in one row (all of them are in result.json)
+    console = Console(width=200, record=True, file=io.StringIO())
+    console.print(sysid_table("p.toml", *run.last, {}, Path("out")))
+    text = console.export_text()
+    assert "v0[...]: 8 start velocity offsets [m/s]" in text and "v0[0]" not in text
     axes, (warning,), auto, unfitted = run(from_frames, fit_velocity="")
     assert axes == "" and auto == [] and 'fit_velocity = "xy" or "auto"' in warning
     assert abs(estimate - 0.45) < abs(unfitted - 0.45)  # the truth: closer with the starts fitted

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from rich.markup import escape
 from rich.table import Table
 
 
@@ -47,6 +48,13 @@ def simulation_table(setup, traj, wall: float) -> Table:
     return t
 
 
+#: nuisance offsets of the segments' starts (SysIdProblem.labels), by label prefix
+_START_OFFSETS = {"v0[": "start velocity offsets [m/s]", "w0[": "start angular velocity offsets [rad/s]",
+                  "p0[": "start position offsets [m]", "r0[": "start rotation offsets [rad]"}
+#: more nuisance parameters than this are summarised, one row per kind
+MAX_NUISANCE_ROWS = 6
+
+
 def sysid_table(config: str, problem, result, report: dict, out_dir: Path) -> Table:
     t = Table(title=f"identification: {config}")
     if config == "contactnets-cube":
@@ -65,10 +73,21 @@ def sysid_table(config: str, problem, result, report: dict, out_dir: Path) -> Ta
     # one; the standard error (the local curvature) can be far narrower (docs/sysid.md)
     for c in ("parameter", "estimate", f"{interval['level']:.0%} interval", "std. error", "initial"):
         t.add_column(c)
-    for lab, v, sd, x0 in zip(result.labels, result.estimates, result.standard_errors, result.initial):
+    rows = list(zip(result.labels, result.estimates, result.standard_errors, result.initial))
+    nuisance = [r for r in rows if r[0][:3] in _START_OFFSETS]
+    many = len(nuisance) > MAX_NUISANCE_ROWS
+    for lab, v, sd, x0 in rows:
+        if many and lab[:3] in _START_OFFSETS:
+            continue
         inside = (f"[{interval['lower'][lab]:.4g}, {interval['upper'][lab]:.4g}]" if lab in interval["lower"]
                   else "-")
         t.add_row(lab, f"{v:.5g}", inside, f"{sd:.2g}", f"{x0:.4g}")
+    if many:  # one row per kind of start offset (every value is in result.json)
+        for prefix, what in _START_OFFSETS.items():
+            values = [abs(v) for lab, v, _, _ in nuisance if lab.startswith(prefix)]
+            if values:
+                t.add_row(escape(f"{prefix[:-1]}[...]: {len(values)} {what}"), f"|max| {max(values):.3g}", "-",
+                          "-", "0")
     t.caption = (f"rms residual {result.rms_residual:.3g} over {result.num_residuals} residuals; "
                  f"{result.nfev} evaluations; {result.wall_time_s:.2f} s (+{result.compile_time_s:.1f} s compile); "
                  f"wrote {out_dir}/result.json, config.json, fit.png")
