@@ -305,7 +305,7 @@ _CSV_EDITS = ["drop_header_column", "text_cell", "nan_cell", "repeat_time", "cut
 
 def fuzz_csv(box_scene, how, row, col):
     from dano.errors import DanoError
-    from dano.sysid.config import _read_trajectory
+    from dano.sysid.config import _read_observation
     from dano.sysid.problem import _check_observation
 
     t = np.arange(8) * 0.01
@@ -337,7 +337,7 @@ def fuzz_csv(box_scene, how, row, col):
         path = Path(tmp) / "obs.csv"
         path.write_text("\n".join(lines) + "\n")
         try:
-            obs = _read_trajectory(path, "box", box_scene)
+            obs = _read_observation(path, "box", box_scene)
             _check_observation(obs, box_scene, 0)
         except DanoError as exc:
             assert "obs.csv" in str(exc), str(exc)

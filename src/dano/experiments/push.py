@@ -536,17 +536,12 @@ def task_names() -> tuple[str, ...]:
 #: until one converges: from the full push the sphere can pass beside a light object and lose
 #: it (docs/trajopt.md)
 RESTART_GUESS_SCALES = (0.5, 0.25)
-RESTART_GUESS_SCALE = RESTART_GUESS_SCALES[0]  # (the first restart's scale: its name before 2026-11-26)
 
 
 def guess_name(scale: float) -> str:
     """The name of the first guess ``scale`` × the plain push in a solution's ``restarts``
     and the report's ``first_guess``: ``plain push``, ``plain push x0.5``, ..."""
     return "plain push" if scale == 1.0 else f"plain push x{scale:g}"
-
-
-#: the names of the first two first guesses
-PLAIN_PUSH, SCALED_PUSH = guess_name(1.0), guess_name(RESTART_GUESS_SCALE)
 
 
 def solve_task(task: PushTask, callback=None) -> Solution:

@@ -78,23 +78,11 @@ from ..errors import DanoError, FileFormatError
 from ..sim.scenes import DEFAULT_DT, stated_timestep
 from ..sim.scene import DanoObject, compose
 from ..trajectory import load_trajectory
-from .problem import (FitParameter, Observation, SysIdProblem, Weights, check_units,
+from .problem import (FitParameter, Observation, SysIdProblem, Weights,
                       identification_params)
 from .outputs import estimates_report
 from .solve import identify
 
-
-
-def _check_units(path: Path, obs: Observation) -> Observation:
-    try:
-        check_units(obs)
-    except DanoError as exc:
-        raise DanoError(f"{path}: {exc}") from None
-    return obs
-
-
-def _read_trajectory(path: Path, obj: str | None, scene, velocities: bool = False) -> Observation:
-    return _check_units(path, _read_observation(path, obj, scene, velocities))
 
 
 #: optional CSV columns of measured velocities: linear (world) [m/s], angular (body) [rad/s]
@@ -403,7 +391,7 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
                         contact_model=sc.contact_model)
         # each process of a multi-process run reads its share of the files (dano.sharding)
         obs = sharding.load_shares(cfg.trajectory,
-                                   lambda t: _read_trajectory(base / t.file, t.object, scene, t.velocities))
+                                   lambda t: _read_observation(base / t.file, t.object, scene, t.velocities))
         params = [FitParameter(p.name, p.initial, p.lower, np.inf if p.upper is None else p.upper, p.target)
                   for p in cfg.parameter]
         base_params, notes = identification_params(scene, params, cfg.contact)
