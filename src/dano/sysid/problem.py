@@ -759,7 +759,7 @@ class SysIdProblem:
             axes, note = self._auto_fit_velocity()
             put("fit_velocity", axes)
             put("notes", self.notes + note)
-            if not self.parameters and not any(a for _, a in (("", axes),) + kinds[1:]):
+            if not self.parameters and not (axes or any(a for _, a in kinds[1:])):
                 raise DanoError("no parameters to identify")
         n_res = self.num_residuals  # also checks the window
         if n_res < self.num_parameters:
