@@ -148,6 +148,9 @@ def batched_compiler_options() -> dict:
     graph conditional node with its test on the GPU, not one host round trip per iteration:
     16,384 vmapped 200-step bunny drops in float32 ran at 8.07M env-steps/s instead of 7.18M
     (LAPACK solves) and 8.86M instead of 7.56M (unrolled LU) on one H200 (docs/scaling.md).
+    Since the batched line search stopped halving for envs that need no halving (2026-11-26),
+    the gain is small: 9.89M against 9.60M (LAPACK) and 11.84M against 11.83M (unrolled LU) on
+    one H100.
     Plain MJX's step ran slower so (2.38M -> 2.03M): an option of dano's rollouts, not a
     process-wide flag. Empty on other backends (on the CPU the batched bunny drops ran 14–17 %
     faster with XLA's defaults than with :func:`rollout_compiler_options`' YNNPACK setting), where
