@@ -1,6 +1,7 @@
 """Bad simulation input: clear errors, no NaN results, no partial files."""
 
 import json
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -9,7 +10,7 @@ import pytest
 
 from dano.cli import main
 from dano.data import load_builtin
-from dano.errors import DanoError
+from dano.errors import DanoError, DanoWarning
 from dano.sim import DanoObject, SimulationDiverged, State, compose, make_data, rollout, rollout_arrays
 from dano.sim.scenes import load_scene
 
@@ -88,6 +89,19 @@ def test_library_refuses_non_finite_parameters_and_states():
         jax.jit(lambda v: make_data(s.scene, s.state0.qpos, v))(jnp.zeros(3))
     with pytest.raises(DanoError, match="time step dt must be positive"):
         load_scene("bunny-drop", dt=-0.01)
+
+
+def test_rollout_warns_of_a_deep_start():
+    """The Python API warns as the command line does: the bunny's centre of mass placed 6 cm
+    below where it rests (a pose's z is the centre of mass) starts hundreds of times deeper in
+    the ground than its weight holds it; started in the air, nothing is said."""
+    s = load_scene("bunny-drop")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DanoWarning)
+        rollout(s.scene, s.state0, None, s.params, 3)
+    with pytest.warns(DanoWarning, match=r"bunny/ground starts \d+x deeper in contact than at rest") as caught:
+        rollout(s.scene, State(s.state0.qpos.at[2].set(0.22), s.state0.qvel), None, s.params, 3)
+    assert len(caught) == 1 and caught[0].filename == __file__  # (points at the caller's line)
 
 
 def test_divergence_is_detected_with_the_step_number(tmp_path, capsys):

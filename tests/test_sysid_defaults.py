@@ -122,6 +122,37 @@ def test_a_lone_objects_mass_scale_is_flat_not_at_a_bound(box):
     assert any("sits at its upper bound" in w for w in r.warnings)
 
 
+def test_the_local_minima_warning_leaves_out_a_flat_parameter(box):
+    """Starts that end near the best cost at other estimates are warned of as local minima,
+    naming only the parameters that differ; once a parameter is found flat (its own warning
+    says it is not identifiable) it leaves that warning, which goes where nothing else differs."""
+    from types import SimpleNamespace
+
+    from dano.sysid.solve import _disagreement, _drop_from_minima
+
+    obs = analytic_slides(0, 0.05, 2, noise=0.0, frames=12)
+    fit = [FitParameter("sliding_friction", 0.3, 0.0, 2.0), FitParameter("alpha", 1.0, 0.2, 3.0)]
+    problem = SysIdProblem(box, obs, fit, substeps=4)
+
+    def result(mu, alpha, cost):
+        return SimpleNamespace(estimates=np.array([mu, alpha]), final_cost=cost, standard_errors=np.array([0.01, np.nan]),
+                               warnings=[], scan={})
+
+    best = result(0.45, 1.0, 1.0)
+    others = [result(0.45, 2.5, 1.01), result(0.60, 0.4, 1.02), result(0.90, 2.0, 2.0)]  # (the last: 2x the cost)
+    best.warnings = _disagreement(problem, best, [best] + others, scan_best=1.0)
+    assert len(best.warnings) == 1 and best.warnings[0].startswith("2 other start(s)")
+    assert "sliding_friction 0.45..0.6, alpha 0.4..2.5" in best.warnings[0]
+    _drop_from_minima(problem, best, "alpha")  # the friction's own minimum stays, alone
+    assert len(best.warnings) == 1 and best.warnings[0].startswith("1 other start(s)")
+    assert "(sliding_friction 0.45..0.6)" in best.warnings[0]
+    only_alpha = result(0.45, 1.0, 1.0)
+    only_alpha.warnings = _disagreement(problem, only_alpha, [only_alpha, others[0]], scan_best=1.0) + ["kept"]
+    assert "(alpha 1..2.5)" in only_alpha.warnings[0]
+    _drop_from_minima(problem, only_alpha, "alpha")
+    assert only_alpha.warnings == ["kept"] and only_alpha.scan["local_minima"] == []
+
+
 def test_noisy_starts_have_their_velocities_fitted_by_default(box):
     """2 mm of noise at 100 Hz makes a start velocity taken by finite differences uncertain by
     ~0.5 m/s (a quarter of these slides' speeds): by default (fit_velocity="auto") the starts'

@@ -14,7 +14,7 @@ from ._version import __version__  # noqa: E402,F401
 
 from .asset import DanoAsset, MassProperties, boundary_samples, build, load, mass_properties, save  # noqa: E402
 from .data import load_builtin  # noqa: E402
-from .errors import DanoError, FileFormatError  # noqa: E402
+from .errors import DanoError, DanoWarning, FileFormatError  # noqa: E402
 from .io import load_paper_collider  # noqa: E402
 
 _LAZY = {
@@ -38,6 +38,7 @@ def __getattr__(name):
 __all__ = sorted(_LAZY) + [
     "DanoAsset",
     "DanoError",
+    "DanoWarning",
     "enable_compilation_cache",
     "enable_float64",
     "FileFormatError",

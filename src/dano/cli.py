@@ -221,12 +221,10 @@ def inspect(
 
 
 def _simulate(c):
-    from .sim.run import simulate, start_warnings, write_outputs
+    from .sim.run import simulate, write_outputs
 
     with _progress(not c.quiet) as progress:
-        run = simulate(c.resolved(), progress=progress)
-    for line in start_warnings(run):
-        err.print(f"[yellow]warning:[/] {line}", highlight=False, soft_wrap=True)
+        run = simulate(c.resolved(), progress=progress)  # (a deep start is warned of by the rollout)
     out.print(simulation_table(run.setup, run.trajectory, run.wall_time_s))
     with _progress(not c.quiet) as progress:
         for path in write_outputs(run, out=c.out, video=c.video, progress=progress):
@@ -431,9 +429,11 @@ def _configure_process(args: list[str] | None = None) -> None:
     # Python warnings (numpy, JAX, MJX): one line each, like dano's own messages
     import warnings
 
+    from .errors import DanoWarning
+
     warnings.showwarning = lambda message, category, *rest: err.print(
-        f"[yellow]warning:[/] {category.__name__}: {escape(' '.join(str(message).split()))}", highlight=False,
-        soft_wrap=True)
+        "[yellow]warning:[/] " + ("" if issubclass(category, DanoWarning) else f"{category.__name__}: ")
+        + escape(" ".join(str(message).split())), highlight=False, soft_wrap=True)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -9,3 +9,8 @@ class DanoError(ValueError):
 
 class FileFormatError(DanoError):
     """A file could not be read: wrong format, version, truncated or inconsistent."""
+
+
+class DanoWarning(UserWarning):
+    """Something dano did as asked but that is probably not what was meant (e.g. an object
+    placed deep inside another body, :func:`dano.sim.rollout.deep_start_lines`)."""

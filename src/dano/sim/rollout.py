@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import warnings
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._compiled import cached_jit
 from .._jax_setup import rollout_compiler_options
-from ..errors import DanoError
+from ..errors import DanoError, DanoWarning
 from ..trajectory import Trajectory
 from .implicit import NewtonConfig, resolve_linear_solver
 from .scene import Scene, SimParams
@@ -192,6 +194,8 @@ def rollout(
         fill = lambda a: np.concatenate([a, np.full((steps + 1 - len(a),) + a.shape[1:], np.nan)])  # noqa: E731
         qpos, qvel, psi = fill(qpos), fill(qvel), fill(psi)
     time = np.arange(steps + 1) * scene.dt
+    for line in deep_start_lines(scene, params, psi[0]):
+        warnings.warn(line, DanoWarning, stacklevel=2)
     _check_divergence(scene, params, time, qpos, qvel, psi, max_speed)
     it = np.concatenate(iters)[:steps]
     return Trajectory(
@@ -202,6 +206,34 @@ def rollout(
                   "newton_iterations": {"max": int(it.max()), "mean": float(it.mean())}},
         final_data=data if len(parts) == len(bounds) else None,
     )
+
+
+#: a pair whose overlap at the start exceeds this many times its resting overlap m·g/k is
+#: reported (:func:`deep_start_lines`): the object was placed inside the other body
+DEEP_START = 20.0
+
+
+def deep_start_lines(scene: Scene, params: SimParams, psi0) -> list[str]:
+    """One line per contact pair that starts deep in contact: its overlap ψ at t = 0
+    (``psi0``: (pairs,) float) above :data:`DEEP_START` times the resting overlap m·g/k of its
+    DANO (m its mass [kg] under ``params``' mass scale α, k the pair's impact spring
+    [N per unit overlap], g the scene's gravity [m/s²]). The contact then pushes the object
+    out over the first steps, as if launched: a pose's position is the centre of mass, not
+    the object's lowest point. Empty without gravity (no resting overlap to compare with)."""
+    gravity = float(np.linalg.norm(scene.mj_model.opt.gravity))
+    psi0 = np.asarray(psi0, float)
+    if gravity == 0.0 or not len(scene.pairs):
+        return []
+    spring = np.broadcast_to(np.asarray(params.contact.impact_spring, float), (len(scene.pairs),))
+    mass = np.asarray(scene.base_mass, float) * np.asarray(params.alpha, float)  # (ψ scales with α: so does m)
+    lines = []
+    for i, pair in enumerate(scene.pairs):
+        rest = mass[pair.a] * gravity / float(spring[i])
+        if psi0[i] > DEEP_START * rest:
+            lines.append(f"{pair.name} starts {psi0[i] / rest:.0f}x deeper in contact than at rest (overlap ψ = "
+                         f"{psi0[i]:.3g} at t = 0, m·g/k = {rest:.3g}): the object was placed inside the other "
+                         f"body and is pushed out as if launched; a pose's x,y,z is the centre of mass (raise z)")
+    return lines
 
 
 def _check_divergence(scene, params, time, qpos, qvel, psi, max_speed):

@@ -32,7 +32,7 @@ from ..data import load_asset
 from ..errors import DanoError
 from ..trajectory import Trajectory, save_trajectory
 from ..viz.video import camera_id, check_mujoco_video, write_video
-from .rollout import rollout
+from .rollout import deep_start_lines, rollout
 from .dynamics import State
 from .scene import DanoObject, Scene, SimParams
 from .scenes import BUILTIN_SCENES, Setup, load_scene, mjcf_setup
@@ -239,33 +239,11 @@ def simulate(config: SimulateConfig, progress=None) -> SimulationRun:
     return SimulationRun(setup, params, traj, time.perf_counter() - t0, resolved)
 
 
-#: a pair whose overlap at the start exceeds this many times its resting overlap m·g/k is
-#: reported (:func:`start_warnings`): the object was placed inside the other body
-DEEP_START = 20.0
-
-
 def start_warnings(run: SimulationRun) -> list[str]:
-    """One line per contact pair that starts deep in contact: its overlap ψ at t = 0 above
-    :data:`DEEP_START` times the resting overlap m·g/k of its DANO (m its mass [kg] under the
-    run's mass scale α, k the pair's impact spring). The contact then pushes the object out
-    over the first steps, as if launched: a pose's position is the centre of mass, not the
-    object's lowest point."""
-    scene, traj = run.setup.scene, run.trajectory
-    gravity = float(np.linalg.norm(scene.mj_model.opt.gravity))
-    if gravity == 0.0 or traj.psi is None:  # (no weight: no resting overlap to compare with)
-        return []
-    spring = np.broadcast_to(np.asarray(run.params.contact.impact_spring, float), (len(scene.pairs),))
-    alpha = np.asarray(run.params.alpha, float)  # (ψ scales with α: so does the mass compared with it)
-    lines = []
-    for i, pair in enumerate(scene.pairs):
-        asset = scene.assets[pair.a]
-        mass = asset.mass * alpha[pair.a] / asset.alpha
-        psi0, rest = float(traj.psi[0, i]), mass * gravity / float(spring[i])
-        if psi0 > DEEP_START * rest:
-            lines.append(f"{pair.name} starts {psi0 / rest:.0f}x deeper in contact than at rest (overlap ψ = "
-                         f"{psi0:.3g} at t = 0, m·g/k = {rest:.3g}): the object was placed inside the other "
-                         f"body and is pushed out as if launched; a pose's x,y,z is the centre of mass (raise z)")
-    return lines
+    """One line per contact pair that starts deep in contact (:func:`~dano.sim.rollout.deep_start_lines`
+    of the run's first state); :func:`~dano.sim.rollout.rollout` also issues them as warnings."""
+    traj = run.trajectory
+    return [] if traj.psi is None else deep_start_lines(run.setup.scene, run.params, traj.psi[0])
 
 
 def check_video_path(video: str | Path | None) -> None:

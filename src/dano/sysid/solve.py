@@ -793,6 +793,7 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
         if status == "flat":
             best.warnings = [w for w in best.warnings  # its "sits at its bound": widening would not help
                              if not (w.startswith(f"{label} = ") and " sits at its " in w)]
+            _drop_from_minima(problem, best, label)
             best.warnings.append(
                 f"{label} is not identifiable from these data: its cost stays within the noise over "
                 f"[{lower:.4g}, {upper:.4g}]; more trajectories, or motions that depend on it more, would help"
@@ -835,23 +836,54 @@ def _disagreement(problem: SysIdProblem, best: SysIdResult, results: list, scan_
     """Warnings when the global search and the local fits disagree: another start ended within
     5 % of the best cost at estimates further than 3 standard errors (1e-3 of the bounds'
     span where there is none) from the best, i.e. local minima the standard errors do not
-    cover; or the scan saw a lower cost than any local fit reached."""
+    cover; or the scan saw a lower cost than any local fit reached. The starts that disagree
+    are kept in ``best.scan["local_minima"]`` (their estimates and the parameters that differ),
+    so that a parameter found flat later is taken out of the note (:func:`_drop_from_minima`)."""
     n = len(problem.parameters)
+    labels = [p.label for p in problem.parameters]
     span = np.array([p.upper - p.lower for p in problem.parameters])
     tol = np.where(np.isfinite(best.standard_errors[:n]), 3 * best.standard_errors[:n], 1e-3 * span)
-    others = [r for r in results if r is not best and r.final_cost <= 1.05 * best.final_cost + 1e-12
-              and np.any(np.abs(r.estimates[:n] - best.estimates[:n]) > tol)]
+    minima = []
+    for r in results:
+        if r is not best and r.final_cost <= 1.05 * best.final_cost + 1e-12:
+            differs = np.abs(r.estimates[:n] - best.estimates[:n]) > tol
+            if differs.any():
+                minima.append({"estimates": r.estimates[:n].tolist(),
+                               "differs": [lab for lab, d in zip(labels, differs) if d]})
     notes = []
-    if others:
-        lo = np.min([r.estimates[:n] for r in others + [best]], axis=0)
-        hi = np.max([r.estimates[:n] for r in others + [best]], axis=0)
-        spread = ", ".join(f"{p.label} {a:.4g}..{b:.4g}" for p, a, b in zip(problem.parameters, lo, hi))
-        notes.append(f"{len(others)} other start(s) ended within 5 % of the best cost at different estimates "
-                     f"({spread}): local minima; the standard errors understate the uncertainty (see the "
-                     "bootstrap or the scan's profile)")
+    if best.scan is not None:
+        best.scan["local_minima"] = minima
+    if minima:
+        notes.append(_minima_note(labels, best, minima))
     if scan_best < best.final_cost * (1 - 1e-9):
         notes.append(f"the scan saw a lower cost ({scan_best:.6g}) than every local fit reached "
                      f"({best.final_cost:.6g}): the local solver stopped early")
     return notes
+
+
+def _minima_note(labels: list[str], best: SysIdResult, minima: list[dict]) -> str:
+    """The local-minima warning: how many starts ended near the best cost elsewhere, and the
+    range of each parameter that differs between them and the best."""
+    shown = [lab for lab in labels if any(lab in m["differs"] for m in minima)]
+    values = np.array([m["estimates"] for m in minima] + [best.estimates[:len(labels)]])
+    spread = ", ".join(f"{lab} {values[:, labels.index(lab)].min():.4g}..{values[:, labels.index(lab)].max():.4g}"
+                       for lab in shown)
+    return (f"{len(minima)} other start(s) ended within 5 % of the best cost at different estimates "
+            f"({spread}): local minima; the standard errors understate the uncertainty (see the "
+            "bootstrap or the scan's profile)")
+
+
+def _drop_from_minima(problem: SysIdProblem, best: SysIdResult, label: str) -> None:
+    """Takes a parameter found flat (not identifiable: its own warning says so) out of the
+    local-minima warning; the warning goes where only flat parameters differed."""
+    minima = (best.scan or {}).get("local_minima")
+    if not minima or not any(label in m["differs"] for m in minima):
+        return
+    labels = [p.label for p in problem.parameters]
+    old = _minima_note(labels, best, minima)
+    kept = [{**m, "differs": [x for x in m["differs"] if x != label]} for m in minima]
+    kept = [m for m in kept if m["differs"]]
+    best.scan["local_minima"] = kept
+    best.warnings = [w if w != old else _minima_note(labels, best, kept) for w in best.warnings if w != old or kept]
 
 
