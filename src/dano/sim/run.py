@@ -32,7 +32,7 @@ from ..data import load_asset
 from ..errors import DanoError
 from ..trajectory import Trajectory, save_trajectory
 from ..viz.video import camera_id, check_mujoco_video, write_video
-from .rollout import deep_start_lines, rollout
+from .rollout import rollout
 from .dynamics import State
 from .scene import DanoObject, Scene, SimParams
 from .scenes import BUILTIN_SCENES, Setup, load_scene, mjcf_setup
@@ -237,13 +237,6 @@ def simulate(config: SimulateConfig, progress=None) -> SimulationRun:
     traj = rollout(setup.scene, state0, controls, params, T, progress=progress)
     resolved = dataclasses.replace(config.absolute(), duration=T * dt, dt=dt)
     return SimulationRun(setup, params, traj, time.perf_counter() - t0, resolved)
-
-
-def start_warnings(run: SimulationRun) -> list[str]:
-    """One line per contact pair that starts deep in contact (:func:`~dano.sim.rollout.deep_start_lines`
-    of the run's first state); :func:`~dano.sim.rollout.rollout` also issues them as warnings."""
-    traj = run.trajectory
-    return [] if traj.psi is None else deep_start_lines(run.setup.scene, run.params, traj.psi[0])
 
 
 def check_video_path(video: str | Path | None) -> None:
