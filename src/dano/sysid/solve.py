@@ -584,7 +584,7 @@ def _noise_and_misfit(problem: SysIdProblem, result: SysIdResult) -> dict:
     if expected is not None and result.rms_residual > MISFIT_RATIO * expected and result.rms_residual > 1e-7:
         result.warnings.append(
             f"the model misfits the data: rms residual {result.rms_residual:.3g} is "
-            + (f"{result.rms_residual / expected:.1f}x" if expected > 0 else "far above")
+            + (f"{result.rms_residual / expected:.3g}x" if expected > 0 else "far above")
             + f" what the measurement noise estimated from the observations would leave ({expected:.3g}); "
             "the standard errors assume independent residuals and understate the uncertainty (the interval "
             "allows for the residuals' correlation, not for the model's own error: against an engine with hard "
