@@ -54,6 +54,10 @@ def test_own_object_walkthrough(tmp_path, shared):
     # the push planned for the toy: at its goal within the constraint tolerance, the sphere sized to it
     push = json.loads((tmp_path / "push.json").read_text())
     assert push["converged"] and push["object_final_error"] < 1e-3 and push["object_goal"] == [0.0, 0.3], push
+    # at rest there (push's default at_rest): slow enough that friction 0.05 stops it within about 1 mm, and
+    # the scene's own rollout of the plan's controls is the plan
+    assert push["object_final_speed"] < 1.5 * np.sqrt(2 * 0.05 * 9.81 * 1e-3) and push["replay_final_gap"] < 1e-6, push
+    assert not push.get("warnings"), push
     x0 = np.load(tmp_path / "push-toy" / "solution.npz")["states"][0]
     assert x0[:3] == pytest.approx([0.0, -0.8 * 0.2, 0.25 * 0.2], rel=0.02)  # 0.8 L behind, at its radius L/4
     assert (tmp_path / "push-toy" / "push.mp4").stat().st_size > 1000

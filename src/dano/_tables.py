@@ -99,7 +99,8 @@ def trajopt_table(task: str, report: dict, paths) -> Table:
     t.add_column("quantity")
     t.add_column("value")
     pushed = "object_final_error" if report["task"] == "push" else "bunny_final_error"  # (push: any object)
-    keys = ("status", "iterations", pushed, "pusher_final_error", "max_constraint_violation", "cost")
+    keys = ("status", "iterations", pushed, "object_final_speed", "pusher_final_error", "max_constraint_violation",
+            "cost")
     if report["task"] == "grasp-panda":
         keys = ("status", "grip_force", "lift_height", "slip_mm", "slip_deg", "wall_time_s")
     for key in keys:

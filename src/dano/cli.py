@@ -20,6 +20,7 @@ from typing import Annotated
 
 import tyro
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ._config import field_docs
@@ -303,6 +304,8 @@ def _trajopt(c) -> None:
 
     with _progress(not c.quiet and not c.json_) as progress:
         report, paths = trajopt_command(c, progress=progress)
+    for warning in report.get("warnings", []):
+        err.print(f"[yellow]warning:[/] {escape(warning)}", highlight=False, soft_wrap=True)
     if c.json_:
         _print_report(report)
         return
@@ -419,7 +422,6 @@ def _configure_process(args: list[str] | None = None) -> None:
     _jax_setup.enable_float64()
     _jax_setup.enable_compilation_cache()
     import mujoco
-    from rich.markup import escape
 
     # MuJoCo's own warnings become dano's messages instead of MUJOCO_LOG.TXT in the working folder
     mujoco.set_mju_user_warning(lambda msg: err.print(f"[yellow]warning:[/] MuJoCo: {escape(msg)}", highlight=False,
@@ -470,8 +472,6 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:
         if debug:
             raise
-        from rich.markup import escape
-
         known = isinstance(exc, (DanoError, ValueError, OSError))
         text = _error_line(exc) if known else (f"internal error ({type(exc).__name__}: {_error_line(exc)}); "
                                                "please report it, with the output of --debug")

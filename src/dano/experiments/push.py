@@ -161,8 +161,15 @@ class PushObjectConfig(PushConfig):
     object: str = "builtin:bunny"
     """The DANO to push: ``FILE.dano`` or ``builtin:NAME``."""
     goal: tuple[float, float] | None = None
-    """Where its centre of mass should end, x y, world frame [m] (it starts at 0 0); None: one
-    longest extent L along +x and L/2 along +y."""
+    """Where its centre of mass should end, x y, world frame [m] (it starts at 0 0, at rest on
+    the ground); None: one longest extent L along +x and L/2 along +y, brought nearer where
+    that is beyond half the distance friction can stop it from within the horizon
+    (:func:`stopping_reach`, with ``at_rest``)."""
+    at_rest: bool = True
+    """The object must end at rest: at the last step its x–y speed must be one at which
+    friction stops it within ``constraint_tolerance`` (τ·v = 0 within it, τ =
+    √(tolerance/(2μg)): :func:`rest_time_scale`), so that it rests where the plan ends; false:
+    only its position at the last step is constrained, and it may still be sliding there."""
     pusher: str = "sphere"
     """The pusher: ``sphere`` (a floating, fully actuated sphere; the arm pushes only the built-in
     15 cm bunny for now: the push-panda task)."""
@@ -257,12 +264,35 @@ def _params(scene, config: PushConfig):
                                 impact_damper=config.impact_damper)
 
 
+def stopping_reach(config: PushConfig) -> float:
+    """The furthest [m] an object pushed from rest can be when it stops by friction alone at
+    the horizon's end, ½μg(T·h)² (launched at once at μgT·h; inf for μ = 0): with ``at_rest``,
+    a goal further away cannot be reached at rest within the horizon."""
+    mu_g = config.sliding_friction * G
+    return np.inf if mu_g <= 0.0 else 0.5 * mu_g * (config.horizon * config.dt) ** 2
+
+
+def rest_time_scale(config: PushConfig) -> float:
+    """τ [s] of the at-rest constraint τ·v = 0 on the pushed object's x–y velocity v [m/s]
+    (``push``'s ``at_rest``): a violation of ``constraint_tolerance`` ε then means a speed at
+    which friction stops the object within ε (v²/(2μg) = ε: τ = √(ε/(2μg))), so that it comes
+    to rest within about ε of where the plan ends; at most the horizon's time T·h (μ = 0)."""
+    mu_g = config.sliding_friction * G
+    horizon_time = config.horizon * config.dt
+    if mu_g <= 0.0:
+        return horizon_time
+    return float(min(np.sqrt(config.constraint_tolerance / (2.0 * mu_g)), horizon_time))
+
+
 def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mass: float, start, force,
-                        goal_of) -> PushTask:
+                        goal_of, settle: bool = False, at_rest: bool = False) -> PushTask:
     """A floating sphere (``radius`` [m], ``mass`` [kg], gravity compensated, touching only
     the DANO) at ``start`` (3,) [m] behind the DANO ``name`` resting at the origin; the plain
     push: ``force`` (3,) [N] for 25 of every 60 steps, then the same braking. ``goal_of(X_plain,
-    object_q, pusher_q)`` gives (object goal (2,), pusher goal (3,) or None). The goals, the
+    object_q, pusher_q)`` gives (object goal (2,), pusher goal (3,) or None). ``settle``: the
+    object starts where it rests (its height and tilt after the horizon's steps untouched, x–y
+    at 0 0, velocities 0), not 1 mm above its lowest sample's touch; ``at_rest``: without a
+    pusher goal, the object's x–y velocity must also be 0 at the last step. The goals, the
     scene and the control scale are the problems' parameters (:class:`PushParams`), not
     constants of their programs, and both problems have a key (:class:`~dano.trajopt.Problem`)
     that holds what their functions read besides: their solver programs are kept on disk and
@@ -304,12 +334,22 @@ def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mas
     # part of every program's key): their key (the solver's programs are kept on disk)
     key = ("dano.experiments.push.sphere_pusher", dofs, wq, wu)
     plain = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, key=key)
-    X_plain = np.asarray(rollout(plain, x0, U_plain, PushParams(params, None, scene, jnp.asarray(u_ref))))
+    plain_p = PushParams(params, None, scene, jnp.asarray(u_ref))
+    if settle:  # the horizon's steps untouched (the same program as the plain push): where it rests
+        rest = np.asarray(rollout(plain, x0, np.zeros_like(U_plain), plain_p))[-1]
+        x0 = x0.copy()
+        x0[ba + 2:ba + 7] = rest[ba + 2:ba + 7]  # height and orientation; x–y stay 0 0
+        x0[nq:] = 0.0
+    X_plain = np.asarray(rollout(plain, x0, U_plain, plain_p))
     object_goal, pusher_goal = goal_of(X_plain, object_q, pusher)
+    at_rest = at_rest and pusher_goal is None
+    object_v = slice(nq + int(scene.dof_adr[0]), nq + int(scene.dof_adr[0]) + 2)  # x–y velocity [m/s], world
+    stop_time = rest_time_scale(config)
 
     def terminal(x, p: PushParams):
         if pusher_goal is None:
-            return x[object_q][:2] - p.goal
+            at_goal = x[object_q][:2] - p.goal
+            return jnp.concatenate([at_goal, stop_time * x[object_v]]) if at_rest else at_goal
         return jnp.concatenate([x[object_q][:2] - p.goal[:2], x[pusher] - p.goal[2:]])
 
     def above_floor(x, u, t, p: PushParams):  # the sphere floats through the ground unless kept above it
@@ -318,7 +358,8 @@ def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mas
     problem = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, inequality=above_floor,
                       terminal_equality=terminal,
                       key=key + ("goal parameter", (int(ba), int(ba) + 3),
-                                 None if pusher_goal is None else (int(pa), int(pa) + 3), "floor", int(pa) + 2))
+                                 None if pusher_goal is None else (int(pa), int(pa) + 3), "floor", int(pa) + 2)
+                      + ((("at rest", object_v.start, stop_time),) if at_rest else ()))
     return PushTask(scene, params, problem, x0, U_plain, X_plain, np.asarray(object_goal), pusher_goal, object_q,
                     "qfrc", dofs, u_ref, config, goal_parameter=True, scene_parameter=True, pusher_floor=radius)
 
@@ -343,7 +384,12 @@ def push_object_task(config: PushObjectConfig = PushObjectConfig()) -> PushTask:
     Raises DanoError / FileFormatError naming the object file."""
     asset = load_asset(config.object)
     L, m = float(np.max(asset.size()["extents"])), asset.mass
-    goal = np.array([L, 0.5 * L]) if config.goal is None else np.asarray(config.goal, dtype=float)
+    reach = stopping_reach(config)
+    if config.goal is None:  # L along +x, L/2 along +y; within half the reach where it must end at rest
+        goal = np.array([L, 0.5 * L])
+        goal *= min(1.0, 0.5 * reach / np.linalg.norm(goal)) if config.at_rest else 1.0
+    else:
+        goal = np.asarray(config.goal, dtype=float)
     if np.linalg.norm(goal) < 1e-3 * L:
         raise DanoError(f"goal {goal.tolist()} is where the object starts: give a goal away from 0 0")
     direction = np.r_[goal / np.linalg.norm(goal), 0.0]
@@ -351,7 +397,8 @@ def push_object_task(config: PushObjectConfig = PushObjectConfig()) -> PushTask:
     start = -PUSHER_START_PER_LENGTH * L * direction + np.array([0.0, 0.0, r])
     name = asset.name or "object"
     return _sphere_pusher_task(config, asset, name, r, PUSHER_MASS_PER_MASS * m, start,
-                               PUSH_FORCE_PER_MASS_LENGTH * m * L * direction, lambda *_: (goal, None))
+                               PUSH_FORCE_PER_MASS_LENGTH * m * L * direction, lambda *_: (goal, None),
+                               settle=True, at_rest=config.at_rest)
 
 
 PANDA_TORQUE = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0])  # N m, Franka's joint torque limits

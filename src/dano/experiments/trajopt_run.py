@@ -18,12 +18,14 @@ from .._files import json_safe
 from ..contact import CONTACT_MODELS
 from .._files import atomic_path
 from ..errors import DanoError
-from ..sim import State, rollout
+from ..sim import SimulationDiverged, State, rollout
 from ..sim.run import absolute_source
+from ..trajectory import Trajectory
 from ..viz.plot import plot_trajopt
 from ..viz.video import check_mujoco_video, write_video
 from .grasp import GraspPandaConfig, run_grasp
-from .push import TASKS, final_errors, first_guess, limit_report, model_error_run, pusher_positions, solve_task
+from .push import (TASKS, final_errors, first_guess, limit_report, model_error_run, pusher_positions, solve_task,
+                   stopping_reach)
 
 #: every built-in task: name -> its configuration class
 CONFIGS = {**{name: cls for name, (_, cls) in TASKS.items()}, "grasp-panda": GraspPandaConfig}
@@ -68,12 +70,21 @@ def report(task, solution, model_error=None) -> dict:
     object, whatever it is), ``pusher_final_error`` [m] (null for a pusher without a goal),
     ``max_constraint_violation``, ``iterations``, ``converged``, ``status``, ``cost``,
     ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final`` (where the plain push
-    leaves the bunny), goals, ``max_control_ratio`` and (arm)
+    leaves the bunny), goals, ``object_final_speed`` [m/s] (the pushed object's x–y speed
+    at the last step: above 0 it slides on past where it is), ``replay_final_gap`` [m] (the
+    largest qpos difference at the last step between the plan's states and the scene's own
+    rollout of its controls, :func:`replay`; null where that rollout diverges: above 1e-6, or
+    null, a warning in ``warnings`` says the plan does not hold in simulation),
+    ``max_control_ratio`` and (arm)
     ``joint_limit_violation``, ``first_guess`` (:func:`~dano.experiments.push.first_guess`), ``restarts`` (the
     other solves of the problem, not kept: guess, status, iterations, max_violation) and,
     with a model error, ``model_error``: world friction,
     open-loop and receding-horizon final errors."""
     eb, ep = final_errors(task, solution.states)
+    X = np.asarray(solution.states)
+    v0 = task.scene.nq + int(task.scene.dof_adr[0])
+    again = replay(task, X, np.asarray(solution.controls))
+    gap = np.inf if again is None else float(np.abs(again.qpos[-1] - X[-1, :task.scene.nq]).max())
     out = {
         "task": task.config.task, "bunny_final_error": eb, "pusher_final_error": ep,
         "max_constraint_violation": solution.max_violation, "iterations": solution.iterations,
@@ -83,9 +94,15 @@ def report(task, solution, model_error=None) -> dict:
         "object_final_error": eb, "object_goal": task.bunny_goal.tolist(),  # the same, for any object
         "pusher_goal": None if task.pusher_goal is None else task.pusher_goal.tolist(),
         "plain_push_bunny_final": task.X_plain[-1, task.bunny_qpos].tolist(),
+        "object_final_speed": float(np.linalg.norm(X[-1, v0:v0 + 2])), "replay_final_gap": None if again is None else gap,
         "horizon": task.problem.horizon, "dt": task.scene.dt,
         "first_guess": first_guess(solution), "restarts": list(solution.restarts),
         **limit_report(task, solution.states, solution.controls),
+        "warnings": _reach_warning(task) + ([] if not gap > REPLAY_TOLERANCE else [
+            "the plan does not hold in simulation: the scene's own rollout of its controls "
+            + ("diverges" if again is None else f"ends {gap:.3g} m from the plan's states")
+            + " (the video shows the plan); the solve has not found a physical plan (its status: "
+            + solution.status + "): try a nearer goal or a longer horizon"]),
     }
     if model_error is not None:
         rh = model_error.receding
@@ -160,7 +177,11 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
             np.savez(f, **arrays)
         paths["log.csv"].write_text(csv)
         _plot(task, solution, model_error, paths["convergence.png"])
-        if video:
+        gap = rep.get("replay_final_gap")
+        if video and not (gap is not None and gap <= REPLAY_TOLERANCE):  # (the report warns of it)
+            write_video(task.scene, _plan_trajectory(task.scene, X), paths[f"{task.config.task}.mp4"],
+                        progress=progress)
+        elif video:
             if task.apply == "qfrc":
                 qfrc = np.zeros((len(U), task.scene.nv))
                 qfrc[:, task.control_dofs] = U
@@ -191,14 +212,59 @@ def _write_report_and_config(paths: dict, rep: dict, config) -> None:
     paths["config.json"].write_text(json.dumps(dataclasses.asdict(config), indent=2))
 
 
+def _reach_warning(task) -> list[str]:
+    """``push`` with ``at_rest``: a warning where the goal lies beyond the distance friction
+    can stop the object from within the horizon (:func:`~dano.experiments.push.stopping_reach`)."""
+    cfg = task.config
+    if cfg.task != "push" or not cfg.at_rest:
+        return []
+    distance, reach = float(np.linalg.norm(task.bunny_goal)), stopping_reach(cfg)
+    if distance <= reach:
+        return []
+    return [f"the goal is {distance:.3g} m away, beyond the {reach:.3g} m from which sliding friction "
+            f"{cfg.sliding_friction:g} can bring the object to rest within the horizon ({cfg.horizon} steps of "
+            f"{cfg.dt:g} s): it cannot end there at rest; give a longer horizon or more friction (a TOML "
+            "configuration: horizon, sliding_friction), a nearer goal, or at_rest = false"]
+
+
+#: the largest qpos difference [m] at the last step between a plan's states and the scene's own
+#: rollout of its controls that counts as the same motion
+REPLAY_TOLERANCE = 1e-6
+
+
+def replay(task, X, U):
+    """The scene's own :func:`~dano.sim.rollout` of a push task's controls U (T, nu) from the
+    states X (T + 1, nx)'s first: a :class:`~dano.trajectory.Trajectory`, or None where that
+    rollout diverges."""
+    scene, nq, steps = task.scene, task.scene.nq, len(X) - 1
+    qfrc = None
+    if task.apply == "qfrc":
+        qfrc = np.zeros((len(U), scene.nv))
+        qfrc[:, task.control_dofs] = U
+        U = None
+    try:
+        return rollout(scene, State(X[0, :nq], X[0, nq:]), U, task.params, steps, qfrc=qfrc)
+    except SimulationDiverged:
+        return None
+
+
+def _plan_trajectory(scene, X) -> Trajectory:
+    """The plan's states X (T + 1, nx) as a trajectory of ``scene`` (for its video)."""
+    nq = scene.nq
+    return Trajectory(time=np.arange(len(X)) * scene.dt, qpos=X[:, :nq], qvel=X[:, nq:],
+                      psi=np.zeros((len(X), len(scene.pairs))), body_names=scene.body_names,
+                      dano_names=scene.dano_names, qpos_adr=scene.qpos_adr, dof_adr=scene.dof_adr,
+                      pair_names=scene.pair_names, metadata={"scene": scene.name, "dt": scene.dt})
+
+
 def _replay_video(scene, params, X, U, path: Path, progress, qfrc=None) -> None:
     """Replay the controls U (T, nu) (or the generalised forces qfrc (T, nv)) from X[0] and
     render the video to ``path``; raises DanoError if the replay does not end where the
-    states X (T + 1, nx) do (1e-6 m)."""
+    states X (T + 1, nx) do (:data:`REPLAY_TOLERANCE`)."""
     nq, steps = scene.nq, len(X) - 1
     traj = rollout(scene, State(X[0, :nq], X[0, nq:]), U, params, steps, qfrc=qfrc)
     gap = float(np.abs(traj.qpos[-1] - X[-1, :nq]).max())
-    if gap > 1e-6:
+    if gap > REPLAY_TOLERANCE:
         raise DanoError(f"internal: the replayed controls end {gap:.3g} m from the computed states")
     write_video(scene, traj, path, progress=progress)
 
@@ -234,8 +300,9 @@ class TrajoptCommandConfig:
     torques pushing a 15 cm bunny 10 cm, needs MENAGERIE_ROOT; grasp-panda: the Panda's hand grasps, lifts and
     holds the 15 cm bunny, needs MENAGERIE_ROOT) or a TOML/JSON configuration (key task and the task's settings, e.g. the config.json a run saved)."""
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False
-    """print one JSON object (object_final_error (also bunny_final_error), pusher_final_error, max_constraint_violation, iterations,
-    converged, status, wall_time_s, compile_time_s, ...; model_error with --model-error; grasp-panda:
+    """print one JSON object (object_final_error (also bunny_final_error), object_final_speed, replay_final_gap,
+    pusher_final_error, max_constraint_violation, iterations, converged, status, wall_time_s, compile_time_s,
+    warnings, ...; model_error with --model-error; grasp-panda:
     lift_height, slip_mm, slip_deg, grip_force, converged, wall_time_s, contact_models, ...)."""
     out_dir: Annotated[Path | None, tyro.conf.arg(name="out", aliases=("-o", "--out-dir"))] = None
     """write report.json, config.json, solution.npz, log.csv, convergence.png and the video here (default:
@@ -290,7 +357,7 @@ def trajopt_command(config: TrajoptCommandConfig, progress=None) -> tuple[dict, 
                                   object=config.object, goal=config.goal_xy(), pusher=config.pusher)
     rep, nonfinite = json_safe(rep)
     if nonfinite:
-        rep["warnings"] = [f"not finite (written as null): {', '.join(nonfinite)}"]
+        rep["warnings"] = rep.get("warnings", []) + [f"not finite (written as null): {', '.join(nonfinite)}"]
     out_dir = config.out_dir or Path(f"trajopt-{task.config.task}")
     paths = write_outputs(task, solution, me, rep, out_dir, video=not config.no_video, progress=progress)
     return rep, paths
