@@ -223,8 +223,8 @@ def _reach_warning(task) -> list[str]:
         return []
     return [f"the goal is {distance:.3g} m away, beyond the {reach:.3g} m from which sliding friction "
             f"{cfg.sliding_friction:g} can bring the object to rest within the horizon ({cfg.horizon} steps of "
-            f"{cfg.dt:g} s): it cannot end there at rest; give a longer horizon or more friction (a TOML "
-            "configuration: horizon, sliding_friction), a nearer goal, or at_rest = false"]
+            f"{cfg.dt:g} s): it cannot end there at rest; give a longer horizon or more friction (--horizon, "
+            "--sliding-friction), a nearer goal, or at_rest = false (a TOML configuration)"]
 
 
 #: the largest qpos difference [m] at the last step between a plan's states and the scene's own
@@ -314,6 +314,11 @@ class TrajoptCommandConfig:
     """iLQR iterations in all (default 300)."""
     contact_model: str | None = None
     """DANO contact model: centroid (the paper's, default) or per_sample."""
+    sliding_friction: float | None = None
+    """the sliding friction μ of the task's contact pairs (default: the task's; 0.05 for the push tasks, the
+    paper's slippery world)."""
+    horizon: int | None = None
+    """the horizon T [steps] (default: the task's; 60 for push and push-sphere)."""
     object: str | None = None
     """push: the DANO to push, FILE.dano or builtin:NAME (default builtin:bunny)."""
     goal: Annotated[str | None, tyro.conf.arg(metavar="X,Y")] = None
@@ -354,6 +359,7 @@ def trajopt_command(config: TrajoptCommandConfig, progress=None) -> tuple[dict, 
         check_mujoco_video("video.mp4", "the video (--no-video to leave it out)")
     task, solution, me, rep = run(config.task, progress=progress, model_error=config.model_error,
                                   max_iterations=config.max_iterations, contact_model=config.contact_model,
+                                  sliding_friction=config.sliding_friction, horizon=config.horizon,
                                   object=config.object, goal=config.goal_xy(), pusher=config.pusher)
     rep, nonfinite = json_safe(rep)
     if nonfinite:
