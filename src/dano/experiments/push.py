@@ -76,7 +76,9 @@ class PushConfig:
     max_iterations: int = 300
     """iLQR iterations in all, >= 1."""
     constraint_tolerance: float = 1e-3
-    """Largest allowed constraint violation [m; N·m for torque bounds; rad for joint limits], > 0."""
+    """Largest allowed constraint violation, of each constraint's coordinates apart (a goal's x and y each;
+    the x–y distance ``object_final_error`` may so reach √2 times it) [m; N·m for torque bounds; rad for
+    joint limits], > 0."""
     penalty_initial: float = 10.0
     """Initial augmented-Lagrangian penalty μ₀, in (0, 1e8) (large enough that the goal outweighs the control
     cost from the first iteration: with too small a μ₀ the first step drops the push and loses the contact
