@@ -94,7 +94,8 @@ def report(task, solution, model_error=None) -> dict:
         "object_final_error": eb, "object_goal": task.bunny_goal.tolist(),  # the same, for any object
         "pusher_goal": None if task.pusher_goal is None else task.pusher_goal.tolist(),
         "plain_push_bunny_final": task.X_plain[-1, task.bunny_qpos].tolist(),
-        "object_final_speed": float(np.linalg.norm(X[-1, v0:v0 + 2])), "replay_final_gap": None if again is None else gap,
+        "object_final_speed": float(np.linalg.norm(X[-1, v0:v0 + 2])),
+        "replay_final_gap": None if again is None else gap,
         "horizon": task.problem.horizon, "dt": task.scene.dt,
         "first_guess": first_guess(solution), "restarts": list(solution.restarts),
         **limit_report(task, solution.states, solution.controls),
@@ -177,17 +178,11 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
             np.savez(f, **arrays)
         paths["log.csv"].write_text(csv)
         _plot(task, solution, model_error, paths["convergence.png"])
-        gap = rep.get("replay_final_gap")
-        if video and not (gap is not None and gap <= REPLAY_TOLERANCE):  # (the report warns of it)
-            write_video(task.scene, _plan_trajectory(task.scene, X), paths[f"{task.config.task}.mp4"],
-                        progress=progress)
-        elif video:
-            if task.apply == "qfrc":
-                qfrc = np.zeros((len(U), task.scene.nv))
-                qfrc[:, task.control_dofs] = U
-                _replay_video(task.scene, task.params, X, None, paths[f"{task.config.task}.mp4"], progress, qfrc)
-            else:
-                _replay_video(task.scene, task.params, X, U, paths[f"{task.config.task}.mp4"], progress)
+        if video:  # the scene's own rollout of the plan's controls, or the plan where they differ (warned of)
+            gap = rep.get("replay_final_gap")
+            again = replay(task, X, U) if gap is not None and gap <= REPLAY_TOLERANCE else None
+            write_video(task.scene, again if again is not None else _plan_trajectory(task.scene, X),
+                        paths[f"{task.config.task}.mp4"], progress=progress)
     return [out_dir / n for n in names]
 
 

@@ -885,5 +885,3 @@ def _drop_from_minima(problem: SysIdProblem, best: SysIdResult, label: str) -> N
     kept = [m for m in kept if m["differs"]]
     best.scan["local_minima"] = kept
     best.warnings = [w if w != old else _minima_note(labels, best, kept) for w in best.warnings if w != old or kept]
-
-
