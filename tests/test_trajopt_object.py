@@ -61,22 +61,23 @@ def test_push_programs_are_shared_by_objects_of_one_structure(tmp_path, monkeypa
 
 def test_a_goal_beyond_the_reach_at_rest_is_warned_of_and_the_default_goal_is_within_it():
     """With ``at_rest`` (the default), an object pushed from rest and stopped by friction μ
-    alone within the horizon T·h can end at most ½μg(T·h)² away (0.353 m at μ = 0.05 and
-    1.2 s): a goal 5 m away is warned of (a status of infeasible would follow after the
-    solve); the default goal of the 1 m bunny (L, L/2) is brought within half that reach."""
+    alone within the horizon T·h can end at most ½μg(T·h)² away (0.981 m at μ = 0.05 and
+    push's 2 s): a goal 5 m away is warned of (a status of infeasible would follow after the
+    solve); the default goal of the 1 m bunny (L, L/2) is brought within a quarter of that
+    reach."""
     import numpy as np
 
     from dano.experiments.push import PushObjectConfig, push_object_task, stopping_reach
     from dano.experiments.trajopt_run import _reach_warning
 
     config = PushObjectConfig(goal=(5.0, 0.0))
-    assert stopping_reach(config) == pytest.approx(0.5 * 0.05 * 9.81 * 1.2 ** 2)
+    assert stopping_reach(config) == pytest.approx(0.5 * 0.05 * 9.81 * 2.0 ** 2)
     far = push_object_task(config)
     (warning,) = _reach_warning(far)
-    assert "the goal is 5 m away, beyond the 0.353 m" in warning and "at_rest = false" in warning
+    assert "the goal is 5 m away, beyond the 0.981 m" in warning and "at_rest = false" in warning
     assert _reach_warning(push_object_task(PushObjectConfig(goal=(5.0, 0.0), at_rest=False))) == []
     default = push_object_task(PushObjectConfig())
-    assert np.linalg.norm(default.bunny_goal) == pytest.approx(0.5 * stopping_reach(config))
+    assert np.linalg.norm(default.bunny_goal) == pytest.approx(0.25 * stopping_reach(config))
     assert default.bunny_goal[1] == pytest.approx(0.5 * default.bunny_goal[0]) and _reach_warning(default) == []
     # it starts at rest on the ground: settled, not 1 mm above its lowest sample's touch
     nq = default.scene.nq

@@ -156,17 +156,21 @@ class PushObjectConfig(PushConfig):
     to the object as the paper's sphere is to its bunny (L: the object's longest extent,
     m: its mass): radius L/4, mass 3.1 m, starting 0.8 L behind the object (opposite the
     goal), a plain push of 25 m·L N along the goal direction, then braking, as the first
-    guess. The other settings are push-sphere's."""
+    guess. The other settings but the horizon are push-sphere's."""
 
     task: str = "push"
     """The task's name: ``push``."""
+    horizon: int = 100
+    """Horizon T [steps], 2 to 10,000 (2 s at the default time step: room to push the object
+    and let friction stop it at the goal; push-sphere's 60 steps reach at rest only 0.35 m
+    away at the default friction, :func:`stopping_reach`)."""
     object: str = "builtin:bunny"
     """The DANO to push: ``FILE.dano`` or ``builtin:NAME``."""
     goal: tuple[float, float] | None = None
     """Where its centre of mass should end, x y, world frame [m] (it starts at 0 0, at rest on
     the ground); None: one longest extent L along +x and L/2 along +y, brought nearer where
-    that is beyond half the distance friction can stop it from within the horizon
-    (:func:`stopping_reach`, with ``at_rest``)."""
+    that is beyond a quarter of the distance friction can stop it from within the horizon
+    (:func:`stopping_reach`, with ``at_rest``: 0.245 m at the defaults)."""
     at_rest: bool = True
     """The object must end at rest: at the last step its x–y speed must be one at which
     friction stops it within ``constraint_tolerance`` (τ·v = 0 within it, τ =
@@ -264,6 +268,10 @@ def _stage_cost(config: PushConfig, nq: int, u_ref):
 def _params(scene, config: PushConfig):
     return scene.default_params(sliding_friction=config.sliding_friction, impact_spring=config.impact_spring,
                                 impact_damper=config.impact_damper)
+
+
+#: the default goal of ``push`` lies within this fraction of :func:`stopping_reach`
+DEFAULT_GOAL_REACH = 0.25
 
 
 def stopping_reach(config: PushConfig) -> float:
@@ -387,9 +395,9 @@ def push_object_task(config: PushObjectConfig = PushObjectConfig()) -> PushTask:
     asset = load_asset(config.object)
     L, m = float(np.max(asset.size()["extents"])), asset.mass
     reach = stopping_reach(config)
-    if config.goal is None:  # L along +x, L/2 along +y; within half the reach where it must end at rest
+    if config.goal is None:  # L along +x, L/2 along +y; within a quarter of the reach where it must end at rest
         goal = np.array([L, 0.5 * L])
-        goal *= min(1.0, 0.5 * reach / np.linalg.norm(goal)) if config.at_rest else 1.0
+        goal *= min(1.0, DEFAULT_GOAL_REACH * reach / np.linalg.norm(goal)) if config.at_rest else 1.0
     else:
         goal = np.asarray(config.goal, dtype=float)
     if np.linalg.norm(goal) < 1e-3 * L:

@@ -313,7 +313,7 @@ class TrajoptCommandConfig:
     """the sliding friction μ of the task's contact pairs (default: the task's; 0.05 for the push tasks, the
     paper's slippery world)."""
     horizon: int | None = None
-    """the horizon T [steps] (default: the task's; 60 for push and push-sphere)."""
+    """the horizon T [steps] (default: the task's; 100 for push, 60 for push-sphere)."""
     object: str | None = None
     """push: the DANO to push, FILE.dano or builtin:NAME (default builtin:bunny)."""
     goal: Annotated[str | None, tyro.conf.arg(metavar="X,Y")] = None
