@@ -58,6 +58,7 @@ def test_own_object_walkthrough(tmp_path, shared):
     # the scene's own rollout of the plan's controls is the plan
     assert push["object_final_speed"] < 1.5 * np.sqrt(2 * 0.05 * 9.81 * 1e-3) and push["replay_final_gap"] < 1e-6, push
     assert not push.get("warnings"), push
+    assert 0 < push["pusher_max_force"] <= 2.0 * 1.001, push  # (max_force: 2 of the sphere's weights)
     x0 = np.load(tmp_path / "push-toy" / "solution.npz")["states"][0]
     assert x0[:3] == pytest.approx([0.0, -0.8 * 0.2, 0.25 * 0.2], rel=0.02)  # 0.8 L behind, at its radius L/4
     assert (tmp_path / "push-toy" / "push.mp4").stat().st_size > 1000

@@ -179,10 +179,14 @@ class PushObjectConfig(PushConfig):
     pusher: str = "sphere"
     """The pusher: ``sphere`` (a floating, fully actuated sphere; the arm pushes only the built-in
     15 cm bunny for now: the push-panda task)."""
+    max_force: float = 2.0
+    """Largest force on the pusher, in its weights (|F| ≤ this × its weight m·g, a stage
+    inequality) [-], > 0; inf: unbounded."""
 
     def _checks(self) -> list:
         goal_ok = self.goal is None or (len(self.goal) == 2 and bool(np.all(np.isfinite(self.goal))))
-        return super()._checks() + [("goal", goal_ok), ("pusher", self.pusher == "sphere")]
+        return super()._checks() + [("goal", goal_ok), ("pusher", self.pusher == "sphere"),
+                                    ("max_force", self.max_force > 0)]
 
 
 SPHERE_MASS, SPHERE_RADIUS = 10.0, 0.25
@@ -295,14 +299,15 @@ def rest_time_scale(config: PushConfig) -> float:
 
 
 def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mass: float, start, force,
-                        goal_of, settle: bool = False, at_rest: bool = False) -> PushTask:
+                        goal_of, settle: bool = False, at_rest: bool = False, max_force: float = np.inf) -> PushTask:
     """A floating sphere (``radius`` [m], ``mass`` [kg], gravity compensated, touching only
     the DANO) at ``start`` (3,) [m] behind the DANO ``name`` resting at the origin; the plain
     push: ``force`` (3,) [N] for 25 of every 60 steps, then the same braking. ``goal_of(X_plain,
     object_q, pusher_q)`` gives (object goal (2,), pusher goal (3,) or None). ``settle``: the
     object starts where it rests (its height and tilt after the horizon's steps untouched, x–y
     at 0 0, velocities 0), not 1 mm above its lowest sample's touch; ``at_rest``: without a
-    pusher goal, the object's x–y velocity must also be 0 at the last step. The goals, the
+    pusher goal, the object's x–y velocity must also be 0 at the last step; ``max_force``: the
+    largest force on the pusher in its weights (a stage inequality), inf for none. The goals, the
     scene and the control scale are the problems' parameters (:class:`PushParams`), not
     constants of their programs, and both problems have a key (:class:`~dano.trajopt.Problem`)
     that holds what their functions read besides: their solver programs are kept on disk and
@@ -362,14 +367,18 @@ def _sphere_pusher_task(config: PushConfig, asset, name: str, radius: float, mas
             return jnp.concatenate([at_goal, stop_time * x[object_v]]) if at_rest else at_goal
         return jnp.concatenate([x[object_q][:2] - p.goal[:2], x[pusher] - p.goal[2:]])
 
-    def above_floor(x, u, t, p: PushParams):  # the sphere floats through the ground unless kept above it
-        return (p.floor - x[pa + 2])[None]
+    def limits(x, u, t, p: PushParams):  # the sphere floats through the ground unless kept above it
+        floor = (p.floor - x[pa + 2])[None]
+        if not np.isfinite(max_force):
+            return floor
+        return jnp.concatenate([floor, (jnp.sum((u[:3] / p.u_ref[:3]) ** 2) - max_force ** 2)[None]])
 
-    problem = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, inequality=above_floor,
+    problem = Problem(dynamics, stage_cost, lambda x, p: 0.0, T, len(x0), 6, inequality=limits,
                       terminal_equality=terminal,
                       key=key + ("goal parameter", (int(ba), int(ba) + 3),
                                  None if pusher_goal is None else (int(pa), int(pa) + 3), "floor", int(pa) + 2)
-                      + ((("at rest", object_v.start, stop_time),) if at_rest else ()))
+                      + ((("at rest", object_v.start, stop_time),) if at_rest else ())
+                      + ((("max force", float(max_force)),) if np.isfinite(max_force) else ()))
     return PushTask(scene, params, problem, x0, U_plain, X_plain, np.asarray(object_goal), pusher_goal, object_q,
                     "qfrc", dofs, u_ref, config, goal_parameter=True, scene_parameter=True, pusher_floor=radius)
 
@@ -408,7 +417,7 @@ def push_object_task(config: PushObjectConfig = PushObjectConfig()) -> PushTask:
     name = asset.name or "object"
     return _sphere_pusher_task(config, asset, name, r, PUSHER_MASS_PER_MASS * m, start,
                                PUSH_FORCE_PER_MASS_LENGTH * m * L * direction, lambda *_: (goal, None),
-                               settle=True, at_rest=config.at_rest)
+                               settle=True, at_rest=config.at_rest, max_force=config.max_force)
 
 
 PANDA_TORQUE = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0])  # N m, Franka's joint torque limits
@@ -540,11 +549,13 @@ def limit_report(task: PushTask, X, U) -> dict:
     ``max_control_ratio`` max|u|/u_max over the task's bounded controls (≤ 1 within
     tolerance), ``joint_limit_violation`` the largest excursion beyond a joint limit
     [rad] (0 if none; arm tasks only), ``pusher_below_floor`` how far the floating sphere's
-    centre dips below its floor (its radius) [m] (0 if not; sphere tasks only)."""
+    centre dips below its floor (its radius) [m] (0 if not; sphere tasks only) and
+    ``pusher_max_force`` its largest force in its weights (sphere tasks only)."""
     out = {}
     if task.problem.u_upper is not None:
         out["max_control_ratio"] = float(np.max(np.abs(np.asarray(U)) / np.asarray(task.problem.u_upper)))
     if task.pusher_floor is not None:  # how far the floating pusher's centre dips below its floor [m]
+        out["pusher_max_force"] = float(np.max(np.linalg.norm(np.asarray(U)[:, :3], axis=1)) / task.u_ref[0])
         out["pusher_below_floor"] = float(max(0.0, task.pusher_floor - np.min(pusher_positions(task, np.asarray(X))[:, 2])))
     elif task.problem.inequality is not None:
         m = task.scene.mj_model
