@@ -118,11 +118,13 @@ def typed_table(value, cls, where: str):
 
 def check_ranges(config, checks):
     """``config`` if every ``(setting name, ok)`` in ``checks`` holds; raises DanoError
-    naming the first setting out of range and its value (``horizon out of range: 1``).
-    For a config's ``__post_init__``."""
+    naming the first setting out of range, its value and its documentation, which states
+    the range (``horizon out of range: 1 (Horizon T [steps], 2 to 10,000.)``). For a
+    config's ``__post_init__``."""
     for name, ok in checks:
         if not ok:
-            raise DanoError(f"{name} out of range: {getattr(config, name)}")
+            doc = field_docs(type(config)).get(name) if dataclasses.is_dataclass(config) else None
+            raise DanoError(f"{name} out of range: {getattr(config, name)}" + (f" ({doc})" if doc else ""))
     return config
 
 
