@@ -67,6 +67,7 @@ def test_a_goal_beyond_the_reach_at_rest_is_warned_of_and_the_default_goal_is_wi
     reach."""
     import numpy as np
 
+    from dano.errors import DanoError
     from dano.experiments.push import PushObjectConfig, push_object_task, stopping_reach
     from dano.experiments.trajopt_run import _reach_warning
 
@@ -75,10 +76,33 @@ def test_a_goal_beyond_the_reach_at_rest_is_warned_of_and_the_default_goal_is_wi
     far = push_object_task(config)
     (warning,) = _reach_warning(far)
     assert "the goal is 5 m away, beyond the 0.981 m" in warning and "at_rest = false" in warning
+    with pytest.raises(DanoError, match="horizon 2 steps of 0.02 s at sliding friction 0.05"):
+        push_object_task(PushObjectConfig(horizon=2))
     assert _reach_warning(push_object_task(PushObjectConfig(goal=(5.0, 0.0), at_rest=False))) == []
     default = push_object_task(PushObjectConfig())
     assert np.linalg.norm(default.bunny_goal) == pytest.approx(0.25 * stopping_reach(config))
     assert default.bunny_goal[1] == pytest.approx(0.5 * default.bunny_goal[0]) and _reach_warning(default) == []
     # it starts at rest on the ground: settled, not 1 mm above its lowest sample's touch
     nq = default.scene.nq
-    assert np.all(default.x0[nq:] == 0.0) and np.ptp(default.X_plain[:5, 9]) < 1e-4
+    z = default.bunny_qpos.start + 2
+    assert np.all(default.x0[nq:] == 0.0) and np.ptp(default.X_plain[:5, z]) < 1e-4
+
+
+def test_the_pushers_force_is_bounded_in_its_weights():
+    """``max_force`` bounds the force on the pusher to that many of its weights m·g: the stage
+    inequality (|F|/(m·g))² − max_force² is ≤ 0 within the bound and > 0 beyond it, whatever
+    the object; inf leaves only the floor constraint."""
+    import numpy as np
+
+    from dano.experiments.push import PushObjectConfig, push_object_task
+
+    task = push_object_task(PushObjectConfig(max_force=0.5))
+    p, x = task.problem_params(), task.x0
+    weight = float(task.u_ref[0])
+    for weights, inside in ((0.25, True), (0.49, True), (0.51, False), (1.0, False)):
+        u = np.zeros(6)
+        u[:2] = weights * weight / np.sqrt(2.0)  # (along a diagonal: the norm, not each axis)
+        floor, force = np.asarray(task.problem.inequality(x, u, 0, p))
+        assert (force <= 0) == inside and floor <= 0, (weights, force)  # (the sphere starts on its floor)
+    unbounded = push_object_task(PushObjectConfig(max_force=float("inf")))
+    assert np.asarray(unbounded.problem.inequality(x, np.full(6, 1e6), 0, unbounded.problem_params())).shape == (1,)

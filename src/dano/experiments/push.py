@@ -181,7 +181,8 @@ class PushObjectConfig(PushConfig):
     15 cm bunny for now: the push-panda task)."""
     max_force: float = 2.0
     """Largest force on the pusher, in its weights (|F| ≤ this × its weight m·g, a stage
-    inequality) [-], > 0; inf: unbounded."""
+    inequality (|F|/(m·g))² − this² ≤ 0 whose tolerance is ``constraint_tolerance`` in
+    weights²) [-], > 0; inf: unbounded."""
 
     def _checks(self) -> list:
         goal_ok = self.goal is None or (len(self.goal) == 2 and bool(np.all(np.isfinite(self.goal))))
@@ -281,7 +282,7 @@ DEFAULT_GOAL_REACH = 0.25
 def stopping_reach(config: PushConfig) -> float:
     """The furthest [m] an object pushed from rest can be when it stops by friction alone at
     the horizon's end, ½μg(T·h)² (launched at once at μgT·h; inf for μ = 0): with ``at_rest``,
-    a goal further away cannot be reached at rest within the horizon."""
+    a goal further away is reached at rest within the horizon only if the pusher brakes it."""
     mu_g = config.sliding_friction * G
     return np.inf if mu_g <= 0.0 else 0.5 * mu_g * (config.horizon * config.dt) ** 2
 
@@ -410,6 +411,10 @@ def push_object_task(config: PushObjectConfig = PushObjectConfig()) -> PushTask:
     else:
         goal = np.asarray(config.goal, dtype=float)
     if np.linalg.norm(goal) < 1e-3 * L:
+        if config.goal is None:
+            raise DanoError(f"horizon {config.horizon} steps of {config.dt:g} s at sliding friction "
+                            f"{config.sliding_friction:g}: friction stops the object within {reach:.3g} m, too near "
+                            "for a default goal; give a longer horizon, more friction, or a goal")
         raise DanoError(f"goal {goal.tolist()} is where the object starts: give a goal away from 0 0")
     direction = np.r_[goal / np.linalg.norm(goal), 0.0]
     r = PUSHER_RADIUS_PER_LENGTH * L

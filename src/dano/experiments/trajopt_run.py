@@ -71,8 +71,8 @@ def report(task, solution, model_error=None) -> dict:
     ``max_constraint_violation``, ``iterations``, ``converged``, ``status``, ``cost``,
     ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final`` (where the plain push
     leaves the bunny), goals, ``object_final_speed`` [m/s] (the pushed object's x–y speed
-    at the last step: above 0 it slides on past where it is), ``replay_final_gap`` [m] (the
-    largest qpos difference at the last step between the plan's states and the scene's own
+    at the last step: above 0 it slides on past where it is), ``replay_final_gap`` [qpos units: m
+    for positions] (the largest qpos difference at the last step between the plan's states and the scene's own
     rollout of its controls, :func:`replay`; null where that rollout diverges: above 1e-6, or
     null, a warning in ``warnings`` says the plan does not hold in simulation),
     ``max_control_ratio`` and (arm)
@@ -217,9 +217,9 @@ def _reach_warning(task) -> list[str]:
     if distance <= reach:
         return []
     return [f"the goal is {distance:.3g} m away, beyond the {reach:.3g} m from which sliding friction "
-            f"{cfg.sliding_friction:g} can bring the object to rest within the horizon ({cfg.horizon} steps of "
-            f"{cfg.dt:g} s): it cannot end there at rest; give a longer horizon or more friction (--horizon, "
-            "--sliding-friction), a nearer goal, or at_rest = false (a TOML configuration)"]
+            f"{cfg.sliding_friction:g} alone brings the object to rest within the horizon ({cfg.horizon} steps of "
+            f"{cfg.dt:g} s): it can end there at rest only if the pusher brakes it; give a longer horizon or more "
+            "friction (--horizon, --sliding-friction), a nearer goal, or at_rest = false (a TOML configuration)"]
 
 
 #: the largest qpos difference [m] at the last step between a plan's states and the scene's own
@@ -310,10 +310,11 @@ class TrajoptCommandConfig:
     contact_model: str | None = None
     """DANO contact model: centroid (the paper's, default) or per_sample."""
     sliding_friction: float | None = None
-    """the sliding friction μ of the task's contact pairs (default: the task's; 0.05 for the push tasks, the
-    paper's slippery world)."""
+    """the sliding friction μ of the task's contact pairs (default: the task's; 0.05 for push and push-sphere,
+    the paper's slippery world)."""
     horizon: int | None = None
-    """the horizon T [steps] (default: the task's; 100 for push, 60 for push-sphere)."""
+    """the horizon T [steps] (default: the task's; 100 for push, 60 for push-sphere, 80 for push-panda; not
+    grasp-panda's)."""
     object: str | None = None
     """push: the DANO to push, FILE.dano or builtin:NAME (default builtin:bunny)."""
     goal: Annotated[str | None, tyro.conf.arg(metavar="X,Y")] = None

@@ -861,6 +861,10 @@ def _disagreement(problem: SysIdProblem, best: SysIdResult, results: list, scan_
     return notes
 
 
+#: the wording of the local-minima warning (:func:`_minima_note`) after its count
+MINIMA_WARNING = "other start(s) ended within 5 % of the best cost at different estimates"
+
+
 def _minima_note(labels: list[str], best: SysIdResult, minima: list[dict]) -> str:
     """The local-minima warning: how many starts ended near the best cost elsewhere, and the
     range of each parameter that differs between them and the best."""
@@ -868,7 +872,7 @@ def _minima_note(labels: list[str], best: SysIdResult, minima: list[dict]) -> st
     values = np.array([m["estimates"] for m in minima] + [best.estimates[:len(labels)]])
     spread = ", ".join(f"{lab} {values[:, labels.index(lab)].min():.4g}..{values[:, labels.index(lab)].max():.4g}"
                        for lab in shown)
-    return (f"{len(minima)} other start(s) ended within 5 % of the best cost at different estimates "
+    return (f"{len(minima)} {MINIMA_WARNING} "
             f"({spread}): local minima; the standard errors understate the uncertainty (see the "
             "bootstrap or the scan's profile)")
 
@@ -880,8 +884,9 @@ def _drop_from_minima(problem: SysIdProblem, best: SysIdResult, label: str) -> N
     if not minima or not any(label in m["differs"] for m in minima):
         return
     labels = [p.label for p in problem.parameters]
-    old = _minima_note(labels, best, minima)
     kept = [{**m, "differs": [x for x in m["differs"] if x != label]} for m in minima]
     kept = [m for m in kept if m["differs"]]
     best.scan["local_minima"] = kept
-    best.warnings = [w if w != old else _minima_note(labels, best, kept) for w in best.warnings if w != old or kept]
+    # (found by its wording: the best may have moved since it was written, by the verification's restarts)
+    old = [w for w in best.warnings if MINIMA_WARNING in w]
+    best.warnings = [w for w in best.warnings if w not in old] + ([_minima_note(labels, best, kept)] if kept else [])
