@@ -153,6 +153,18 @@ def test_bad_inputs_are_refused():
         Problem(_pendulum, lambda x, u, t, p: 0.0, lambda x, p: 0.0, 0, 2, 1)
     with pytest.raises(DanoError, match="every"):
         receding_horizon(pr, np.zeros(2), lambda x, u: x, np.zeros((10, 1)), every=0)
+    # a problem's own functions of the wrong shape: dano's error naming the function, not JAX's from inside a scan
+    cost = lambda x, u, t, p: jnp.sum(u ** 2)  # noqa: E731
+    for bad, message in (
+            (Problem(lambda x, u, t, p: jnp.zeros(5), cost, lambda x, p: 0.0, 10, 2, 1),
+             r"dynamics\(x, u, t, p\) must return the next state, shape \(2,\), got \(5,\)"),
+            (Problem(_pendulum, lambda x, u, t, p: u ** 2, lambda x, p: 0.0, 10, 2, 1),
+             r"stage_cost\(x, u, t, p\) must return a scalar, got shape \(1,\)"),
+            (Problem(_pendulum, cost, lambda x, p: x, 10, 2, 1), r"terminal_cost\(x, p\) must return a scalar"),
+            (Problem(_pendulum, cost, lambda x, p: 0.0, 10, 2, 1, terminal_equality=lambda x, p: x[0]),
+             "terminal_equality must return a 1-D array")):
+        with pytest.raises(DanoError, match=message):
+            solve(bad, np.zeros(2), np.zeros((10, 1)))
 
 
 @pytest.fixture(scope="module")

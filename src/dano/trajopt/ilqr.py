@@ -335,7 +335,7 @@ def _compiled(problem: Problem) -> _Compiled:
     return problem.__dict__["_ilqr"]
 
 
-def _check_inputs(problem: Problem, x0, U0):
+def _check_inputs(problem: Problem, x0, U0, params=None):
     x0 = jnp.asarray(x0)
     U0 = jnp.asarray(U0, dtype=x0.dtype)
     if x0.shape != (problem.nx,):
@@ -344,7 +344,35 @@ def _check_inputs(problem: Problem, x0, U0):
         raise DanoError(f"initial controls must have shape ({problem.horizon}, {problem.nu}), got {U0.shape}")
     if not (np.all(np.isfinite(np.asarray(x0))) and np.all(np.isfinite(np.asarray(U0)))):
         raise DanoError("x0 and the initial controls must be finite")
+    if "_shapes_checked" not in problem.__dict__:  # once per problem object
+        _check_function_shapes(problem, x0, U0[0], params)
+        problem.__dict__["_shapes_checked"] = True
     return x0, problem.clip(U0)
+
+
+def _check_function_shapes(problem: Problem, x, u, p) -> None:
+    """Raises DanoError naming the problem's function whose output has the wrong shape: the
+    costs must return scalars, the constraints 1-D arrays and, for a problem without a key
+    (whose programs are traced in this process anyway), the dynamics the next state (nx,).
+    Shapes only (``jax.eval_shape``): nothing is computed or compiled; a keyed problem's
+    dynamics are not traced here, since its programs may come from disk untraced."""
+    def shape(name, f, *args):
+        try:
+            return tuple(getattr(jax.eval_shape(f, *args), "shape", ()))
+        except (TypeError, ValueError, IndexError) as exc:
+            raise DanoError(f"{name} fails on x ({problem.nx},), u ({problem.nu},): {exc}") from None
+
+    if problem.key is None and (s := shape("dynamics", problem.dynamics, x, u, 0, p)) != (problem.nx,):
+        raise DanoError(f"dynamics(x, u, t, p) must return the next state, shape ({problem.nx},), got {s}")
+    for name, f, args in (("stage_cost(x, u, t, p)", problem.stage_cost, (x, u, 0, p)),
+                          ("terminal_cost(x, p)", problem.terminal_cost, (x, p))):
+        if (s := shape(name, f, *args)) != ():
+            raise DanoError(f"{name} must return a scalar, got shape {s}")
+    for name, args in (("inequality", (x, u, 0, p)), ("equality", (x, u, 0, p)), ("terminal_inequality", (x, p)),
+                       ("terminal_equality", (x, p))):
+        f = getattr(problem, name)
+        if f is not None and len(s := shape(name, f, *args)) != 1:
+            raise DanoError(f"{name} must return a 1-D array (one value per constraint), got shape {s}")
 
 
 def solve(problem: Problem, x0, U0, params=None, options: ILQRConfig = ILQRConfig(),
@@ -357,11 +385,13 @@ def solve(problem: Problem, x0, U0, params=None, options: ILQRConfig = ILQRConfi
     :class:`Solution`); callback: called with each iteration's log entry (a dict of
     floats), e.g. to draw progress. Returns a :class:`Solution`; never raises for lack
     of convergence (its ``status`` says why it stopped). Raises DanoError for inputs of
-    the wrong shape or non-finite inputs, or if the initial rollout is not finite.
+    the wrong shape or non-finite inputs, for a problem function whose output has the wrong
+    shape (checked on the first solve of the problem: :func:`_check_function_shapes`), or if
+    the initial rollout is not finite.
     """
     start, started = time.perf_counter(), time.time()
     fns = _compiled(problem)
-    x0, U = _check_inputs(problem, x0, U0)
+    x0, U = _check_inputs(problem, x0, U0, params)
 
     def ready(fn, *args):  # (compiling is counted by dano._compiled.compile_seconds)
         return jax.block_until_ready(fn(*args))
@@ -458,7 +488,7 @@ def _stagnant(violations: list[float], rounds: int = 5) -> bool:
 def rollout(problem: Problem, x0, U, params=None) -> jax.Array:
     """States (T + 1, nx) of ``problem``'s dynamics from x0 (nx,) under controls U (T, nu)
     (clipped to the bounds)."""
-    x0, U = _check_inputs(problem, x0, U)
+    x0, U = _check_inputs(problem, x0, U, params)
     fns = _compiled(problem)
     lam = Multipliers(*(jnp.zeros(s, x0.dtype) for s in fns.sizes(x0, U, params)))
     return fns.evaluate(x0, U, lam, jnp.asarray(1.0, x0.dtype), params)[0]
