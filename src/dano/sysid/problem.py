@@ -265,6 +265,21 @@ def start_velocity_uncertainty(observations, segments, position_noise, axes: str
     return _FD_GAIN * float(np.linalg.norm(sigma)) / float(np.median(dts)), float(np.median(speeds))
 
 
+def noisy_start_velocities(observations, segments, position_noise, axes: str) -> str | None:
+    """Where :func:`start_velocity_uncertainty` along ``axes`` exceeds
+    :data:`START_VELOCITY_NOISE` of the typical moving start's speed, the phrase that says so
+    (for the notes of ``fit_velocity="auto"`` and the warning where they are not fitted);
+    None otherwise. position_noise: (3,) per axis [m], or None."""
+    found = start_velocity_uncertainty(observations, segments, position_noise, axes)
+    if found is None or found[1] <= 0 or found[0] <= START_VELOCITY_NOISE * found[1]:
+        return None
+    spread, typical = found
+    sigma = 1e3 * float(np.linalg.norm(np.asarray(position_noise)[["xyz".index(a) for a in axes]]))
+    return (f"finite differences of the observed frames, whose position noise along {axes} is {sigma:.3g} mm, "
+            f"start the rollouts from velocities uncertain by about {spread:.3g} m/s, "
+            f"{100 * spread / typical:.0f} % of the typical moving start's speed ({typical:.3g} m/s)")
+
+
 #: rotation vector of q_obs⁻¹ ⊗ q_sim, (..., 3) [rad]; sign-invariant and NaN-free
 #: (:func:`dano.pose.quat_error`)
 quat_log_error = quat_error
@@ -756,42 +771,41 @@ class SysIdProblem:
         else:
             put("notes", self.notes + _given_drag_notes(self.base_params, self.parameters))
         if self.fit_velocity == "auto":
-            axes, note = self._auto_fit_velocity()
-            put("fit_velocity", axes)
-            put("notes", self.notes + note)
-            if not self.parameters and not (axes or any(a for _, a in kinds[1:])):
+            put("notes", self.notes + self._auto_fit_velocity(put))
+            if not self.parameters and not (self.fit_velocity or any(a for _, a in kinds[1:])):
                 raise DanoError("no parameters to identify")
         n_res = self.num_residuals  # also checks the window
         if n_res < self.num_parameters:
             raise DanoError(f"{n_res} residuals for {self.num_parameters} parameters: observe more frames "
                             "or fit fewer parameters")
 
-    def _auto_fit_velocity(self) -> tuple[str, tuple[str, ...]]:
-        """``fit_velocity="auto"``: (the axes, a note saying why) where finite differences of
-        noisy frames make the moving starts' velocities uncertain by more than
-        :data:`START_VELOCITY_NOISE` of their typical speed (:func:`start_velocity_uncertainty`):
-        the axes whose positions are weighed, on every segment start; ("", ()) otherwise, and
-        where those parameters would outnumber the residuals (then with a note)."""
+    def _auto_fit_velocity(self, put) -> tuple[str, ...]:
+        """Resolves ``fit_velocity="auto"`` (with ``put``, __post_init__'s setter) and returns
+        the note saying why: the axes whose positions are weighed, on every segment start, where
+        finite differences of noisy frames make the moving starts' velocities uncertain by more
+        than :data:`START_VELOCITY_NOISE` of their typical speed (:func:`noisy_start_velocities`);
+        "" otherwise (no note), and where those parameters would outnumber the residuals."""
         from .uncertainty import noise_of_observations  # (it imports this module)
+
+        def fit(axes):  # (and the layout derived from it made anew)
+            put("fit_velocity", axes)
+            self.__dict__.pop("fit_axes", None)
 
         axes = "".join(a for a, w in zip("xyz", self.weights.position) if w > 0)
         noise = noise_of_observations(self.observations)["position_m"]
-        found = start_velocity_uncertainty(self.observations, self.segments, noise, axes)
-        if found is None or found[0] <= START_VELOCITY_NOISE * found[1]:
-            return "", ()
-        spread, typical = found
-        sigma = 1e3 * float(np.linalg.norm(np.asarray(noise)[["xyz".index(a) for a in axes]]))
-        why = (f"finite differences of the observed frames, whose position noise along {axes} is {sigma:.3g} mm, "
-               f"would start the rollouts from velocities uncertain by about {spread:.3g} m/s, "
-               f"{100 * spread / typical:.0f} % of the typical moving start's speed ({typical:.3g} m/s)")
-        tracked = sum(len(self.observations[seg.obs].poses) for seg in self.segments)
-        others = len(self.fit_angular_velocity + self.fit_position + self.fit_rotation)
-        count = len(self.parameters) + len(self.ground_labels) + (others + len(axes)) * tracked
-        if self.num_residuals < count:
-            return "", (f'{_AUTO_NOTE} not fitted: {why}, but {len(axes) * tracked} nuisance parameters would '
-                        'outnumber the residuals (fewer or longer windows would allow them)',)
-        return axes, (f'{_AUTO_NOTE} fit_velocity = "{axes}": {why}; each segment start\'s velocity is fitted as '
-                      'a nuisance parameter (fit_velocity = "" turns this off)',)
+        why = noisy_start_velocities(self.observations, self.segments, noise, axes)
+        fit("")
+        if why is None:
+            return ()
+        without = self.num_parameters
+        fit(axes)
+        if self.num_residuals < self.num_parameters:
+            added = self.num_parameters - without
+            fit("")
+            return (f'{_AUTO_NOTE} not fitted: {why}, but {added} nuisance parameters would outnumber the residuals '
+                    '(fewer or longer windows would allow them)',)
+        return (f'{_AUTO_NOTE} fit_velocity = "{axes}": {why}; each segment start\'s velocity is fitted as a '
+                'nuisance parameter (fit_velocity = "" turns this off)',)
 
     def truncated(self, fraction: float) -> "SysIdProblem":
         """The same problem on the first ``fraction`` of every trajectory (at least 3 frames)."""

@@ -32,7 +32,7 @@ from scipy.optimize import least_squares
 from ..errors import DanoError
 from . import uncertainty as unc
 from .._compiled import compile_seconds
-from .problem import START_VELOCITY_NOISE, SysIdProblem, start_velocity_uncertainty
+from .problem import SysIdProblem, noisy_start_velocities
 
 
 @dataclass
@@ -602,22 +602,17 @@ def start_velocity_warning(problem: SysIdProblem, noise: dict) -> str | None:
     """A warning when the rollouts start from velocities that finite differences of noisy
     frames make uncertain along the weighed axes not fitted: by √26/2·σ/Δt (σ the position
     noise estimated from the observations, Δt the frame interval), more than
-    :data:`START_VELOCITY_NOISE` of the moving starts' median speed
-    (:func:`~dano.sysid.problem.start_velocity_uncertainty`, which leaves out starts with
+    :data:`~dano.sysid.problem.START_VELOCITY_NOISE` of the moving starts' median speed
+    (:func:`~dano.sysid.problem.noisy_start_velocities`, which leaves out starts with
     measured velocities, a given ``qvel0`` or ``rest_frames``). None where there is nothing
     to say."""
     weighed = [a for a, w in zip("xyz", problem.weights.position) if w > 0]
     missing = "".join(a for a in weighed if a not in problem.fit_velocity)
-    found = start_velocity_uncertainty(problem.observations, problem.segments, noise.get("position_m"), missing)
-    if found is None or found[1] <= 0 or found[0] <= START_VELOCITY_NOISE * found[1]:
+    why = noisy_start_velocities(problem.observations, problem.segments, noise.get("position_m"), missing)
+    if why is None:
         return None
-    spread, typical = found
-    sigma = 1e3 * float(np.linalg.norm(np.asarray(noise["position_m"])[["xyz".index(a) for a in missing]]))
     suggest = "".join(a for a in "xyz" if a in missing or a in problem.fit_velocity)
-    return (f"the rollouts start from velocities taken by finite differences of the observed frames; with the "
-            f"position noise the observations show along {missing} ({sigma:.3g} mm), each is uncertain by about "
-            f"{spread:.3g} m/s, {100 * spread / typical:.0f} % of the typical moving start's speed "
-            f"({typical:.3g} m/s), which can move the estimate far: fit them as nuisance parameters (fit_velocity = "
+    return (f"{why}, which can move the estimate far: fit them as nuisance parameters (fit_velocity = "
             f"\"{suggest}\" or \"auto\"; TOML [options]), or give measured velocities")
 
 
