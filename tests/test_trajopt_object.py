@@ -68,20 +68,19 @@ def test_a_goal_beyond_the_reach_at_rest_is_warned_of_and_the_default_goal_is_wi
     import numpy as np
 
     from dano.errors import DanoError
-    from dano.experiments.push import PushObjectConfig, push_object_task, stopping_reach
-    from dano.experiments.trajopt_run import _reach_warning
+    from dano.experiments.push import PushObjectConfig, push_object_task, reach_warnings, stopping_reach
 
     config = PushObjectConfig(goal=(5.0, 0.0))
     assert stopping_reach(config) == pytest.approx(0.5 * 0.05 * 9.81 * 2.0 ** 2)
     far = push_object_task(config)
-    (warning,) = _reach_warning(far)
+    (warning,) = reach_warnings(far)
     assert "the goal is 5 m away, beyond the 0.981 m" in warning and "at_rest = false" in warning
     with pytest.raises(DanoError, match="horizon 2 steps of 0.02 s at sliding friction 0.05"):
         push_object_task(PushObjectConfig(horizon=2))
-    assert _reach_warning(push_object_task(PushObjectConfig(goal=(5.0, 0.0), at_rest=False))) == []
+    assert reach_warnings(push_object_task(PushObjectConfig(goal=(5.0, 0.0), at_rest=False))) == []
     default = push_object_task(PushObjectConfig())
     assert np.linalg.norm(default.bunny_goal) == pytest.approx(0.25 * stopping_reach(config))
-    assert default.bunny_goal[1] == pytest.approx(0.5 * default.bunny_goal[0]) and _reach_warning(default) == []
+    assert default.bunny_goal[1] == pytest.approx(0.5 * default.bunny_goal[0]) and reach_warnings(default) == []
     # it starts at rest on the ground: settled, not 1 mm above its lowest sample's touch
     nq = default.scene.nq
     z = default.bunny_qpos.start + 2

@@ -287,6 +287,21 @@ def stopping_reach(config: PushConfig) -> float:
     return np.inf if mu_g <= 0.0 else 0.5 * mu_g * (config.horizon * config.dt) ** 2
 
 
+def reach_warnings(task: PushTask) -> list[str]:
+    """A warning where a task whose object must end at rest (``at_rest``) has its goal beyond
+    :func:`stopping_reach`; [] otherwise (and for tasks without ``at_rest``)."""
+    cfg = task.config
+    if not getattr(cfg, "at_rest", False):
+        return []
+    distance, reach = float(np.linalg.norm(task.bunny_goal)), stopping_reach(cfg)
+    if distance <= reach:
+        return []
+    return [f"the goal is {distance:.3g} m away, beyond the {reach:.3g} m from which sliding friction "
+            f"{cfg.sliding_friction:g} alone brings the object to rest within the horizon ({cfg.horizon} steps of "
+            f"{cfg.dt:g} s): it can end there at rest only if the pusher brakes it; give a longer horizon or more "
+            "friction (--horizon, --sliding-friction), a nearer goal, or at_rest = false (a TOML configuration)"]
+
+
 def rest_time_scale(config: PushConfig) -> float:
     """τ [s] of the at-rest constraint τ·v = 0 on the pushed object's x–y velocity v [m/s]
     (``push``'s ``at_rest``): a violation of ``constraint_tolerance`` ε then means a speed at

@@ -24,8 +24,8 @@ from ..trajectory import Trajectory
 from ..viz.plot import plot_trajopt
 from ..viz.video import check_mujoco_video, write_video
 from .grasp import GraspPandaConfig, run_grasp
-from .push import (TASKS, final_errors, first_guess, limit_report, model_error_run, pusher_positions, solve_task,
-                   stopping_reach)
+from .push import (TASKS, final_errors, first_guess, limit_report, model_error_run, pusher_positions, reach_warnings,
+                   solve_task)
 
 #: every built-in task: name -> its configuration class
 CONFIGS = {**{name: cls for name, (_, cls) in TASKS.items()}, "grasp-panda": GraspPandaConfig}
@@ -99,7 +99,7 @@ def report(task, solution, model_error=None) -> dict:
         "horizon": task.problem.horizon, "dt": task.scene.dt,
         "first_guess": first_guess(solution), "restarts": list(solution.restarts),
         **limit_report(task, solution.states, solution.controls),
-        "warnings": _reach_warning(task) + ([] if not gap > REPLAY_TOLERANCE else [
+        "warnings": reach_warnings(task) + ([] if not gap > REPLAY_TOLERANCE else [
             "the plan does not hold in simulation: the scene's own rollout of its controls "
             + ("diverges" if again is None else f"ends {gap:.3g} m from the plan's states")
             + " (the video shows the plan); the solve has not found a physical plan (its status: "
@@ -205,21 +205,6 @@ def _plot(task, solution, model_error, path) -> None:
 def _write_report_and_config(paths: dict, rep: dict, config) -> None:
     paths["report.json"].write_text(json.dumps(rep, indent=2))
     paths["config.json"].write_text(json.dumps(dataclasses.asdict(config), indent=2))
-
-
-def _reach_warning(task) -> list[str]:
-    """``push`` with ``at_rest``: a warning where the goal lies beyond the distance friction
-    can stop the object from within the horizon (:func:`~dano.experiments.push.stopping_reach`)."""
-    cfg = task.config
-    if cfg.task != "push" or not cfg.at_rest:
-        return []
-    distance, reach = float(np.linalg.norm(task.bunny_goal)), stopping_reach(cfg)
-    if distance <= reach:
-        return []
-    return [f"the goal is {distance:.3g} m away, beyond the {reach:.3g} m from which sliding friction "
-            f"{cfg.sliding_friction:g} alone brings the object to rest within the horizon ({cfg.horizon} steps of "
-            f"{cfg.dt:g} s): it can end there at rest only if the pusher brakes it; give a longer horizon or more "
-            "friction (--horizon, --sliding-friction), a nearer goal, or at_rest = false (a TOML configuration)"]
 
 
 #: the largest qpos difference [m] at the last step between a plan's states and the scene's own
