@@ -23,7 +23,8 @@ docstrings; do not edit by hand (tests/test_config_docs.py checks that it is cur
 Every key of dano's configuration files, its type, default and meaning. Files are TOML (or
 the JSON a run saves as `config.json`, which runs the same again); unknown keys, missing
 keys, wrong types and values out of range are refused naming the key. "left out": the key
-is optional and has no value unless given.
+is optional and has no value unless given. An infinite number is `inf` in TOML and the string
+`"inf"` in JSON (strict JSON has no infinity; a saved `config.json` writes it so).
 """
 
 SYSID_INTRO = """`dano sysid problem.toml` (the dataclass `dano.sysid.config.SysIdConfig`; the method:

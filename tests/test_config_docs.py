@@ -97,3 +97,20 @@ def test_configs_check_their_values_when_built():
             make()
     with pytest.raises(DanoError, match="horizon out of range"):
         dataclasses.replace(PushSphereConfig(), horizon=0)
+
+
+def test_an_unbounded_setting_is_written_as_strict_json_and_read_back(tmp_path):
+    """config.json files are strict JSON (other tools refuse Python's ``Infinity``): an
+    infinite setting is written as the string "inf" and read back as the number."""
+    import json
+
+    from dano._config import config_json, read_table
+    from dano.experiments.push import PushObjectConfig
+
+    config = PushObjectConfig(max_force=float("inf"), object="spot.dano")
+    path = tmp_path / "config.json"
+    path.write_text(config_json(dataclasses.asdict(config)))
+    json.loads(path.read_text(), parse_constant=lambda c: pytest.fail(f"not strict JSON: {c}"))
+    assert typed_table(read_table(path), PushObjectConfig, "") == config
+    with pytest.raises(DanoError, match=r"\[max_force\]: expected a number, got the string 'lots'"):
+        typed_table({**json.loads(path.read_text()), "max_force": "lots"}, PushObjectConfig, "")

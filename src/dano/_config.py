@@ -48,6 +48,31 @@ def read_table(path: str | Path) -> dict:
     return raw
 
 
+#: how a number setting may be written as a string in a JSON configuration: "inf", "-inf"
+#: (JSON has no infinity; :func:`config_json` writes these, TOML has its own ``inf``)
+INFINITE_WORDS = ("inf", "infinity")
+
+
+def config_json(value) -> str:
+    """``value`` (a resolved configuration: a dict of settings) as strict JSON text, indented,
+    with a trailing newline: an infinite float is written as the string ``"inf"`` or
+    ``"-inf"``, which :func:`typed` reads back as the number (Python's ``Infinity`` is not JSON,
+    and other tools refuse it). Raises ValueError for a NaN (a configuration's checks refuse
+    one)."""
+    import math
+
+    def finite(x):
+        if isinstance(x, float) and math.isinf(x):
+            return "inf" if x > 0 else "-inf"
+        if isinstance(x, dict):
+            return {k: finite(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [finite(v) for v in x]
+        return x
+
+    return json.dumps(finite(value), indent=2, allow_nan=False, default=str) + "\n"
+
+
 def typed(value, tp, where: str):
     """``value`` read as type ``tp`` (float accepts integers; never booleans)."""
     origin, args = typing.get_origin(tp), typing.get_args(tp)
@@ -74,6 +99,8 @@ def typed(value, tp, where: str):
             raise DanoError(f"{where}: expected true or false, got {_kind(value)}")
         return value
     if tp is float:
+        if isinstance(value, str) and value.strip().lower().lstrip("+-") in INFINITE_WORDS:
+            return float("-inf") if value.strip().startswith("-") else float("inf")
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise DanoError(f"{where}: expected a number, got {_kind(value)}")
         return float(value)

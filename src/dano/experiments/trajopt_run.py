@@ -13,7 +13,7 @@ from typing import Annotated
 import numpy as np
 import tyro
 
-from .._config import read_table, typed_table
+from .._config import config_json, read_table, typed_table
 from .._files import json_safe
 from ..contact import CONTACT_MODELS
 from .._files import atomic_path
@@ -204,7 +204,7 @@ def _plot(task, solution, model_error, path) -> None:
 
 def _write_report_and_config(paths: dict, rep: dict, config) -> None:
     paths["report.json"].write_text(json.dumps(rep, indent=2))
-    paths["config.json"].write_text(json.dumps(dataclasses.asdict(config), indent=2))
+    paths["config.json"].write_text(config_json(dataclasses.asdict(config)))
 
 
 #: the largest qpos difference [m] at the last step between a plan's states and the scene's own

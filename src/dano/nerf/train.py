@@ -27,6 +27,7 @@ import numpy as np
 import optax
 import tyro
 
+from .._config import config_json
 from .._files import atomic_write
 from ..errors import DanoError
 from ..render.cameras import pixel_rays
@@ -339,7 +340,7 @@ def write_outputs(out_dir: str | Path, result: TrainResult, config: TrainConfig,
         "occupied_fraction": result.occupancy.fraction_occupied(), "data": str(data), "field": str(out_dir),
     }
     resolved = dataclasses.asdict(config) | {"data": str(data), "bounds": dataset.bounds.tolist()}
-    atomic_write(out_dir / "config.json", lambda f: f.write((json.dumps(resolved, indent=2) + "\n").encode()))
+    atomic_write(out_dir / "config.json", lambda f: f.write(config_json(resolved).encode()))
     atomic_write(out_dir / "report.json", lambda f: f.write((json.dumps(report, indent=2) + "\n").encode()))
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=["step", "elapsed_s", "loss", "psnr_train", "lr", "complete",

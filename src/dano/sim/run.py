@@ -13,7 +13,6 @@ Ten lines of Python do what the command does::
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from contextlib import ExitStack
@@ -25,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 import tyro
 
-from .._config import read_table, typed_table
+from .._config import config_json, read_table, typed_table
 from .._files import atomic_path
 from ..contact import CONTACT_MODELS
 from ..data import load_asset
@@ -319,7 +318,7 @@ def write_outputs(run: SimulationRun, out: str | Path | None = None, video: str 
     saved = first.with_name(f"{first.stem}.config.json") if first is not None else None
     with ExitStack() as stack:
         if saved is not None:
-            stack.enter_context(atomic_path(saved)).write_text(json.dumps(dataclasses.asdict(run.config), indent=2))
+            stack.enter_context(atomic_path(saved)).write_text(config_json(dataclasses.asdict(run.config)))
         if video is not None:
             write_video(run.setup.scene, run.trajectory, stack.enter_context(atomic_path(video)), fps=run.config.fps,
                         progress=progress, camera=run.config.camera)

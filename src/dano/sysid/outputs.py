@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._config import config_json
 from .._files import atomic_path
 from ..viz.plot import plot_sysid
 from .problem import SEGMENT_NUISANCE_PREFIXES
@@ -74,6 +75,6 @@ def write_outputs(out_dir: str | Path, report: dict | Callable[[], dict], resolv
     with ExitStack() as stack:
         paths = {n: stack.enter_context(atomic_path(out_dir / n)) for n in names}
         fit_plot(problem, result, paths["fit.png"])
-        paths["config.json"].write_text(json.dumps(resolved, indent=2, default=str))
+        paths["config.json"].write_text(config_json(resolved))
         paths["result.json"].write_text(json.dumps(report() if callable(report) else report, indent=2))
     return [out_dir / n for n in names]
