@@ -89,6 +89,15 @@ def test_library_refuses_non_finite_parameters_and_states():
         jax.jit(lambda v: make_data(s.scene, s.state0.qpos, v))(jnp.zeros(3))
     with pytest.raises(DanoError, match="time step dt must be positive"):
         load_scene("bunny-drop", dt=-0.01)
+    # a zero quaternion: dano's error naming the body, not an all-NaN state (raw paths included)
+    zero = s.state0.qpos.at[3:7].set(0.0)
+    for run_it in (lambda: rollout(s.scene, State(zero, s.state0.qvel), None, s.params, 5),
+                   lambda: rollout(s.scene, make_data(s.scene, s.state0.qpos).replace(qpos=zero), None, s.params, 5),
+                   lambda: rollout_arrays(s.scene, State(zero, s.state0.qvel), None, s.params, 5)):
+        with pytest.raises(DanoError, match=r"initial qpos: the quaternion of 'bunny' \(qpos\[3:7\] = \[0.0, "):
+            run_it()
+    with pytest.raises(DanoError, match="make_data: qpos: the quaternion of 'bunny'"):
+        make_data(s.scene, zero)
 
 
 def test_rollout_warns_of_a_deep_start():

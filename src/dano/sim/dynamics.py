@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 
 from .._mjx import mjx
@@ -81,6 +82,8 @@ def make_data(scene: Scene, qpos=None, qvel=None, *, act=None, ctrl=None, time: 
         if x is not None and np.shape(x) != (n,):
             raise DanoError(f"make_data: {what} must have shape ({n},) for this scene, got {np.shape(x)}"
                             + (" (a free body's qpos is x, y, z, qw, qx, qy, qz)" if what == "qpos" else ""))
+    if qpos is not None:
+        check_quaternions(scene, qpos, "make_data: qpos")
     # (MJX makes its float fields in JAX's default float type; on this process's first device, not
     # jax.devices()[0], which is process 0's in a multi-process run)
     device = jax.local_devices()[0]
@@ -104,9 +107,34 @@ def make_data(scene: Scene, qpos=None, qvel=None, *, act=None, ctrl=None, time: 
     return jax.device_put(d, device)
 
 
+def check_quaternions(scene: Scene, qpos, what: str = "qpos") -> None:
+    """Raises DanoError if a free or ball joint's w-x-y-z quaternion in ``qpos`` (nq,) is zero
+    (or below 1e-6 in norm): it has no rotation to normalise to, and the step would make the
+    whole state NaN. Only concrete values are checked (under a JAX transformation nothing);
+    other quaternions need not be unit (the step normalises them)."""
+    if isinstance(qpos, jax.core.Tracer) or not scene.info.quaternion_slots:
+        return
+    q = np.asarray(qpos, dtype=np.float64)
+    if q.shape != (scene.nq,):
+        return  # (the caller reports the shape)
+    for adr, _ in scene.info.quaternion_slots:
+        if not np.linalg.norm(q[adr:adr + 4]) > 1e-6:  # (NaN fails too)
+            body = scene.mj_model.body(int(scene.mj_model.jnt_bodyid[_joint_at(scene, adr)])).name
+            raise DanoError(f"{what}: the quaternion of {body!r} (qpos[{adr}:{adr + 4}] = "
+                            f"{q[adr:adr + 4].tolist()}) is zero; give a w-x-y-z orientation, e.g. 1 0 0 0")
+
+
+def _joint_at(scene: Scene, qpos_adr: int) -> int:
+    """The joint whose quaternion starts at ``qpos_adr`` (a free joint's at its address + 3)."""
+    m = scene.mj_model
+    offset = {int(mujoco.mjtJoint.mjJNT_FREE): 3, int(mujoco.mjtJoint.mjJNT_BALL): 0}
+    return next(j for j in range(m.njnt) if int(m.jnt_qposadr[j]) + offset.get(int(m.jnt_type[j]), -99) == qpos_adr)
+
+
 def as_data(scene: Scene, state):
     """``state`` as MJX Data: a :class:`State` (qpos/qvel, the rest at rest) or Data itself."""
     if isinstance(state, State):
+        check_quaternions(scene, state.qpos, "initial qpos")
         return make_data(scene, state.qpos, state.qvel)
     return state
 

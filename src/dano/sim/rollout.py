@@ -14,7 +14,7 @@ from ..errors import DanoError, DanoWarning
 from ..trajectory import Trajectory
 from .implicit import NewtonConfig, resolve_linear_solver
 from .scene import Scene, SimParams
-from .dynamics import State, as_data, overlaps, step_with_info, tied
+from .dynamics import State, as_data, check_quaternions, overlaps, step_with_info, tied
 
 
 class SimulationDiverged(DanoError):
@@ -170,6 +170,7 @@ def rollout(
     else:
         _as_array(state0.qpos, (scene.nq,), "initial qpos", dt)
         _as_array(state0.qvel, (scene.nv,), "initial qvel", dt)
+        check_quaternions(scene, state0.qpos, "initial qpos")
         data = state0
     ctrl = None if controls is None else _as_array(controls, (steps, scene.nu), "controls", dt)
     f = None if qfrc is None else _as_array(qfrc, (steps, scene.nv), "qfrc", dt)
