@@ -178,11 +178,10 @@ def write_outputs(task, solution, model_error, rep: dict, out_dir: Path, video: 
             np.savez(f, **arrays)
         paths["log.csv"].write_text(csv)
         _plot(task, solution, model_error, paths["convergence.png"])
-        if video:  # the scene's own rollout of the plan's controls, or the plan where they differ (warned of)
-            gap = rep.get("replay_final_gap")
-            again = replay(task, X, U) if gap is not None and gap <= REPLAY_TOLERANCE else None
-            write_video(task.scene, again if again is not None else _plan_trajectory(task.scene, X),
-                        paths[f"{task.config.task}.mp4"], progress=progress)
+        if video:  # the plan's states: the report's replay found the scene's own rollout of its
+            # controls within REPLAY_TOLERANCE of them, or warned that it is not (replay_final_gap)
+            write_video(task.scene, _plan_trajectory(task.scene, X), paths[f"{task.config.task}.mp4"],
+                        progress=progress)
     return [out_dir / n for n in names]
 
 
