@@ -254,3 +254,15 @@ def test_bad_inputs_of_the_image_route_and_build_say_what_is_wrong(tmp_path, cap
     code, _, err = run(capsys, "train-field", views, "-o", tmp_path / "f", "--minutes", 0.2, "--eval-at", 0.1, 1)
     assert code == 1 and "--eval-at 1: after the end of the run (--minutes 0.2)" in " ".join(err.split())
     assert not (tmp_path / "f").exists()
+
+
+def test_warnings_are_printed_as_written_not_as_markup(tmp_path, capsys, monkeypatch):
+    """A warning that names a TOML table ("[options] window") reaches the terminal whole: the
+    console's markup would take "[options]" for a style and drop it."""
+    import dano.experiments
+
+    note = "windows ([options] window or auto_windows) or more trajectories smooth the cost"
+    monkeypatch.setattr(dano.experiments, "sysid_command",
+                        lambda c: (None, None, {"warnings": [note], "estimates": {}}, tmp_path))
+    code, out, err = run(capsys, "sysid", "problem.toml", "--json")
+    assert code == 0 and f"problem.toml: {note}" in " ".join(err.split()), err

@@ -617,3 +617,27 @@ def test_side_by_side_keeps_the_order_and_returns_errors_in_place():
     assert log[0][0] == "warm" and sorted(k for kind, k, _ in log[1:]) == [0, 1, 2, 3]
     with pytest.raises(ZeroDivisionError):
         side_by_side([lambda: 1 / 0, lambda: 1])
+
+
+def test_the_fit_plot_shows_every_window_of_a_trajectory(box_setup, monkeypatch):
+    """fit.png draws each trajectory once, over all its windows (a fitted line per window,
+    broken between them), not one series per window cut off after the fourth."""
+    import types
+
+    import dano.sysid.outputs as outputs
+
+    _, scene, _ = box_setup
+    problem = SysIdProblem(scene, [obs_ok(frames=30)], [FitParameter("sliding_friction", 0.3, 0, 1)], substeps=4,
+                           window=5)
+    assert len(problem.segments) == 6
+    fitted = [np.full((s.frames, scene.nq), float(k)) for k, s in enumerate(problem.segments)]
+    result = types.SimpleNamespace(fitted=fitted, labels=["sliding_friction"], estimates=np.array([0.3]),
+                                   standard_errors=np.array([0.01]), scan=None, interval=None, cost_history=[1.0])
+    drawn = {}
+    monkeypatch.setattr(outputs, "plot_sysid", lambda series, *a, **k: drawn.setdefault("series", series))
+    outputs.fit_plot(problem, result, "unused.png")
+    (s,) = drawn["series"]
+    assert len(s["time"]) == len(s["observed"]) == 30
+    pieces = np.isnan(s["fitted_time"])
+    assert pieces.sum() == 6 and len(s["fitted"]) == len(s["fitted_time"]) == sum(x.frames for x in problem.segments) + 6
+    np.testing.assert_array_equal(s["fitted"][~pieces][-1], [5.0, 5.0])  # the last window's line

@@ -213,7 +213,7 @@ def inspect(
         out.print(asset_table(asset))
     warning = density_warning(summary)
     if warning:
-        err.print(f"[yellow]warning:[/] {file}: {warning}", highlight=False, soft_wrap=True, markup=True)
+        err.print(f"[yellow]warning:[/] {escape(f'{file}: {warning}')}", highlight=False, soft_wrap=True)
     if plot is not None:
         from .viz import plot_samples
 
@@ -245,7 +245,7 @@ def _sysid(c) -> None:
     if not _primary():
         return
     for note in report["warnings"]:
-        err.print(f"[yellow]warning:[/] {c.config}: {note}", highlight=False, soft_wrap=True)
+        err.print(f"[yellow]warning:[/] {escape(f'{c.config}: {note}')}", highlight=False, soft_wrap=True)
     if c.json_:
         _print_report({k: v for k, v in report.items() if k not in ("grid", "heldout_per_toss")})
     else:

@@ -235,8 +235,14 @@ def _sysid_command(config: SysIdCommandConfig, run, write_outputs):
             raw = {**out["report"], **{key: f.result() for key, f in pending.items()}}
             report, nonfinite = json_safe(raw)
             notes = list(report.get("warnings", result.warnings))
-            if nonfinite:
-                notes.append(f"not finite (written as null): {', '.join(nonfinite)}; the data do not determine these "
+            said = any("no standard error" in n for n in notes)  # withheld, and the warning says why
+            withheld = [k for k in nonfinite if said and ("_std" in k or k.startswith("standard_errors."))]
+            unknown = [k for k in nonfinite if k not in withheld]
+            if withheld:
+                notes.append(f"withheld (written as null): {', '.join(withheld)}, for the reason the warnings above "
+                             "give")
+            if unknown:
+                notes.append(f"not finite (written as null): {', '.join(unknown)}; the data do not determine these "
                              "(check that positions are in metres and that the motion excites the parameters)")
             report["warnings"] = notes
             return report

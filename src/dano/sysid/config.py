@@ -491,5 +491,9 @@ def template(files) -> str:
               '# fit_position = ""                # nuisance: each start\'s position axes, e.g. "xy" for noisy starts',
               "# scan = 15                         # a global scan first (left out: automatic; 0: off)",
               "# profile_points = 32               # verify the estimate and give its interval (0: off)",
-              "# level = 0.95                      # the interval's level"]
+              "# level = 0.95                      # the interval's level",
+              "# poses tracked from a video (dano track): multiple shooting, docs/tracking.md",
+              "# window = 10                       # frame intervals per window, each restarted from its frame",
+              "# fit_ground = true                 # the ground's height (tracking errors along the camera axis)",
+              '# fit_angular_velocity = "xyz"      # with fit_velocity = "xyz": each window\'s start velocity']
     return "\n".join(lines) + "\n"

@@ -36,19 +36,28 @@ def estimates_report(result) -> dict:
 
 
 def fit_plot(problem, result, path, max_trajectories: int = 4) -> Path:
-    """Observed vs fitted positions of the first ``max_trajectories`` trajectories, the cost
-    per iteration and the profiles of ``result`` (:func:`dano.viz.plot_sysid`), titled with
-    each estimate and its interval (or standard error), to an image file."""
+    """Observed vs fitted positions of the first ``max_trajectories`` trajectories (each with
+    every window of its multiple shooting, a fitted line per window), the cost per iteration
+    and the profiles of ``result`` (:func:`dano.viz.plot_sysid`), titled with each estimate
+    and its interval (or standard error), to an image file."""
+    windows: dict[int, list] = {}
+    for i, seg in enumerate(problem.segments):
+        windows.setdefault(seg.obs, []).append((i, seg))
     series = []
-    for i, seg in enumerate(problem.segments[:max_trajectories]):
-        obs = problem.observations[seg.obs]
-        fitted = result.fitted[i] if i < len(result.fitted) else None
-        t = np.asarray(obs.time)[seg.start : seg.start + seg.frames]
+    for o in list(windows)[:max_trajectories]:
+        obs, segs = problem.observations[o], windows[o]
+        first, last = min(s.start for _, s in segs), max(s.start + s.frames for _, s in segs)
+        time = np.asarray(obs.time)
         for name, poses in obs.poses.items():
             a = problem.scene.qpos_adr[problem.scene.dano_index(name)]
-            series.append({"label": obs.name or str(i), "time": t,
-                           "observed": np.asarray(poses)[seg.start : seg.start + seg.frames, :2],
-                           "fitted": None if fitted is None else np.asarray(fitted)[:, a : a + 2]})
+            pieces = [(time[s.start : s.start + s.frames], np.asarray(result.fitted[i])[:, a : a + 2])
+                      for i, s in segs if i < len(result.fitted) and result.fitted[i] is not None]
+            gap = (np.full(1, np.nan), np.full((1, 2), np.nan))  # (a break in the line between windows)
+            series.append({"label": obs.name or str(o), "time": time[first:last],
+                           "observed": np.asarray(poses)[first:last, :2],
+                           "fitted": np.concatenate([x for p in pieces for x in (p[1], gap[1])]) if pieces else None,
+                           "fitted_time": np.concatenate([x for p in pieces for x in (p[0], gap[0])]) if pieces
+                           else None})
     profiles = {label: {**prof, "estimate": result.estimates[result.labels.index(label)]}
                 for label, prof in (result.scan or {}).get("profile", {}).items()}
     interval = result.interval or {"lower": {}, "upper": {}, "level": 0.95}

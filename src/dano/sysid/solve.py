@@ -676,6 +676,7 @@ def _verify_and_assess(problem: SysIdProblem, best: SysIdResult, points: int, le
                 new = _at_point(problem, new, record[1])
             if new is not best:
                 new.scan, new.stages = scan_info, stages
+                new.initial = best.initial  # the user's guess, not the restart's point
                 new.wall_time_s += best.wall_time_s
                 new.compile_time_s += best.compile_time_s
                 new.nfev += best.nfev
@@ -802,8 +803,8 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
             best.warnings.append(
                 f"{label}: the cost is rough at the scale of its interval ({minima} local minima in the profile "
                 f"over [{pr.values[0]:.4g}, {pr.values[-1]:.4g}]"
-                + (f"; the local curvature's standard error {se:.3g} would give an interval {ratio:.3g}x the "
-                   "profile's" if ratio is not None else "")
+                + (f"; the local curvature's standard error {se:.3g} would give an interval {1 / ratio:.3g}x the "
+                   "profile's" if ratio else "")
                 + "): no standard error is reported, the interval comes from the profile"
                 + (" and the bootstrap" if boot is not None else "")
                 + "; windows ([options] window or auto_windows) or more trajectories smooth the cost")

@@ -65,7 +65,9 @@ def plot_sysid(series, cost_history, path, profiles=None, title: str = "") -> Pa
     to an image file (format from the suffix). Written atomically.
 
     series: list of dicts, one per tracked object and trajectory: ``label`` (str), ``time``
-    (T,) [s], ``observed`` (T, 2) world x, y [m], ``fitted`` (T, 2) [m] or None.
+    (T,) [s], ``observed`` (T, 2) world x, y [m], ``fitted`` (F, 2) [m] or None and, where
+    its times are not ``time``'s, ``fitted_time`` (F,) [s] (NaN rows break the line: one per
+    window of a multiple shooting).
     cost_history: (K,) cost ½‖r‖² per iteration. profiles: {label: {"values": (P,),
     "cost": (P,) with None where not evaluated, "estimate": float}}. title: the figure's title.
     """
@@ -83,9 +85,10 @@ def plot_sysid(series, cost_history, path, profiles=None, title: str = "") -> Pa
         axes[1].plot(t, p[:, 1], "s", ms=3, color=c, alpha=0.6)
         if fitted is not None:
             fitted = np.asarray(fitted)
+            ft = t if s.get("fitted_time") is None else np.asarray(s["fitted_time"])
             axes[0].plot(fitted[:, 0], fitted[:, 1], "-", color=c, label="fitted")
-            axes[1].plot(t, fitted[:, 0], "-", color=c)
-            axes[1].plot(t, fitted[:, 1], "--", color=c)
+            axes[1].plot(ft, fitted[:, 0], "-", color=c)
+            axes[1].plot(ft, fitted[:, 1], "--", color=c)
     # equal scales by widening the narrower range (not by squeezing the panel: a straight slide
     # then ran its tick labels together), at most 5 ticks per axis
     axes[0].set(xlabel="x [m]", ylabel="y [m]", title="paths (top view)", aspect="equal", adjustable="datalim")
