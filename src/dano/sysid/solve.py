@@ -585,7 +585,9 @@ def _noise_and_misfit(problem: SysIdProblem, result: SysIdResult) -> dict:
         result.warnings.append(
             f"the model misfits the data: rms residual {result.rms_residual:.3g} is "
             + (f"{result.rms_residual / expected:.3g}x" if expected > 0 else "far above")
-            + f" what the measurement noise estimated from the observations would leave ({expected:.3g}); "
+            + f" what the measurement noise estimated from the observations would leave ({expected:.3g}), "
+            "or the observations' errors are correlated from frame to frame, which that estimate (from "
+            "differences of neighbouring frames) does not see: a video tracker's are; "
             "the standard errors assume independent residuals and understate the uncertainty (the interval "
             "allows for the residuals' correlation, not for the model's own error: against an engine with hard "
             "Coulomb friction, e.g., the paper's smoothed friction direction alone moves friction a few percent "
