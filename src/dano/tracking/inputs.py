@@ -29,6 +29,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 
 from ..errors import DanoError, FileFormatError
@@ -145,7 +146,7 @@ def read_camera(path: str | Path, width: int, height: int) -> tuple[Cameras, flo
         principal = (float(meta.get("cx", width / 2)), float(meta.get("cy", height / 2)))
         cameras = Cameras.create(np.asarray(meta["transform_matrix"], dtype=np.float64)[None], width, height,
                                  (fx, fy), principal, convention=str(meta.get("convention", "blender")),
-                                 dtype=np.float64)
+                                 dtype=jnp.result_type(float))  # float64 where enabled, else float32
         fps = meta.get("fps")
         if fps is not None and (not np.isfinite(float(fps)) or float(fps) <= 0):
             raise DanoError(f'"fps" must be positive, got {fps}')

@@ -321,7 +321,9 @@ class _Problem:
             where = f"{depth:.3g} m in front of the camera, at pixel ({u:.0f}, {v:.0f}) of the {w}x{h} image"
         raise DanoError(f"the object is not in view in the first frame tracked: at the initial pose its centre of mass "
                         f"{np.round(pose[:3], 4).tolist()} is {where}, and it covers no pixel. Give the pose in "
-                        f"the camera's world frame (centre of mass [m], then the wxyz quaternion)")
+                        f"the camera's world frame (centre of mass [m], then the wxyz quaternion), and check "
+                        f"camera.json's \"convention\" (now {self.cam.convention!r}: \"blender\" looks along -z "
+                        f"with +y up, \"opencv\" along +z with +y down)")
 
     def ray_set(self, k: int, previous_alpha: np.ndarray) -> np.ndarray:
         """Indices of the rays rendered for frame k: near the mask and near ``previous_alpha``
@@ -356,8 +358,8 @@ class _Problem:
         else:
             mask, bary = np.zeros(size), np.zeros(2)
         target = (jnp.asarray(mask), jnp.asarray(self.colours[k][idx]), jnp.asarray(self.background[idx]),
-                  jnp.asarray(bary), jnp.asarray(colour_factor, jnp.float64))
-        pose, loss, alpha = self._solve(jnp.asarray(base, jnp.float64), rays, target)
+                  jnp.asarray(bary), jnp.asarray(colour_factor, float))
+        pose, loss, alpha = self._solve(jnp.asarray(base, float), rays, target)  # (float64 where enabled)
         full = np.zeros(self.hb * self.wb)
         full[index] = np.asarray(alpha)[:n]
         return np.asarray(pose), float(loss), full
