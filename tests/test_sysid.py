@@ -641,3 +641,29 @@ def test_the_fit_plot_shows_every_window_of_a_trajectory(box_setup, monkeypatch)
     pieces = np.isnan(s["fitted_time"])
     assert pieces.sum() == 6 and len(s["fitted"]) == len(s["fitted_time"]) == sum(x.frames for x in problem.segments) + 6
     np.testing.assert_array_equal(s["fitted"][~pieces][-1], [5.0, 5.0])  # the last window's line
+
+
+def test_the_template_is_a_valid_problem_and_a_tracked_videos_sets_its_route(tmp_path):
+    """`dano sysid --template` gives a TOML problem that reads as one (once its file is real);
+    for poses tracked from a video (`dano track --identify` writes it) the trajectory is the
+    tracked poses.npz, the time step a whole fraction of the frame interval no longer than
+    0.01 s, and the two-stage route's options are set (windows, ground, start velocities)."""
+    import tomllib
+
+    from dano._config import typed_table
+    from dano.sysid.config import SysIdConfig, template
+    from dano.tracking.outputs import write_tracked_problem
+
+    plain = tomllib.loads(template(["builtin:bunny_lowpoly"]))
+    cfg = typed_table(plain, SysIdConfig, "")
+    assert cfg.scene.dt == 0.01 and cfg.trajectory[0].file == "bunny_lowpoly_1.csv"
+    assert cfg.options.window == 0 and cfg.options.fit_velocity == "auto"
+    path = write_tracked_problem(tmp_path, "builtin:bunny_lowpoly", 0.04)
+    assert path == tmp_path / "problem.toml"
+    tracked = typed_table(tomllib.loads(path.read_text()), SysIdConfig, "")
+    assert tracked.trajectory[0].file == "poses.npz" and tracked.scene.object[0].asset == "builtin:bunny_lowpoly"
+    assert tracked.options.substeps == 4 and abs(tracked.scene.dt - 0.01) < 1e-15
+    assert (tracked.options.window, tracked.options.fit_ground, tracked.options.fit_velocity) == (10, True, "xyz")
+    assert tracked.options.fit_angular_velocity == ""
+    with pytest.raises(DanoError, match="needs one object and a positive frame interval"):
+        template(["builtin:bunny_lowpoly", "builtin:bunny"], tracked="poses.npz", frame_interval=0.01)

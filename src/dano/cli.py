@@ -244,12 +244,20 @@ def _sysid(c) -> None:
     problem, result, report, out_dir = sysid_command(c)
     if not _primary():
         return
-    for note in report["warnings"]:
-        err.print(f"[yellow]warning:[/] {escape(f'{c.config}: {note}')}", highlight=False, soft_wrap=True)
+    _print_sysid_warnings(c.config, report)
     if c.json_:
-        _print_report({k: v for k, v in report.items() if k not in ("grid", "heldout_per_toss")})
+        _print_report(_sysid_json(report))
     else:
         out.print(sysid_table(c.config, problem, result, report, out_dir))
+
+
+def _print_sysid_warnings(name, report: dict) -> None:
+    for note in report["warnings"]:
+        err.print(f"[yellow]warning:[/] {escape(f'{name}: {note}')}", highlight=False, soft_wrap=True)
+
+
+def _sysid_json(report: dict) -> dict:
+    return {k: v for k, v in report.items() if k not in ("grid", "heldout_per_toss")}
 
 
 def demo(out_dir: Annotated[Path, tyro.conf.arg(name="out", aliases=("-o", "--out-dir"))] = Path("dano-demo"),
@@ -337,12 +345,23 @@ def _track(c) -> None:
 
     with _progress(not c.quiet and not c.json_) as progress:
         report, files = track_command(c, progress=progress)
-    if c.json_:
-        _print_report(report)
-    else:
+    if not c.json_:
         err.print(f"tracked {report['frames']} frames ({report['poor_frames']} poor, mean IoU "
                   f"{report['mean_iou']:.3f}, {report['time_per_frame_s']:.2f} s per frame); wrote "
                   f"{', '.join(files)} in {c.out}")
+    if c.identify:  # the tracked poses -> friction (two stages), through dano sysid's own route
+        from .experiments import SysIdCommandConfig, sysid_command
+        from .tracking.outputs import write_tracked_problem
+
+        toml = write_tracked_problem(c.out, c.object, report["frame_interval_s"])
+        problem, result, identified, sysid_dir = sysid_command(SysIdCommandConfig(config=str(toml),
+                                                                                  out_dir=c.out / "sysid"))
+        _print_sysid_warnings(toml, identified)
+        report = {**report, "identification": _sysid_json(identified)}
+        if not c.json_:
+            out.print(sysid_table(str(toml), problem, result, identified, sysid_dir))
+    if c.json_:
+        _print_report(report)
 
 
 def _real2sim(c) -> None:

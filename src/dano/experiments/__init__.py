@@ -239,8 +239,13 @@ def _sysid_command(config: SysIdCommandConfig, run, write_outputs):
             withheld = [k for k in nonfinite if said and ("_std" in k or k.startswith("standard_errors."))]
             unknown = [k for k in nonfinite if k not in withheld]
             if withheld:
-                notes.append(f"withheld (written as null): {', '.join(withheld)}, for the reason the warnings above "
-                             "give")
+                from ..sysid.problem import SEGMENT_NUISANCE_PREFIXES
+
+                starts = [k for k in withheld if any(p in k for p in SEGMENT_NUISANCE_PREFIXES)]
+                named = [k for k in withheld if k not in starts]
+                notes.append(f"withheld (written as null): {', '.join(named)}"
+                             + (f"{' and' if named else ''} the standard errors of {len(starts)} start-state offsets"
+                                if starts else "") + ", for the reason the warnings above give")
             if unknown:
                 notes.append(f"not finite (written as null): {', '.join(unknown)}; the data do not determine these "
                              "(check that positions are in metres and that the motion excites the parameters)")

@@ -442,13 +442,20 @@ def run(config: str | Path, *, jacobian: str | None = None) -> tuple[SysIdProble
     return problem, result, {"report": estimates_report(result), "config": resolved}
 
 
-def template(files) -> str:
+def template(files, tracked: str | None = None, frame_interval: float | None = None) -> str:
     """A commented TOML problem for one's own scene and objects, for ``dano sysid --template``:
     ``files`` are an optional MJCF scene (``.xml``, first) and one or more ``.dano`` assets (or
     ``builtin:NAME``). The scene's time step is the one its MJCF states (else 0.01 s); each
     object is named after its file's stem. The ``[[trajectory]]`` entries point at
-    ``<name>_1.csv`` placeholders whose columns and units the comments give. Raises DanoError
-    when no object is given or a file is missing."""
+    ``<name>_1.csv`` placeholders whose columns and units the comments give.
+
+    ``tracked``: instead, one object's poses tracked from a video (``dano track``'s
+    ``poses.npz``, a path as the TOML file will read it) at ``frame_interval`` [s]: the
+    trajectory points at it, the time step is the frame interval (or a whole fraction of it
+    no longer than 0.01 s, with ``substeps``), and the options of the two-stage route of
+    docs/tracking.md are set (windows of 10 frame intervals, the ground's height and each
+    window's start velocity fitted). Raises DanoError when no object is given, a file is
+    missing, or ``tracked`` comes with more than one object or no positive frame interval."""
     files = [str(f) for f in files]
     scene = files[0] if files and files[0].lower().endswith(".xml") else None
     objects = files[1:] if scene else files
@@ -460,6 +467,13 @@ def template(files) -> str:
             raise DanoError(f"--template: {f}: no such file")
     names = [o.split(":", 1)[1] if o.startswith("builtin:") else Path(o).stem for o in objects]
     dt = (stated_timestep(scene) if scene else None) or DEFAULT_DT
+    substeps = 1
+    if tracked is not None:
+        if len(objects) != 1 or not (frame_interval and np.isfinite(frame_interval) and frame_interval > 0):
+            raise DanoError("a tracked trajectory's problem needs one object and a positive frame interval, got "
+                            f"{len(objects)} objects and {frame_interval}")
+        substeps = max(1, int(np.ceil(frame_interval / DEFAULT_DT - 1e-9)))
+        dt = frame_interval / substeps
     lines = ["# dano sysid problem (format: docs/sysid.md, every key: docs/config-reference.md).",
              "# Relative paths are read from this file's folder. Run: dano sysid THIS.toml", "", "[scene]"]
     lines += [f'mjcf = "{scene}"                 # your MuJoCo scene (its ground, table, robot)'] if scene else [
@@ -474,19 +488,24 @@ def template(files) -> str:
               "# sliding_drag = 0.0              # held at 0 anyway while sliding_friction is identified"]
     for name in names:
         lines += ["", "[[trajectory]]",
-                  f'file = "{name}_1.csv"          # CSV: header t,x,y,z,qw,qx,qy,qz; one row per frame; time [s],',
+                  f'file = "{tracked or name + "_1.csv"}"          # CSV: header t,x,y,z,qw,qx,qy,qz; one row per '
+                  'frame; time [s],',
                   "                                 # centre of mass [m], world frame; orientation quaternion (w first).",
                   "                                 # Or a .npz with time (T,) and poses (T, 7), or a dano trajectory",
                   f'object = "{name}"',
                   "velocities = false              # true: start from measured velocities (CSV columns vx,vy,vz",
                   "                                 # world [m/s], wx,wy,wz body [rad/s])",
                   "# add one [[trajectory]] per recording"]
+    if tracked is not None:
+        lines[-1] = "# (poses tracked from a video by dano track: its world frame is camera.json's, the ground z = 0)"
     lines += ["", "[[parameter]]", 'name = "sliding_friction"       # or impact_spring, impact_damper, torsional_friction,',
               "                                 # rolling_friction, com_offset_x|y|z, ...; alpha (mass scale) only",
               "                                 # where something of known mass pushes the object",
               "initial = 0.5", "lower = 0.0", "upper = 2.0",
-              "", "[options]                        # all optional; the defaults shown",
-              "# substeps = 1", '# fit_velocity = "auto"            # nuisance: each start\'s velocity along these axes;',
+              "", "[options]                        # all optional; the defaults shown"
+              + (", but for those a tracked video's route sets" if tracked is not None else ""),
+              f"{'' if substeps > 1 else '# '}substeps = {substeps}",
+              '# fit_velocity = "auto"            # nuisance: each start\'s velocity along these axes;',
               '                                   # auto: "xyz" where the frames\' noise makes finite differences poor',
               '# fit_position = ""                # nuisance: each start\'s position axes, e.g. "xy" for noisy starts',
               "# scan = 15                         # a global scan first (left out: automatic; 0: off)",
@@ -495,5 +514,10 @@ def template(files) -> str:
               "# poses tracked from a video (dano track): multiple shooting, docs/tracking.md",
               "# window = 10                       # frame intervals per window, each restarted from its frame",
               "# fit_ground = true                 # the ground's height (tracking errors along the camera axis)",
-              '# fit_angular_velocity = "xyz"      # with fit_velocity = "xyz": each window\'s start velocity']
+              '# fit_velocity = "xyz"              # each window\'s start velocity (finite differences of tracked',
+              "                                   # frames are poor)",
+              '# fit_angular_velocity = "xyz"      # and its angular velocity, for an object that tumbles or spins',
+              "                                   # (6 more parameters per window: slower, often not needed)"]
+    if tracked is not None:  # the two-stage route's options, set (the angular velocities left to the user)
+        lines[-6:-3] = [line[2:] for line in lines[-6:-3]]  # window, fit_ground, fit_velocity
     return "\n".join(lines) + "\n"

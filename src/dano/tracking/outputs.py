@@ -124,8 +124,14 @@ class TrackCommandConfig:
     """weight of a prior toward the constant-velocity prediction."""
     no_video: bool = False
     """skip overlay.mp4."""
+    identify: bool = False
+    """then identify the sliding friction from the tracked poses (the two stages of docs/tracking.md): writes
+    problem.toml (edit and rerun it: dano sysid problem.toml) and sysid/ (result.json, config.json, fit.png); the
+    ground is z = 0 of camera.json's world frame (its small offset is fitted). The tracking's outputs stay if the
+    identification fails."""
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False
-    """print one JSON object (frames, poor_frames, mean_iou, time_per_frame_s, ...)."""
+    """print one JSON object (frames, poor_frames, mean_iou, time_per_frame_s, ...; with --identify, the
+    identification's report under "identification")."""
     quiet: bool = False
     """no progress bar."""
 
@@ -151,8 +157,21 @@ def track_command(config: TrackCommandConfig, progress=None) -> tuple[dict, list
     data = load_video(config.video, camera=config.camera, masks=config.masks, background=config.background,
                       fps=config.fps, threshold=config.threshold, subtract_background=config.subtract_background)
     result = track(data, obj, config.pose, fit, progress=progress)
-    report = {**result.summary(), "video": str(config.video), "object": config.object,
-              "initial_pose": list(config.pose)}
     rate = 1.0 / float(data.time[1] - data.time[0]) if data.num_frames > 1 else 1.0
+    report = {**result.summary(), "video": str(config.video), "object": config.object,
+              "initial_pose": list(config.pose), "frame_interval_s": 1.0 / rate}
     files = write_track_outputs(config.out, data, result, obj.name, report, rate, video_file=not config.no_video)
     return report, files
+
+
+def write_tracked_problem(out_dir: str | Path, object_spec: str, frame_interval: float) -> Path:
+    """``problem.toml`` in ``out_dir`` beside its ``poses.npz``: a ``dano sysid`` problem for
+    the tracked object (its asset's absolute path, or ``builtin:NAME``) with the two-stage
+    route's options (:func:`dano.sysid.config.template` with ``tracked``). Returns its path."""
+    from ..sysid.config import template
+
+    spec = object_spec if object_spec.startswith("builtin:") else str(Path(object_spec).resolve())
+    path = Path(out_dir) / "problem.toml"
+    text = template([spec], tracked="poses.npz", frame_interval=frame_interval)
+    atomic_write(path, lambda f: f.write(text.encode()))
+    return path
