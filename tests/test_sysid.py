@@ -665,5 +665,27 @@ def test_the_template_is_a_valid_problem_and_a_tracked_videos_sets_its_route(tmp
     assert tracked.options.substeps == 4 and abs(tracked.scene.dt - 0.01) < 1e-15
     assert (tracked.options.window, tracked.options.fit_ground, tracked.options.fit_velocity) == (10, True, "xyz")
     assert tracked.options.fit_angular_velocity == ""
+    for rate in (24.0, 29.97, 30.0, 60.0, 240.0):  # dt written in full: the problem's 1e-9 check of dt holds
+        raw = tomllib.loads(template(["builtin:bunny_lowpoly"], tracked="poses.npz", frame_interval=1 / rate))
+        assert abs(raw["scene"]["dt"] * raw["options"].get("substeps", 1) * rate - 1) < 1e-12, rate
+        assert raw["scene"]["dt"] <= 0.01
     with pytest.raises(DanoError, match="needs one object and a positive frame interval"):
         template(["builtin:bunny_lowpoly", "builtin:bunny"], tracked="poses.npz", frame_interval=0.01)
+
+
+def test_a_withheld_standard_error_is_told_apart_from_an_undetermined_one():
+    """The report's note on null standard errors: those a warning withholds (a rough cost, a
+    bound, a solver short of a minimum) are said to be withheld; any other null keeps the
+    advice that the data may not determine it."""
+    from dano.experiments import _withheld_with_reason
+
+    rough = ["sliding_friction: the cost is rough at the scale of its interval (...): no standard error is reported"]
+    assert _withheld_with_reason("sliding_friction_std", rough)
+    assert _withheld_with_reason("standard_errors.sliding_friction", rough)
+    assert not _withheld_with_reason("ground_height_std", rough)  # no warning speaks for it
+    assert not _withheld_with_reason("sliding_friction", rough)  # an estimate, not a standard error
+    short = ["the solver stopped at its evaluation limit (140) before a convergence test was met: no standard "
+             "errors (not a converged minimum)"]
+    assert _withheld_with_reason("standard_errors.v0[0]:spot:x", short)
+    singular = ["JᵀJ is singular: the data do not determine every parameter; no standard errors"]
+    assert not _withheld_with_reason("sliding_friction_std", singular)

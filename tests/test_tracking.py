@@ -246,6 +246,15 @@ def test_track_cli_refuses_bad_input_and_leaves_nothing(one_frame, tmp_path, cap
     err = capsys.readouterr().err
     assert code == 1 and "not in view in the first frame tracked" in err and "of the 320x240 image" in err
     assert "Traceback" not in err and not out.exists()
+    # --identify needs motion: a one-frame video is refused before tracking, naming the video
+    code = main(["track", str(folder), "--object", "builtin:bunny_lowpoly", "--pose", *pose, "-o", str(out),
+                 "--identify", "--quiet"])
+    err = " ".join(capsys.readouterr().err.split())
+    assert code == 1 and "--identify needs at least 4 frames" in err and "has 1" in err and not out.exists()
+    from dano.tracking.outputs import poor_frames_warning
+
+    assert poor_frames_warning({"frames": 61, "poor_frames": 0}) == []
+    assert "3 of the 61 tracked frames are flagged poor" in poor_frames_warning({"frames": 61, "poor_frames": 3})[0]
 
 
 @jax.tree_util.register_dataclass

@@ -99,8 +99,9 @@ def typed(value, tp, where: str):
             raise DanoError(f"{where}: expected true or false, got {_kind(value)}")
         return value
     if tp is float:
-        if isinstance(value, str) and value.strip().lower().lstrip("+-") in INFINITE_WORDS:
-            return float("-inf") if value.strip().startswith("-") else float("inf")
+        word = value.strip().lower() if isinstance(value, str) else ""
+        if word.lstrip("+-") in INFINITE_WORDS and len(word) - len(word.lstrip("+-")) <= 1:
+            return float("-inf") if word.startswith("-") else float("inf")
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise DanoError(f"{where}: expected a number, got {_kind(value)}")
         return float(value)

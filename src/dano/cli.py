@@ -351,11 +351,17 @@ def _track(c) -> None:
                   f"{', '.join(files)} in {c.out}")
     if c.identify:  # the tracked poses -> friction (two stages), through dano sysid's own route
         from .experiments import SysIdCommandConfig, sysid_command
-        from .tracking.outputs import write_tracked_problem
+        from .tracking.outputs import poor_frames_warning, write_tracked_problem
 
         toml = write_tracked_problem(c.out, c.object, report["frame_interval_s"])
-        problem, result, identified, sysid_dir = sysid_command(SysIdCommandConfig(config=str(toml),
-                                                                                  out_dir=c.out / "sysid"))
+        try:
+            problem, result, identified, sysid_dir = sysid_command(SysIdCommandConfig(config=str(toml),
+                                                                                      out_dir=c.out / "sysid"))
+        except DanoError as exc:  # the tracking's outputs stay; a script still gets its report
+            if c.json_:
+                _print_report({**report, "identification_error": str(exc)})
+            raise
+        identified["warnings"] = poor_frames_warning(report) + identified["warnings"]
         _print_sysid_warnings(toml, identified)
         report = {**report, "identification": _sysid_json(identified)}
         if not c.json_:

@@ -191,6 +191,21 @@ class SysIdCommandConfig:
         return self
 
 
+def _withheld_with_reason(key: str, notes: list[str]) -> bool:
+    """Whether the report's null ``key`` is a standard error that a warning in ``notes``
+    already withholds and says why: all of them where the solver stopped short of a converged
+    minimum, or its parameter's own (at a bound, a rough cost: "<label> ...: no standard
+    error")."""
+    if key.startswith("standard_errors."):
+        label = key[len("standard_errors."):]
+    elif key.endswith("_std"):
+        label = key[: -len("_std")]
+    else:
+        return False
+    return any("not a converged minimum" in n for n in notes) or any(
+        (n.startswith(label + " ") or n.startswith(label + ":")) and "no standard error" in n for n in notes)
+
+
 def sysid_command(config: SysIdCommandConfig):
     """``dano sysid``: a built-in example (:func:`run_sysid`), a TOML problem or a saved
     ``config.json`` (:func:`dano.sysid.config.run`), its outputs written to ``out_dir``
@@ -235,17 +250,16 @@ def _sysid_command(config: SysIdCommandConfig, run, write_outputs):
             raw = {**out["report"], **{key: f.result() for key, f in pending.items()}}
             report, nonfinite = json_safe(raw)
             notes = list(report.get("warnings", result.warnings))
-            said = any("no standard error" in n for n in notes)  # withheld, and the warning says why
-            withheld = [k for k in nonfinite if said and ("_std" in k or k.startswith("standard_errors."))]
+            withheld = [k for k in nonfinite if _withheld_with_reason(k, notes)]
             unknown = [k for k in nonfinite if k not in withheld]
             if withheld:
                 from ..sysid.problem import SEGMENT_NUISANCE_PREFIXES
 
                 starts = [k for k in withheld if any(p in k for p in SEGMENT_NUISANCE_PREFIXES)]
-                named = [k for k in withheld if k not in starts]
-                notes.append(f"withheld (written as null): {', '.join(named)}"
-                             + (f"{' and' if named else ''} the standard errors of {len(starts)} start-state offsets"
-                                if starts else "") + ", for the reason the warnings above give")
+                named = ", ".join(k for k in withheld if k not in starts)
+                counted = f"the standard errors of {len(starts)} start-state offsets" if starts else ""
+                notes.append(f"withheld (written as null): {' and '.join(x for x in (named, counted) if x)}, for the "
+                             "reasons the warnings above give")
             if unknown:
                 notes.append(f"not finite (written as null): {', '.join(unknown)}; the data do not determine these "
                              "(check that positions are in metres and that the motion excites the parameters)")

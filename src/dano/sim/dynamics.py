@@ -109,7 +109,7 @@ def make_data(scene: Scene, qpos=None, qvel=None, *, act=None, ctrl=None, time: 
 
 def check_quaternions(scene: Scene, qpos, what: str = "qpos") -> None:
     """Raises DanoError if a free or ball joint's w-x-y-z quaternion in ``qpos`` (nq,) is zero
-    (or below 1e-6 in norm): it has no rotation to normalise to, and the step would make the
+    (below 1e-6 in norm) or not finite: it has no rotation to normalise to, and the step would make the
     whole state NaN. Only concrete values are checked (under a JAX transformation nothing);
     other quaternions need not be unit (the step normalises them)."""
     if isinstance(qpos, jax.core.Tracer) or not scene.info.quaternion_slots:
@@ -121,7 +121,7 @@ def check_quaternions(scene: Scene, qpos, what: str = "qpos") -> None:
         if not np.linalg.norm(q[adr:adr + 4]) > 1e-6:  # (NaN fails too)
             body = scene.mj_model.body(int(scene.mj_model.jnt_bodyid[_joint_at(scene, adr)])).name
             raise DanoError(f"{what}: the quaternion of {body!r} (qpos[{adr}:{adr + 4}] = "
-                            f"{q[adr:adr + 4].tolist()}) is zero; give a w-x-y-z orientation, e.g. 1 0 0 0")
+                            f"{q[adr:adr + 4].tolist()}) is zero or not finite; give a w-x-y-z orientation, e.g. 1 0 0 0")
 
 
 def _joint_at(scene: Scene, qpos_adr: int) -> int:

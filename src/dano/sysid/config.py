@@ -63,6 +63,7 @@ type, default and meaning: docs/config-reference.md (generated from the field do
 from __future__ import annotations
 
 import dataclasses
+import json
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -476,23 +477,23 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
         dt = frame_interval / substeps
     lines = ["# dano sysid problem (format: docs/sysid.md, every key: docs/config-reference.md).",
              "# Relative paths are read from this file's folder. Run: dano sysid THIS.toml", "", "[scene]"]
-    lines += [f'mjcf = "{scene}"                 # your MuJoCo scene (its ground, table, robot)'] if scene else [
+    lines += [f'mjcf = {json.dumps(scene)}                 # your MuJoCo scene (its ground, table, robot)'] if scene else [
         "# mjcf = \"scene.xml\"           # left out: an empty world with a ground plane at z = 0"]
-    lines += [f"dt = {dt:g}                      # simulation step [s] = frame interval / substeps",
+    lines += [f"dt = {dt!r}                      # simulation step [s] = frame interval / substeps",
               'contact_model = "centroid"      # or "per_sample" (a force per boundary sample)']
     for name, obj in zip(names, objects):
-        lines += ["", "[[scene.object]]", f'name = "{name}"', f'asset = "{obj}"',
+        lines += ["", "[[scene.object]]", f'name = {json.dumps(name)}', f'asset = {json.dumps(obj)}',
                   "pos = [0.0, 0.0, 0.0]           # world [m]; each trajectory's first pose places it",
                   "quat = [1.0, 0.0, 0.0, 0.0]     # w, x, y, z"]
     lines += ["", "[contact]                        # fixed contact parameters (all pairs); the rest: the paper's",
               "# sliding_drag = 0.0              # held at 0 anyway while sliding_friction is identified"]
     for name in names:
-        lines += ["", "[[trajectory]]",
-                  f'file = "{tracked or name + "_1.csv"}"          # CSV: header t,x,y,z,qw,qx,qy,qz; one row per '
-                  'frame; time [s],',
+        lines += ["", "[[trajectory]]"] + ([f"file = {json.dumps(tracked)}          # dano track's poses (a dano "
+                                            "trajectory)"] if tracked is not None else [
+                  f'file = "{name}_1.csv"          # CSV: header t,x,y,z,qw,qx,qy,qz; one row per frame; time [s],',
                   "                                 # centre of mass [m], world frame; orientation quaternion (w first).",
-                  "                                 # Or a .npz with time (T,) and poses (T, 7), or a dano trajectory",
-                  f'object = "{name}"',
+                  "                                 # Or a .npz with time (T,) and poses (T, 7), or a dano trajectory"]) + [
+                  f'object = {json.dumps(name)}',
                   "velocities = false              # true: start from measured velocities (CSV columns vx,vy,vz",
                   "                                 # world [m/s], wx,wy,wz body [rad/s])",
                   "# add one [[trajectory]] per recording"]

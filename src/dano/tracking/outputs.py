@@ -14,6 +14,7 @@ import numpy as np
 import tyro
 
 from .._files import atomic_write, check_new_folder
+from ..errors import DanoError
 from ..data import load_asset
 from ..nerf import load_field
 from ..pose import velocity_from_poses
@@ -156,12 +157,27 @@ def track_command(config: TrackCommandConfig, progress=None) -> tuple[dict, list
     obj = TrackedObject.from_asset(load_asset(config.object), radiance, radiance_occupancy)
     data = load_video(config.video, camera=config.camera, masks=config.masks, background=config.background,
                       fps=config.fps, threshold=config.threshold, subtract_background=config.subtract_background)
+    if config.identify and data.num_frames < MIN_IDENTIFY_FRAMES:
+        raise DanoError(f"{config.video}: --identify needs at least {MIN_IDENTIFY_FRAMES} frames (start velocities by "
+                        f"finite differences, and motion to fit), the video has {data.num_frames}")
     result = track(data, obj, config.pose, fit, progress=progress)
     rate = 1.0 / float(data.time[1] - data.time[0]) if data.num_frames > 1 else 1.0
     report = {**result.summary(), "video": str(config.video), "object": config.object,
-              "initial_pose": list(config.pose), "frame_interval_s": 1.0 / rate}
+              "initial_pose": list(config.pose), "frame_interval_s": 1.0 / rate if data.num_frames > 1 else None}
     files = write_track_outputs(config.out, data, result, obj.name, report, rate, video_file=not config.no_video)
     return report, files
+
+
+#: the fewest frames ``dano track --identify`` identifies from
+MIN_IDENTIFY_FRAMES = 4
+
+
+def poor_frames_warning(report: dict) -> list[str]:
+    """The warning (a list of none or one line) that a track ``report`` has frames flagged
+    poor, whose poses the identification uses as they are."""
+    n = int(report.get("poor_frames", 0))
+    return [f"{n} of the {report['frames']} tracked frames are flagged poor (silhouette IoU below the poor_iou cut): "
+            "their poses are in the identification as tracked; check overlay.mp4 and track.csv"] if n else []
 
 
 def write_tracked_problem(out_dir: str | Path, object_spec: str, frame_interval: float) -> Path:

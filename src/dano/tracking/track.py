@@ -82,7 +82,7 @@ class TrackConfig:
     """Frames whose silhouette intersection over union is below this are flagged poor, in [0, 1]."""
     cold_start_passes: int = 5
     """Adam runs (of ``iterations`` steps each) at most on a frame that starts from no constant-velocity prediction
-    (the first two frames, and a frame after a poor one), each from the last run's pose, until the loss falls by
+    (the first two frames, and the two after a poor one), each from the last run's pose, until the loss falls by
     less than 1 %, >= 1."""
     colour_rays: int = 1024
     """Rays of the colour term per frame, drawn at random from the ray set; 0: every ray of it."""
@@ -392,7 +392,7 @@ def track(video: VideoInput, obj: TrackedObject, initial_pose, config: TrackConf
         base = pose if i == 0 else predict(poses, poor)
         index = problem.ray_set(k, previous_alpha)
         p, loss, alpha = problem.solve(k, base, index)
-        if cold_start(poses, poor):
+        if cold_start(poses, poor) and np.all(np.isfinite(p)):
             p, loss, alpha, runs = _refine(problem, k, p, loss, alpha)
             passes.append(runs)
         if problem.masks is not None:
