@@ -735,7 +735,7 @@ class SysIdProblem:
                 raise DanoError(
                     f"{obs.name or f'trajectory {k}'}: frame interval {obs.frame_dt:.6g} s "
                     f"({1 / obs.frame_dt:.4g} frames/s) does not match the scene's time step {scene.dt:.6g} s x "
-                    f"{self.substeps} substeps")
+                    f"{self.substeps} substeps: for {self.substeps} substeps the scene's dt must be {expected!r} s")
         w = self.weights
         wp = np.asarray(w.position, dtype=np.float64)
         if wp.shape != (3,) or not np.all(np.isfinite(wp)) or np.any(wp < 0) or not all(

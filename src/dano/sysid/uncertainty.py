@@ -169,7 +169,8 @@ def profile(problem: SysIdProblem, theta: np.ndarray, jac: np.ndarray, index: in
     best_res = None
     for step in range(steps + 1):
         R = finite(problem.batch_residuals(thetas), 1e6)
-        cost = 0.5 * np.sum(R**2, axis=1)
+        with np.errstate(over="ignore"):  # a wild chord step's huge residuals: an infinite cost, never kept
+            cost = 0.5 * np.sum(R**2, axis=1)
         gain = np.max(np.where(np.isfinite(best_cost), best_cost - cost, np.inf))
         better = cost < best_cost
         if best_res is None:
