@@ -14,8 +14,8 @@ import numpy as np
 import tyro
 
 from .._files import atomic_write, check_new_folder
-from ..errors import DanoError
 from ..data import load_asset
+from ..errors import DanoError
 from ..nerf import load_field
 from ..pose import velocity_from_poses
 from ..trajectory import Trajectory, save_trajectory
