@@ -104,7 +104,8 @@ def test_an_unbounded_setting_is_written_as_strict_json_and_read_back(tmp_path):
     infinite setting is written as the string "inf" and read back as the number."""
     import json
 
-    from dano._config import config_json, read_table
+    from dano._config import read_table
+    from dano._files import config_json
     from dano.experiments.push import PushObjectConfig
 
     config = PushObjectConfig(max_force=float("inf"), object="spot.dano")

@@ -674,18 +674,24 @@ def test_the_template_is_a_valid_problem_and_a_tracked_videos_sets_its_route(tmp
 
 
 def test_a_withheld_standard_error_is_told_apart_from_an_undetermined_one():
-    """The report's note on null standard errors: those a warning withholds (a rough cost, a
-    bound, a solver short of a minimum) are said to be withheld; any other null keeps the
-    advice that the data may not determine it."""
+    """The report's note on null standard errors: those the identification withholds for a
+    reason its warnings give (a rough cost, a bound, a solver short of a minimum) are said to
+    be withheld; any other null keeps the advice that the data may not determine it."""
+    import types
+
     from dano.experiments import _withheld_with_reason
 
-    rough = ["sliding_friction: the cost is rough at the scale of its interval (...): no standard error is reported"]
+    def result(success=True, **status):
+        return types.SimpleNamespace(success=success, identifiability={k: {"status": v} for k, v in status.items()})
+
+    rough = result(sliding_friction="rough", ground_height="identified")
     assert _withheld_with_reason("sliding_friction_std", rough)
     assert _withheld_with_reason("standard_errors.sliding_friction", rough)
-    assert not _withheld_with_reason("ground_height_std", rough)  # no warning speaks for it
+    assert not _withheld_with_reason("ground_height_std", rough)  # nothing withholds it
     assert not _withheld_with_reason("sliding_friction", rough)  # an estimate, not a standard error
-    short = ["the solver stopped at its evaluation limit (140) before a convergence test was met: no standard "
-             "errors (not a converged minimum)"]
+    assert _withheld_with_reason("alpha_std", result(alpha="at bound"))
+    assert not _withheld_with_reason("alpha_std", result(alpha="flat"))  # the data do not determine it
+    short = result(success=False, sliding_friction="identified")
     assert _withheld_with_reason("standard_errors.v0[0]:spot:x", short)
-    singular = ["JᵀJ is singular: the data do not determine every parameter; no standard errors"]
+    singular = result(sliding_friction="identified")  # converged, JᵀJ singular: no reason given
     assert not _withheld_with_reason("sliding_friction_std", singular)

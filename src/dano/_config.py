@@ -49,28 +49,8 @@ def read_table(path: str | Path) -> dict:
 
 
 #: how a number setting may be written as a string in a JSON configuration: "inf", "-inf"
-#: (JSON has no infinity; :func:`config_json` writes these, TOML has its own ``inf``)
+#: (JSON has no infinity; :func:`dano._files.config_json` writes these, TOML has its own ``inf``)
 INFINITE_WORDS = ("inf", "infinity")
-
-
-def config_json(value) -> str:
-    """``value`` (a resolved configuration: a dict of settings) as strict JSON text, indented,
-    with a trailing newline: an infinite float is written as the string ``"inf"`` or
-    ``"-inf"``, which :func:`typed` reads back as the number (Python's ``Infinity`` is not JSON,
-    and other tools refuse it). Raises ValueError for a NaN (a configuration's checks refuse
-    one)."""
-    import math
-
-    def finite(x):
-        if isinstance(x, float) and math.isinf(x):
-            return "inf" if x > 0 else "-inf"
-        if isinstance(x, dict):
-            return {k: finite(v) for k, v in x.items()}
-        if isinstance(x, (list, tuple)):
-            return [finite(v) for v in x]
-        return x
-
-    return json.dumps(finite(value), indent=2, allow_nan=False, default=str) + "\n"
 
 
 def typed(value, tp, where: str):

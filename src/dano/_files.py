@@ -121,9 +121,10 @@ def read_npz(path: str | Path, required=(), what: str = "") -> dict:
     return arrays
 
 
-def json_safe(obj, where: str = "") -> tuple[Any, list[str]]:
-    """(a copy of ``obj`` with non-finite floats as None, the keys where that happened):
-    NaN is not JSON, and a NaN standard error must not pass silently."""
+def json_safe(obj, where: str = "", replace: Callable[[float], Any] = lambda x: None) -> tuple[Any, list[str]]:
+    """(a copy of ``obj`` (dicts, lists, tuples as lists) with each non-finite float x as
+    ``replace(x)``, None by default, the keys where that happened): NaN and infinity are not
+    JSON, and a NaN standard error must not pass silently."""
     import math
 
     found: list[str] = []
@@ -131,7 +132,7 @@ def json_safe(obj, where: str = "") -> tuple[Any, list[str]]:
     def clean(x, key):
         if isinstance(x, float) and not math.isfinite(x):
             found.append(key)
-            return None
+            return replace(x)
         if isinstance(x, dict):
             return {k: clean(v, f"{key}.{k}" if key else str(k)) for k, v in x.items()}
         if isinstance(x, (list, tuple)):
@@ -139,6 +140,18 @@ def json_safe(obj, where: str = "") -> tuple[Any, list[str]]:
         return x
 
     return clean(obj, where), found
+
+
+def config_json(value) -> str:
+    """``value`` (a resolved configuration: a dict of settings) as strict JSON text, indented,
+    with a trailing newline: an infinite float is written as the string ``"inf"`` or
+    ``"-inf"``, which :func:`dano._config.typed` reads back as the number (Python's
+    ``Infinity`` is not JSON, and other tools refuse it); a NaN, which a configuration's
+    checks refuse, as null."""
+    import json
+
+    words = lambda x: None if x != x else ("inf" if x > 0 else "-inf")  # noqa: E731
+    return json.dumps(json_safe(value, replace=words)[0], indent=2, allow_nan=False, default=str) + "\n"
 
 
 def check_new_folder(path: str | Path) -> None:

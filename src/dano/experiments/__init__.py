@@ -191,19 +191,19 @@ class SysIdCommandConfig:
         return self
 
 
-def _withheld_with_reason(key: str, notes: list[str]) -> bool:
-    """Whether the report's null ``key`` is a standard error that a warning in ``notes``
-    already withholds and says why: all of them where the solver stopped short of a converged
-    minimum, or its parameter's own (at a bound, a rough cost: "<label> ...: no standard
-    error")."""
+def _withheld_with_reason(key: str, result) -> bool:
+    """Whether the report's null ``key`` is a standard error that the identification
+    ``result`` withholds for a reason its warnings give: every one where the solver stopped
+    short of a converged minimum (``success`` false), or its global parameter's where that
+    sits at a bound or has a rough cost (``identifiability``)."""
     if key.startswith("standard_errors."):
         label = key[len("standard_errors."):]
     elif key.endswith("_std"):
         label = key[: -len("_std")]
     else:
         return False
-    return any("not a converged minimum" in n for n in notes) or any(
-        (n.startswith(label + " ") or n.startswith(label + ":")) and "no standard error" in n for n in notes)
+    status = (result.identifiability or {}).get(label, {}).get("status")
+    return not result.success or status in ("at bound", "rough")
 
 
 def sysid_command(config: SysIdCommandConfig):
@@ -250,7 +250,7 @@ def _sysid_command(config: SysIdCommandConfig, run, write_outputs):
             raw = {**out["report"], **{key: f.result() for key, f in pending.items()}}
             report, nonfinite = json_safe(raw)
             notes = list(report.get("warnings", result.warnings))
-            withheld = [k for k in nonfinite if _withheld_with_reason(k, notes)]
+            withheld = [k for k in nonfinite if _withheld_with_reason(k, result)]
             unknown = [k for k in nonfinite if k not in withheld]
             if withheld:
                 from ..sysid.problem import SEGMENT_NUISANCE_PREFIXES

@@ -13,10 +13,9 @@ from typing import Annotated
 import numpy as np
 import tyro
 
-from .._config import config_json, read_table, typed_table
-from .._files import json_safe
+from .._config import read_table, typed_table
+from .._files import atomic_path, config_json, json_safe
 from ..contact import CONTACT_MODELS
-from .._files import atomic_path
 from ..errors import DanoError
 from ..sim import SimulationDiverged, State, rollout
 from ..sim.run import absolute_source
@@ -83,8 +82,7 @@ def report(task, solution, model_error=None) -> dict:
     eb, ep = final_errors(task, solution.states)
     X = np.asarray(solution.states)
     v0 = task.scene.nq + int(task.scene.dof_adr[0])
-    again = replay(task, X, np.asarray(solution.controls))
-    gap = np.inf if again is None else float(np.abs(again.qpos[-1] - X[-1, :task.scene.nq]).max())
+    again, gap = replay(task, X, np.asarray(solution.controls))
     out = {
         "task": task.config.task, "bunny_final_error": eb, "pusher_final_error": ep,
         "max_constraint_violation": solution.max_violation, "iterations": solution.iterations,
@@ -212,19 +210,27 @@ REPLAY_TOLERANCE = 1e-6
 
 
 def replay(task, X, U):
-    """The scene's own :func:`~dano.sim.rollout` of a push task's controls U (T, nu) from the
-    states X (T + 1, nx)'s first: a :class:`~dano.trajectory.Trajectory`, or None where that
-    rollout diverges."""
-    scene, nq, steps = task.scene, task.scene.nq, len(X) - 1
+    """The scene's own rollout of a push task's controls U (T, nu) from the states X (T + 1,
+    nx)'s first: (a :class:`~dano.trajectory.Trajectory` or None where that rollout diverges,
+    the largest qpos difference at the last step from X's [qpos units], inf if it diverges)."""
     qfrc = None
     if task.apply == "qfrc":
-        qfrc = np.zeros((len(U), scene.nv))
+        qfrc = np.zeros((len(U), task.scene.nv))
         qfrc[:, task.control_dofs] = U
         U = None
+    return _replayed(task.scene, task.params, X, U, qfrc)
+
+
+def _replayed(scene, params, X, U, qfrc=None):
+    """:func:`~dano.sim.rollout` of the controls U (T, nu) (or the generalised forces qfrc
+    (T, nv)) from the states X (T + 1, nx)'s first, and its largest qpos difference from X's at
+    the last step; (None, inf) where it diverges."""
+    nq = scene.nq
     try:
-        return rollout(scene, State(X[0, :nq], X[0, nq:]), U, task.params, steps, qfrc=qfrc)
+        traj = rollout(scene, State(X[0, :nq], X[0, nq:]), U, params, len(X) - 1, qfrc=qfrc)
     except SimulationDiverged:
-        return None
+        return None, np.inf
+    return traj, float(np.abs(traj.qpos[-1] - X[-1, :nq]).max())
 
 
 def _plan_trajectory(scene, X) -> Trajectory:
@@ -236,13 +242,11 @@ def _plan_trajectory(scene, X) -> Trajectory:
                       pair_names=scene.pair_names, metadata={"scene": scene.name, "dt": scene.dt})
 
 
-def _replay_video(scene, params, X, U, path: Path, progress, qfrc=None) -> None:
-    """Replay the controls U (T, nu) (or the generalised forces qfrc (T, nv)) from X[0] and
-    render the video to ``path``; raises DanoError if the replay does not end where the
-    states X (T + 1, nx) do (:data:`REPLAY_TOLERANCE`)."""
-    nq, steps = scene.nq, len(X) - 1
-    traj = rollout(scene, State(X[0, :nq], X[0, nq:]), U, params, steps, qfrc=qfrc)
-    gap = float(np.abs(traj.qpos[-1] - X[-1, :nq]).max())
+def _replay_video(scene, params, X, U, path: Path, progress) -> None:
+    """Replay the controls U (T, nu) from X[0] (:func:`_replayed`) and render the video to
+    ``path``; raises DanoError if the replay does not end where the states X (T + 1, nx) do
+    (:data:`REPLAY_TOLERANCE`)."""
+    traj, gap = _replayed(scene, params, X, U)
     if gap > REPLAY_TOLERANCE:
         raise DanoError(f"internal: the replayed controls end {gap:.3g} m from the computed states")
     write_video(scene, traj, path, progress=progress)

@@ -27,8 +27,7 @@ import numpy as np
 import optax
 import tyro
 
-from .._config import config_json
-from .._files import atomic_write
+from .._files import atomic_write, config_json
 from ..errors import DanoError
 from ..render.cameras import pixel_rays
 from ..render.volume import OccupancyGrid, RenderConfig, psnr, render_image, render_rays, update_occupancy

@@ -75,7 +75,13 @@ def make_data(scene: Scene, qpos=None, qvel=None, *, act=None, ctrl=None, time: 
     rest), with optional activations act (na,) and controls ctrl (nu,); every floating-point
     field in the scene's dtype. Jittable (the shapes are checked at trace time). Raises
     DanoError for an array of the wrong shape (e.g. a free body's qpos needs 7 numbers:
-    position and the wxyz quaternion)."""
+    position and the wxyz quaternion) or a zero or non-finite quaternion
+    (:func:`check_quaternions`)."""
+    return _make_data(scene, qpos, qvel, act, ctrl, time, "make_data: qpos")
+
+
+def _make_data(scene: Scene, qpos, qvel, act, ctrl, time, qpos_name: str):
+    """:func:`make_data`, its quaternion errors naming the qpos ``qpos_name``."""
     dt = scene.dtype
     m = scene.model
     for what, x, n in (("qpos", qpos, m.nq), ("qvel", qvel, m.nv), ("act", act, m.na), ("ctrl", ctrl, m.nu)):
@@ -83,7 +89,7 @@ def make_data(scene: Scene, qpos=None, qvel=None, *, act=None, ctrl=None, time: 
             raise DanoError(f"make_data: {what} must have shape ({n},) for this scene, got {np.shape(x)}"
                             + (" (a free body's qpos is x, y, z, qw, qx, qy, qz)" if what == "qpos" else ""))
     if qpos is not None:
-        check_quaternions(scene, qpos, "make_data: qpos")
+        check_quaternions(scene, qpos, qpos_name)
     # (MJX makes its float fields in JAX's default float type; on this process's first device, not
     # jax.devices()[0], which is process 0's in a multi-process run)
     device = jax.local_devices()[0]
@@ -112,30 +118,30 @@ def check_quaternions(scene: Scene, qpos, what: str = "qpos") -> None:
     (below 1e-6 in norm) or not finite: it has no rotation to normalise to, and the step would make the
     whole state NaN. Only concrete values are checked (under a JAX transformation nothing);
     other quaternions need not be unit (the step normalises them)."""
-    if isinstance(qpos, jax.core.Tracer) or not scene.info.quaternion_slots:
+    if under_trace(qpos) or not scene.info.quaternion_slots:
         return
     q = np.asarray(qpos, dtype=np.float64)
     if q.shape != (scene.nq,):
         return  # (the caller reports the shape)
     for adr, _ in scene.info.quaternion_slots:
         if not np.linalg.norm(q[adr:adr + 4]) > 1e-6:  # (NaN fails too)
-            body = scene.mj_model.body(int(scene.mj_model.jnt_bodyid[_joint_at(scene, adr)])).name
+            body = scene.mj_model.body(_body_of_quaternion(scene.mj_model, adr)).name
             raise DanoError(f"{what}: the quaternion of {body!r} (qpos[{adr}:{adr + 4}] = "
                             f"{q[adr:adr + 4].tolist()}) is zero or not finite; give a w-x-y-z orientation, e.g. 1 0 0 0")
 
 
-def _joint_at(scene: Scene, qpos_adr: int) -> int:
-    """The joint whose quaternion starts at ``qpos_adr`` (a free joint's at its address + 3)."""
-    m = scene.mj_model
-    offset = {int(mujoco.mjtJoint.mjJNT_FREE): 3, int(mujoco.mjtJoint.mjJNT_BALL): 0}
-    return next(j for j in range(m.njnt) if int(m.jnt_qposadr[j]) + offset.get(int(m.jnt_type[j]), -99) == qpos_adr)
+def _body_of_quaternion(m, qpos_adr: int) -> int:
+    """The body of the free or ball joint whose quaternion starts at ``qpos_adr`` of MuJoCo
+    model ``m``'s qpos (a free joint's 3 after its address, a ball joint's at it)."""
+    free, ball = m.jnt_type == mujoco.mjtJoint.mjJNT_FREE, m.jnt_type == mujoco.mjtJoint.mjJNT_BALL
+    starts = m.jnt_qposadr + 3 * free
+    return int(m.jnt_bodyid[np.flatnonzero((free | ball) & (starts == qpos_adr))[0]])
 
 
 def as_data(scene: Scene, state):
     """``state`` as MJX Data: a :class:`State` (qpos/qvel, the rest at rest) or Data itself."""
     if isinstance(state, State):
-        check_quaternions(scene, state.qpos, "initial qpos")
-        return make_data(scene, state.qpos, state.qvel)
+        return _make_data(scene, state.qpos, state.qvel, None, None, 0.0, "initial qpos")
     return state
 
 

@@ -24,8 +24,8 @@ import jax.numpy as jnp
 import numpy as np
 import tyro
 
-from .._config import config_json, read_table, typed_table
-from .._files import atomic_path
+from .._config import read_table, typed_table
+from .._files import atomic_path, config_json
 from ..contact import CONTACT_MODELS
 from ..data import load_asset
 from ..errors import DanoError

@@ -10,8 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._config import config_json
-from .._files import atomic_path
+from .._files import atomic_path, config_json
 from ..viz.plot import plot_sysid
 from .problem import SEGMENT_NUISANCE_PREFIXES
 

@@ -170,7 +170,8 @@ def scan_costs(problem: SysIdProblem, points: np.ndarray) -> np.ndarray:
     x0 = problem.initial()
     thetas = np.repeat(x0[None], len(points), axis=0)
     thetas[:, : points.shape[1]] = points
-    c = 0.5 * np.sum(problem.batch_residuals(thetas) ** 2, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):  # (a diverging rollout's cost: inf, said above)
+        c = 0.5 * np.sum(problem.batch_residuals(thetas) ** 2, axis=1)
     return np.where(np.isfinite(c), c, np.inf)
 
 

@@ -46,9 +46,20 @@ def finite(a, fill: float) -> np.ndarray:
     return np.where(np.isfinite(a), a, fill)
 
 
+#: the largest residual magnitude the solvers see [residual units]: a non-finite entry counts
+#: as this, a larger one is cut to it (a diverging rollout; its square stays finite)
+RESIDUAL_CAP = 1e6
+
+
+def bounded_residuals(r) -> np.ndarray:
+    """Residuals ``r`` (..., m) with non-finite entries as :data:`RESIDUAL_CAP` and the others
+    clipped to ±RESIDUAL_CAP: a cost ½‖r‖² the solvers can compare without overflow."""
+    return np.clip(finite(r, RESIDUAL_CAP), -RESIDUAL_CAP, RESIDUAL_CAP)
+
+
 def least_squares_functions(problem: SysIdProblem, scale: np.ndarray | None = None, jacobian: bool = True):
-    """(fun, jac, raw) for :func:`scipy.optimize.least_squares`: the residual (non-finite
-    entries replaced by 1e6, which keeps the solver away from diverging rollouts), its Jacobian
+    """(fun, jac, raw) for :func:`scipy.optimize.least_squares`: the residual
+    (:func:`bounded_residuals`, which keeps the solver away from diverging rollouts), its Jacobian
     (non-finite entries 0), optionally scaled per residual, and the unscaled residual as
     computed (non-finite entries kept, to check a start); residual and Jacobian come from one
     compiled evaluation, the last one remembered (the solver asks for the Jacobian where it just
@@ -64,7 +75,7 @@ def least_squares_functions(problem: SysIdProblem, scale: np.ndarray | None = No
                 J = finite(J, 0.0) * (1.0 if scale is None else scale[:, None])
             else:
                 raw, J = problem.residuals_only(x), None
-            r = finite(raw, 1e6) * (1.0 if scale is None else scale)
+            r = bounded_residuals(raw) * (1.0 if scale is None else scale)
             last.update(x=x.copy(), r=r, J=J, raw=raw)
         return last
 
@@ -168,9 +179,8 @@ def profile(problem: SysIdProblem, theta: np.ndarray, jac: np.ndarray, index: in
     best_theta = thetas.copy()
     best_res = None
     for step in range(steps + 1):
-        R = finite(problem.batch_residuals(thetas), 1e6)
-        with np.errstate(over="ignore"):  # a wild chord step's huge residuals: an infinite cost, never kept
-            cost = 0.5 * np.sum(R**2, axis=1)
+        R = bounded_residuals(problem.batch_residuals(thetas))  # (a wild chord step's: capped)
+        cost = 0.5 * np.sum(R**2, axis=1)
         gain = np.max(np.where(np.isfinite(best_cost), best_cost - cost, np.inf))
         better = cost < best_cost
         if best_res is None:
