@@ -496,9 +496,9 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
                   f'object = {json.dumps(name)}',
                   "velocities = false              # true: start from measured velocities (CSV columns vx,vy,vz",
                   "                                 # world [m/s], wx,wy,wz body [rad/s])",
-                  "# add one [[trajectory]] per recording"]
-    if tracked is not None:
-        lines[-1] = "# (poses tracked from a video by dano track: its world frame is camera.json's, the ground z = 0)"
+                  "# add one [[trajectory]] per recording" if tracked is None else
+                  "# (poses tracked from a video by dano track: its world frame is camera.json's, the ground z = 0)"]
+    route = "" if tracked is not None else "# "  # the two-stage route's options: set for a tracked video
     lines += ["", "[[parameter]]", 'name = "sliding_friction"       # or impact_spring, impact_damper, torsional_friction,',
               "                                 # rolling_friction, com_offset_x|y|z, ...; alpha (mass scale) only",
               "                                 # where something of known mass pushes the object",
@@ -513,12 +513,10 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
               "# profile_points = 32               # verify the estimate and give its interval (0: off)",
               "# level = 0.95                      # the interval's level",
               "# poses tracked from a video (dano track): multiple shooting, docs/tracking.md",
-              "# window = 10                       # frame intervals per window, each restarted from its frame",
-              "# fit_ground = true                 # the ground's height (tracking errors along the camera axis)",
-              '# fit_velocity = "xyz"              # each window\'s start velocity (finite differences of tracked',
+              f"{route}window = 10                       # frame intervals per window, each restarted from its frame",
+              f"{route}fit_ground = true                 # the ground's height (tracking errors along the camera axis)",
+              f'{route}fit_velocity = "xyz"              # each window\'s start velocity (finite differences of tracked',
               "                                   # frames are poor)",
               '# fit_angular_velocity = "xyz"      # and its angular velocity, for an object that tumbles or spins',
               "                                   # (6 more parameters per window: slower, often not needed)"]
-    if tracked is not None:  # the two-stage route's options, set (the angular velocities left to the user)
-        lines[-6:-3] = [line[2:] for line in lines[-6:-3]]  # window, fit_ground, fit_velocity
     return "\n".join(lines) + "\n"
