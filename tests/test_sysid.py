@@ -211,7 +211,10 @@ def test_real_soap_video(monkeypatch, tmp_path, capsys):
     assert 0.3 < r["sliding_friction"] < 0.9
     assert r["sliding_friction_std"] < 0.03
     assert r["rms_residual"] < 0.06  # scene units, over the x and y residuals; the soap travels 3.5
-    assert r["num_residuals"] == 2 * 32  # zero-weight components (z, orientation) are left out
+    # zero-weight components (z, orientation) are left out; the start prior adds a row per fitted
+    # start velocity axis (fit_velocity auto: "xy")
+    assert problem.num_observed_residuals == 2 * 32 and problem.fit_velocity == "xy"
+    assert r["num_residuals"] == 2 * 32 + 2
     sens = r["length_scale_sensitivity"]["sliding_friction_at_length_scale"]
     assert sens["0.9"] < sens["1.0"] < sens["1.1"]  # friction grows with the assumed length scale
     assert len(r["scan"]["start_results"]) == 2
@@ -462,12 +465,13 @@ def test_trajectory_in_millimetres_is_refused(tmp_path, capsys):
 
 def test_trajectories_of_different_lengths_share_one_compiled_rollout(box_setup):
     """Segments of 16 and 12 frames: one batch padded to the longest (one scan in the
-    traced residual, so one compilation), and exactly the residuals of the two alone."""
+    traced residual, so one compilation), and exactly the residuals of the two alone; the
+    start prior appends a row per start velocity, the offset times Δt·2/√26."""
     _, scene, z = box_setup
     t, poses = analytic_slide(0.45, z=z)
     fit = [FitParameter("sliding_friction", 0.2, 0.0, 2.0)]
     kw = dict(weights=Weights((1.0, 1.0, 0.0), 0.3), substeps=4, base_params=scene.default_params(sliding_drag=0.0),
-              fit_velocity="x")
+              fit_velocity="x", start_prior=False)
     long = Observation(time=t[:16], poses={"box": poses[:16]}, qvel0=np.r_[2.0, 0, 0, 0, 0, 0])
     short = Observation(time=t[:12], poses={"box": poses[:12]}, qvel0=np.r_[1.9, 0, 0, 0, 0, 0])
     both = SysIdProblem(scene, [long, short], fit, **kw)
@@ -479,6 +483,11 @@ def test_trajectories_of_different_lengths_share_one_compiled_rollout(box_setup)
     alone = [f(theta[jnp.asarray(i)]) for f, i in zip(alone_fns, ([0, 1], [0, 2]))]
     np.testing.assert_allclose(fun(theta), jnp.concatenate(alone), rtol=0, atol=1e-12)
     assert both.num_residuals == len(fun(theta))
+    prior = dataclasses.replace(both, start_prior=True)
+    r = prior.residual_function()(theta)
+    np.testing.assert_array_equal(r[: both.num_residuals], fun(theta))
+    np.testing.assert_allclose(r[both.num_residuals :], theta[1:] * (t[1] - t[0]) * 2 / np.sqrt(26), rtol=1e-12)
+    np.testing.assert_allclose(prior.residuals(theta), r, rtol=0, atol=1e-12)
 
 
 def test_global_scan_finds_the_basin_and_reports_the_profile(box_setup):

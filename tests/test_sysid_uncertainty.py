@@ -142,7 +142,11 @@ def test_initial_pose_offsets_are_identified(box):
     """fit_position / fit_rotation: a first frame observed 4 mm and -3 mm off in x, y (one
     slide) and turned 3 degrees about z (the other) is corrected by the nuisance offsets,
     and the friction is the one of the clean data. The square box slides turned by 90° about
-    z, so that offsets in its body frame would come out as (-3, -4) mm: they are in the world's."""
+    z, so that offsets in its body frame would come out as (-3, -4) mm: they are in the world's.
+    Plain least squares (start_prior False) recovers the planted errors; with the start prior
+    the start frame counts as one observation more, of the same weight as each later frame:
+    a rotation offset, which moves each of the N later frames' residuals alike, comes out as
+    the weighted mean, N/(N + 1) of the planted error."""
     obs = _clean_slides(0.0)
     turned = np.radians(90.0)
     for o in obs:
@@ -152,7 +156,7 @@ def test_initial_pose_offsets_are_identified(box):
     obs[1].poses["box"][0, 3:] = (np.cos((turned + yaw) / 2), 0.0, 0.0, np.sin((turned + yaw) / 2))
     problem = SysIdProblem(box, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)],
                            weights=Weights((1.0, 1.0, 1.0), 1.0), substeps=4, fit_position="xy", fit_rotation="z",
-                           base_params=box.default_params(sliding_drag=0.0))
+                           base_params=box.default_params(sliding_drag=0.0), start_prior=False)
     assert problem.labels == ["sliding_friction", "p0[0]:box:x", "p0[0]:box:y", "r0[0]:box:z",
                               "p0[1]:box:x", "p0[1]:box:y", "r0[1]:box:z"]
     res = identify(problem)
@@ -161,6 +165,11 @@ def test_initial_pose_offsets_are_identified(box):
     assert abs(est["r0[1]:box:z"] + yaw) < np.radians(0.1)
     assert abs(est["r0[0]:box:z"]) < np.radians(0.1) and abs(est["p0[1]:box:x"]) < 3e-4
     assert abs(est["sliding_friction"] - 0.45) < 0.02
+    with_prior = dataclasses.replace(problem, start_prior=True)
+    frames = obs[1].num_frames - 1
+    assert with_prior.num_residuals == problem.num_residuals + 6  # a row per offset
+    est = dict(zip(res.labels, identify(with_prior).estimates))
+    assert abs(est["r0[1]:box:z"] + yaw * frames / (frames + 1)) < 0.02 * yaw / (frames + 1)
     with pytest.raises(DanoError, match="fit_rotation"):
         SysIdProblem(box, obs, problem.parameters, substeps=4, fit_rotation="zz")
 

@@ -35,6 +35,7 @@
     fit_angular_velocity = ""     # nuisance initial angular velocity axes (body frame)
     fit_position = ""             # nuisance initial position axes (world frame), e.g. "xy" for noisy starts
     fit_rotation = ""             # nuisance initial rotation-vector axes (world frame), e.g. "z" (heading)
+    start_prior = true            # each fitted start offset also weighed by what the frames say of it
     window = 0                    # >0: multiple shooting windows of this many frames
     auto_windows = false          # true: a window from just before each observed impact instead
     horizons = []                 # continuation, e.g. [0.4]
@@ -252,6 +253,12 @@ class OptionsConfig:
     """Nuisance initial position axes (world frame), e.g. ``"xy"`` for noisy starts."""
     fit_rotation: str = ""
     """Nuisance initial rotation-vector axes (world frame), e.g. ``"z"`` (the heading)."""
+    start_prior: bool = True
+    """Each fitted start offset (the ``fit_*`` axes above) also gets one residual row for what the observed frames
+    say of it: the start frame's error for a pose offset, the finite-difference velocity's for a velocity offset,
+    in the frames' own units. It holds the offsets the frames leave free (a resting object's velocity into the
+    floor) near the frames' value and weighs under 0.1 % of a 10-frame window's frames for the others; ``false``: plain
+    least squares."""
     window: int = 0
     """> 0: multiple shooting, windows of this many frame intervals (>= 2); 0: one shot per trajectory."""
     auto_windows: bool = False
@@ -400,6 +407,7 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
         problem = SysIdProblem(scene, obs, params, weights, base_params=base_params, substeps=opt.substeps,
                                fit_velocity=opt.fit_velocity, fit_angular_velocity=opt.fit_angular_velocity,
                                fit_position=opt.fit_position, fit_rotation=opt.fit_rotation,
+                               start_prior=opt.start_prior,
                                window="auto" if opt.auto_windows else (opt.window or None),
                                fit_ground=opt.fit_ground, fit_tilt=opt.fit_tilt, notes=notes)
     except TypeError as exc:  # e.g. an unknown [contact] parameter name

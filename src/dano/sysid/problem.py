@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -431,6 +431,21 @@ def rotation_length(asset) -> float:
     return float(np.sqrt(max(np.trace(J), 0.0) / (3.0 * float(asset.mass))))
 
 
+class StartPriorRows(NamedTuple):
+    """The start prior's residual rows r_i = weight_i·θ[index_i] (:class:`SysIdProblem`'s
+    ``start_prior``), k of them: index (k,) int into θ; weight (k,) [residual units per unit
+    of the offset]; observation (k,) int, the trajectory of each row's segment; noise (k,) int,
+    the observation noise each row carries (position axis x y z: 0–2; rotation: 3); unit (k,)
+    the residual weight of that noise (√w of the axis [1/m], or the rotation weight [m/rad]),
+    so that a row's noise is the frames' noise of its kind times unit."""
+
+    index: np.ndarray
+    weight: np.ndarray
+    observation: np.ndarray
+    noise: np.ndarray
+    unit: np.ndarray
+
+
 @dataclass(frozen=True)
 class BatchLayout:
     """Static structure of one batch of segments that share a layout (vmapped together):
@@ -689,6 +704,17 @@ class SysIdProblem:
     observations are taken into the table's frame and gravity is tilted the other way
     (exact; residuals are compared in the table's frame, which equals the world's for
     isotropic position weights).
+    start_prior: every fitted start-state offset also gets a pseudo-observation, one residual
+    row saying what the observed frames say of it (:attr:`start_prior_rows`): a position offset
+    is the start frame's error (√w·δp, like a frame's residual), a rotation offset likewise
+    (L·δr), and a velocity offset the error of the finite-difference velocity, whose noise is
+    √26/2·σ/Δt for frames of position noise σ: Δt·2/√26·√w·δv (angular: Δt·2/√26·L·δω), in
+    the residuals' own units, so that no noise level is needed. Where the frames determine an
+    offset (a moving start) its row weighs (4/26)/Σk² of them (frame k moves by k·Δt·δv),
+    0.05 % for a window of 10 frames; where they do not (the velocity of a resting object into the floor, which
+    its contact absorbs; the pose of a start that is never observed again) the row holds the
+    offset near the frames' value instead of letting the solver wander along a flat
+    direction. False: plain least squares over the frames.
     Raises DanoError for inconsistent input (see :func:`_check_observation`), unknown
     parameters, bounds that exclude the initial guess, or fewer residuals than parameters.
     """
@@ -707,6 +733,7 @@ class SysIdProblem:
     fit_position: str = ""
     fit_rotation: str = ""
     notes: tuple[str, ...] = ()
+    start_prior: bool = True
 
     def __post_init__(self):
         def put(name, value):  # normalised fields of the frozen specification
@@ -718,6 +745,7 @@ class SysIdProblem:
         put("fit_ground", bool(self.fit_ground))
         put("fit_tilt", bool(self.fit_tilt))
         put("substeps", int(self.substeps))
+        put("start_prior", bool(self.start_prior))
         if self.fit_tilt and not self.fit_ground:
             raise DanoError("fit_tilt needs fit_ground: the tilt is the ground plane's, fitted with its height")
         if not self.observations:
@@ -774,7 +802,7 @@ class SysIdProblem:
             put("notes", self.notes + self._auto_fit_velocity(put))
             if not self.parameters and not (self.fit_velocity or any(a for _, a in kinds[1:])):
                 raise DanoError("no parameters to identify")
-        n_res = self.num_residuals  # also checks the window
+        n_res = self.num_observed_residuals  # also checks the window
         if n_res < self.num_parameters:
             raise DanoError(f"{n_res} residuals for {self.num_parameters} parameters: observe more frames "
                             "or fit fewer parameters")
@@ -789,7 +817,8 @@ class SysIdProblem:
 
         def fit(axes):  # (and the layout derived from it made anew)
             put("fit_velocity", axes)
-            self.__dict__.pop("fit_axes", None)
+            for derived in ("fit_axes", "start_prior_rows"):
+                self.__dict__.pop(derived, None)
 
         axes = "".join(a for a, w in zip("xyz", self.weights.position) if w > 0)
         noise = noise_of_observations(self.observations)["position_m"]
@@ -799,7 +828,7 @@ class SysIdProblem:
             return ()
         without = self.num_parameters
         fit(axes)
-        if self.num_residuals < self.num_parameters:
+        if self.num_observed_residuals < self.num_parameters:
             added = self.num_parameters - without
             fit("")
             return (f'{_AUTO_NOTE} not fitted: {why}, but {added} nuisance parameters would outnumber the residuals '
@@ -898,7 +927,13 @@ class SysIdProblem:
 
     @property
     def num_residuals(self) -> int:
-        """Residual count m; components with zero weight are left out."""
+        """Residual count m: the frames' (:attr:`num_observed_residuals`) and the start
+        prior's rows (:attr:`start_prior_rows`) after them."""
+        return self.num_observed_residuals + len(self.start_prior_rows.index)
+
+    @property
+    def num_observed_residuals(self) -> int:
+        """Residuals of the observed frames; components with zero weight are left out."""
         per_pose = len(self._pos_axes()) + (3 if self._rotation_weighted() else 0)
         n = 0
         for seg in self.segments:
@@ -919,6 +954,43 @@ class SysIdProblem:
         if self.weights.rotation is None:
             return np.array([rotation_length(a) for a in self.scene.assets])
         return np.full(len(self.scene.dano_names), np.sqrt(float(self.weights.rotation)))
+
+    @functools.cached_property
+    def start_prior_rows(self) -> StartPriorRows:
+        """The start prior's residual rows (see the class docstring), after the frames'
+        residuals; empty without ``start_prior`` or fitted offsets. Rows of zero weight (an axis
+        weighed 0) are left out."""
+        rows: list[tuple[int, float, int, int, float]] = []
+        if self.start_prior and self.fit_axes:
+            wpos = np.sqrt(np.asarray(self.weights.position, dtype=np.float64))
+            wrot = self.rotation_weights() if self._rotation_weighted() else np.zeros(len(self.scene.dano_names))
+            offsets, n_axes = self._nuisance_offsets(), len(self.fit_axes)
+            for s, seg in enumerate(self.segments):
+                dt = self.observations[seg.obs].frame_dt
+                for b, name in enumerate(self._tracked[seg.obs]):
+                    d = self.scene.dano_index(name)
+                    for k, a in enumerate(self.fit_axes):
+                        kind, axis = divmod(a, 3)  # velocity, angular velocity, position, rotation
+                        unit = wrot[d] if kind in (1, 3) else wpos[axis]
+                        if unit > 0:
+                            rows.append((offsets[s] + b * n_axes + k, unit * (dt / _FD_GAIN if kind < 2 else 1.0),
+                                         seg.obs, 3 if kind in (1, 3) else axis, unit))
+        index, weight, owner, noise, unit = zip(*rows) if rows else ((),) * 5
+        return StartPriorRows(np.asarray(index, dtype=np.int64), np.asarray(weight, dtype=np.float64),
+                              np.asarray(owner, dtype=np.int64), np.asarray(noise, dtype=np.int64),
+                              np.asarray(unit, dtype=np.float64))
+
+    def _prior_residuals(self, theta) -> np.ndarray:
+        """(..., k) the start prior's rows at θ (..., n)."""
+        prior = self.start_prior_rows
+        return np.asarray(theta, dtype=np.float64)[..., prior.index] * prior.weight
+
+    def _prior_jacobian(self) -> np.ndarray:
+        """(k, n) the start prior rows' Jacobian (constant)."""
+        prior = self.start_prior_rows
+        P = np.zeros((len(prior.index), self.num_parameters))
+        P[np.arange(len(prior.index)), prior.index] = prior.weight
+        return P
 
     def _nuisance_offsets(self) -> np.ndarray:
         """Start of each segment's block of nuisance offsets (velocities, pose) in θ (after the global ones)."""
@@ -1084,7 +1156,8 @@ class SysIdProblem:
         layout, data, keep = self._split_segments()
         J, (r, states) = _run(_residuals_and_jacobian_jit, layout, self.scene, self.base_params, data,
                               jnp.asarray(theta, dtype=jnp.float64))
-        return r[keep], J[keep], layout, states
+        return (np.concatenate([r[keep], self._prior_residuals(theta)]),
+                np.concatenate([J[keep], self._prior_jacobian()]), layout, states)
 
     def fitted(self, theta) -> list[np.ndarray]:
         """Fitted qpos (frames, nq) of every segment at θ (n,), as :meth:`simulate` gives them
@@ -1109,8 +1182,8 @@ class SysIdProblem:
         own, worth it where residuals are evaluated many times without Jacobians
         (finite-difference solves)."""
         layout, data, keep = self._split_segments()
-        return _run(_residuals_only_jit, layout, self.scene, self.base_params, data,
-                    jnp.asarray(theta, dtype=jnp.float64))[keep]
+        r = _run(_residuals_only_jit, layout, self.scene, self.base_params, data, jnp.asarray(theta, dtype=jnp.float64))
+        return np.concatenate([r[keep], self._prior_residuals(theta)])
 
     def jacobian(self, theta) -> np.ndarray:
         """(m, n) forward-mode Jacobian of the residual at θ (see :meth:`residuals_and_jacobian`)."""
@@ -1129,7 +1202,7 @@ class SysIdProblem:
             padded = np.concatenate([chunk, np.repeat(chunk[-1:], size - len(chunk), axis=0)])
             r = _run(_batch_residuals_jit, self.layout, shards, self.scene, self.base_params, self.data,
                      jnp.asarray(padded))
-            out.append(r[: len(chunk)][:, self.keep])
+            out.append(np.concatenate([r[: len(chunk)][:, self.keep], self._prior_residuals(chunk)], axis=1))
         return np.concatenate(out) if out else np.zeros((0, self.num_residuals))
 
     def _column_kinds(self, qadr, jadr) -> list[tuple[str, int, int]]:
@@ -1158,13 +1231,15 @@ class SysIdProblem:
 
     def residual_observations(self) -> np.ndarray:
         """(m,) int: the observation (trajectory index) each residual belongs to, in the order
-        of :meth:`residual_function`'s output (used to resample whole trajectories)."""
+        of :meth:`residual_function`'s output (used to resample whole trajectories), the start
+        prior's rows included."""
         return np.concatenate([np.full(cols * frames, obs) for obs, _, cols, frames, _ in self._residual_blocks()]
-                              ).astype(np.int64)
+                              + [self.start_prior_rows.observation]).astype(np.int64)
 
     def residual_series(self) -> list[np.ndarray]:
         """Index arrays into the residual vector, one per residual column of each block: the
-        time series (frame by frame) of one component, for autocorrelation estimates."""
+        time series (frame by frame) of one component, for autocorrelation estimates (the
+        start prior's rows, which are no time series, in none)."""
         out, start = [], 0
         for _, _, cols, frames, _ in self._residual_blocks():
             block = start + np.arange(cols * frames).reshape(frames, cols)
@@ -1198,7 +1273,11 @@ class SysIdProblem:
             if np.any(sd[:cols] <= 0):
                 raise DanoError(f"the residuals include {kind} observations but their noise level is zero")
             out.append(np.tile(sd[:cols], frames))  # frame by frame, columns inside
-        return np.concatenate(out)
+        prior = self.start_prior_rows  # a row's noise: its frame's, in the frame residuals' units
+        sd = np.r_[pos, np.radians(rotation_deg) / np.sqrt(3)][prior.noise] * prior.unit
+        if np.any(sd <= 0):
+            raise DanoError("the start prior weighs offsets whose observations have a noise level of zero")
+        return np.concatenate(out + [sd])
 
     def residual_function(self):
         """(θ) -> residual vector (m,), a pure JAX function (jit/jacfwd it; forward mode only
@@ -1206,10 +1285,12 @@ class SysIdProblem:
         on this problem's layout and data, padded entries dropped. Residuals are ordered by
         batch, then segment, then block (per tracked DANO its position axes with non-zero weight
         [m·√w] and its rotation vector [rad·√w], then each joint), each block frame by frame
-        (:meth:`_column_kinds`)."""
+        (:meth:`_column_kinds`), then the start prior's rows (:attr:`start_prior_rows`)."""
         layout, data, keep = self._structure
         scene, base, keep = self.scene, self.base_params, jnp.asarray(self.keep)
-        return lambda theta: padded_residuals(layout, scene, base, data, theta)[keep]
+        index, weight = jnp.asarray(self.start_prior_rows.index), jnp.asarray(self.start_prior_rows.weight)
+        return lambda theta: jnp.concatenate([padded_residuals(layout, scene, base, data, theta)[keep],
+                                              theta[index] * weight])
 
     def simulate(self, theta) -> list[np.ndarray]:
         """Fitted qpos (frames, nq) of every segment at θ (for plots and reports)."""
