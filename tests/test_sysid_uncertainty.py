@@ -196,3 +196,16 @@ def test_dynamics_recovery_propagates_a_covariance_to_the_principal_moments():
     assert abs(out["alpha_relative_std"] - 0.01) < 1e-12 and abs(out["friction_relative_std"] - 0.01) < 1e-12
     np.testing.assert_allclose(out["moment_relative_error"], 0.0, atol=1e-12)
     assert "moment_relative_std" not in dynamics_recovery(estimates, truth)
+
+
+def test_misfit_warning_names_a_ratio_only_for_noisy_observations():
+    """A fit 10x above the noise's rms residual says so; noise-free observations (third
+    differences at rounding) say that the model does not reproduce the motion, not a ratio
+    to rounding (a new user saw "1.72e+05x")."""
+    from dano.sysid.solve import _misfit_warning
+
+    noisy = _misfit_warning(1e-3, 1e-4, [1e-4, 1e-4, 1e-4])
+    assert "misfits" in noisy and "10x" in noisy and "free of noise" not in noisy
+    clean = _misfit_warning(1e-3, 5e-12, [5e-12, 1e-12, 0.0])
+    assert "misfits" in clean and "free of noise" in clean and "x what" not in clean
+    assert len(noisy) < 500 and len(clean) < 500

@@ -32,7 +32,7 @@ from scipy.optimize import least_squares
 from ..errors import DanoError
 from . import uncertainty as unc
 from .._compiled import compile_seconds
-from .problem import SysIdProblem, noisy_start_velocities
+from .problem import NOISE_FLOOR, SysIdProblem, noisy_start_velocities
 
 
 @dataclass
@@ -609,22 +609,29 @@ def _noise_and_misfit(problem: SysIdProblem, result: SysIdResult) -> dict:
     noise["expected_rms_residual"] = expected
     noise["misfit_ratio"] = None if not expected else result.rms_residual / expected
     if expected is not None and result.rms_residual > MISFIT_RATIO * expected and result.rms_residual > 1e-7:
-        result.warnings.append(
-            f"the model misfits the data: rms residual {result.rms_residual:.3g} is "
-            + (f"{result.rms_residual / expected:.3g}x" if expected > 0 else "far above")
-            + f" what the measurement noise estimated from the observations would leave ({expected:.3g}), "
-            "or the observations' errors are correlated from frame to frame, which that estimate (from "
-            "differences of neighbouring frames) does not see: a video tracker's are; "
-            "the standard errors assume independent residuals and understate the uncertainty (the interval "
-            "allows for the residuals' correlation, not for the model's own error: against an engine with hard "
-            "Coulomb friction, e.g., the paper's smoothed friction direction alone moves friction a few percent "
-            "up); the estimate is the best fit of a model "
-            "that does not reproduce the motion (check the scene, the object's size and mass, fixed contact "
-            "parameters, and windows for long or chaotic motions)")
+        result.warnings.append(_misfit_warning(result.rms_residual, expected, noise["position_m"]))
     start = start_velocity_warning(problem, noise)
     if start:
         result.warnings.append(start)
     return noise
+
+
+def _misfit_warning(rms: float, expected: float, position_noise) -> str:
+    """The warning of a fit whose rms residual ``rms`` is above MISFIT_RATIO times the
+    ``expected`` one (residual units) that the observations' own noise (``position_noise``
+    (3,) [m]) would leave: for noise-free observations (noise below
+    :data:`~dano.sysid.problem.NOISE_FLOOR` on every axis) a model that does not reproduce
+    the motion, not a ratio to rounding."""
+    if np.max(position_noise) < NOISE_FLOOR:
+        return (f"the model misfits the data: the observations are free of noise (their third differences are at "
+                f"rounding, {np.max(position_noise):.1g} m) and the fit leaves an rms residual of {rms:.3g}: the "
+                "model does not reproduce the motion exactly (e.g. another engine's); the standard errors, which "
+                "assume noise, mean little here")
+    return (f"the model misfits the data: rms residual {rms:.3g} is {rms / expected:.3g}x what the observations' own "
+            f"noise would leave ({expected:.3g}, from differences of neighbouring frames), or their errors are "
+            "correlated from frame to frame (a video tracker's are), which that estimate does not see; the standard "
+            "errors understate the uncertainty, and the interval allows for correlated residuals, not for the "
+            "model's own error (check the scene, the object's size and mass and the fixed contact parameters)")
 
 
 def start_velocity_warning(problem: SysIdProblem, noise: dict) -> str | None:
