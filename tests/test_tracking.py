@@ -250,7 +250,7 @@ def test_track_cli_refuses_bad_input_and_leaves_nothing(one_frame, tmp_path, cap
     code = main(["track", str(folder), "--object", "builtin:bunny_lowpoly", "--pose", *pose, "-o", str(out),
                  "--identify", "--quiet"])
     err = " ".join(capsys.readouterr().err.split())
-    assert code == 1 and "--identify needs at least 4 frames" in err and "has 1" in err and not out.exists()
+    assert code == 1 and "--identify needs at least 8 frames" in err and "has 1" in err and not out.exists()
     from dano.tracking.outputs import poor_frames_warning
 
     assert poor_frames_warning({"frames": 61, "poor_frames": 0}) == []
