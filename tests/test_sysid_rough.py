@@ -33,3 +33,9 @@ def test_default_identification_ends_at_the_global_minimum_of_a_rough_cost():
     assert res.interval["lower"]["sliding_friction"] <= res.estimates[0] <= res.interval["upper"]["sliding_friction"]
     assert res.identifiability["sliding_friction"]["status"] == "rough"
     assert np.isnan(res.standard_errors[0])  # the ripple's curvature is not reported as the uncertainty
+    # the warning compares the two intervals the right way up: the local one over the profile's
+    ratio = res.identifiability["sliding_friction"]["curvature_ratio"]
+    rough = next(w for w in res.warnings if "the cost is rough" in w)
+    assert f"would give an interval {1 / ratio:.3g}x the profile's" in rough, (ratio, rough)
+    # the verification restarted from a lower point (measured: once); "initial" stays the user's guess
+    assert res.verification["restarts"] >= 1 and res.initial.tolist() == [0.2]
