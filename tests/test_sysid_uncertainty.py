@@ -168,6 +168,9 @@ def test_initial_pose_offsets_are_identified(box):
     with_prior = dataclasses.replace(problem, start_prior=True)
     frames = obs[1].num_frames - 1
     assert with_prior.num_residuals == problem.num_residuals + 6  # a row per offset
+    # each row carries its frame's noise in the residuals' units (weights 1: the levels themselves)
+    sd = with_prior.residual_noise(1e-3, 0.5)[problem.num_residuals:]
+    np.testing.assert_allclose(sd, np.tile([1e-3, 1e-3, np.radians(0.5) / np.sqrt(3)], 2), rtol=1e-12)
     est = dict(zip(res.labels, identify(with_prior).estimates))
     assert abs(est["r0[1]:box:z"] + yaw * frames / (frames + 1)) < 0.02 * yaw / (frames + 1)
     with pytest.raises(DanoError, match="fit_rotation"):

@@ -711,10 +711,10 @@ class SysIdProblem:
     √26/2·σ/Δt for frames of position noise σ: Δt·2/√26·√w·δv (angular: Δt·2/√26·L·δω), in
     the residuals' own units, so that no noise level is needed. Where the frames determine an
     offset (a moving start) its row weighs (4/26)/Σk² of them (frame k moves by k·Δt·δv),
-    0.05 % for a window of 10 frames; where they do not (the velocity of a resting object into the floor, which
-    its contact absorbs; the pose of a start that is never observed again) the row holds the
-    offset near the frames' value instead of letting the solver wander along a flat
-    direction. False: plain least squares over the frames.
+    0.05 % for a window of 10 frames; where they do not (the velocity of a resting object
+    into the floor, which its contact absorbs) the row holds the offset near the frames'
+    value instead of letting the solver wander along a flat direction. False: plain least
+    squares over the frames.
     Raises DanoError for inconsistent input (see :func:`_check_observation`), unknown
     parameters, bounds that exclude the initial guess, or fewer residuals than parameters.
     """
@@ -1273,11 +1273,10 @@ class SysIdProblem:
             if np.any(sd[:cols] <= 0):
                 raise DanoError(f"the residuals include {kind} observations but their noise level is zero")
             out.append(np.tile(sd[:cols], frames))  # frame by frame, columns inside
-        prior = self.start_prior_rows  # a row's noise: its frame's, in the frame residuals' units
-        sd = np.r_[pos, np.radians(rotation_deg) / np.sqrt(3)][prior.noise] * prior.unit
-        if np.any(sd <= 0):
-            raise DanoError("the start prior weighs offsets whose observations have a noise level of zero")
-        return np.concatenate(out + [sd])
+        # a start prior row's noise: its frame's, in the frame residuals' units (zero levels of
+        # the kinds it weighs were refused above: it weighs only axes the frames' residuals weigh)
+        prior = self.start_prior_rows
+        return np.concatenate(out + [np.r_[pos, np.radians(rotation_deg) / np.sqrt(3)][prior.noise] * prior.unit])
 
     def residual_function(self):
         """(θ) -> residual vector (m,), a pure JAX function (jit/jacfwd it; forward mode only
