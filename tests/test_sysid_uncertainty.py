@@ -171,6 +171,9 @@ def test_initial_pose_offsets_are_identified(box):
     # each row carries its frame's noise in the residuals' units (weights 1: the levels themselves)
     sd = with_prior.residual_noise(1e-3, 0.5)[problem.num_residuals:]
     np.testing.assert_allclose(sd, np.tile([1e-3, 1e-3, np.radians(0.5) / np.sqrt(3)], 2), rtol=1e-12)
+    # a start pose averaged over 4 rest frames weighs √4 times a frame (its noise σ/2)
+    rest = dataclasses.replace(with_prior, observations=[dataclasses.replace(o, rest_frames=4) for o in obs])
+    np.testing.assert_allclose(rest.start_prior_rows.weight, 2 * rest.start_prior_rows.unit, rtol=1e-12)
     est = dict(zip(res.labels, identify(with_prior).estimates))
     assert abs(est["r0[1]:box:z"] + yaw * frames / (frames + 1)) < 0.02 * yaw / (frames + 1)
     with pytest.raises(DanoError, match="fit_rotation"):

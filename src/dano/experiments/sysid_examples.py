@@ -567,8 +567,10 @@ def soap_sensitivity(friction: float) -> dict:
     """The soap's friction identified again with the assumed real length per scene unit
     scaled by 0.9 and 1.1, from ``friction`` (no scan, no profile: the sensitivity of the
     local answer), and the elasticity d ln μ / d ln L. The two fits stop when the cost changes
-    by less than 1e-6 of itself (``ftol``; the main fit: 1e-8): that moves their friction by
-    about 3e-6, 3000 times less than its standard error (0.0095), in half the evaluations."""
+    by less than 1e-6 of itself (``ftol``, stricter than the main fit's statistical one,
+    2e-3/(m − n) ≈ 3e-5 here, for a difference of two fits): that moves their friction by
+    about 3e-6, 3000 times less than its standard error (0.0095), in half the evaluations of
+    1e-8."""
     scales = (0.9, 1.1)  # the two identifications side by side (:func:`~dano.sysid.solve.side_by_side`)
     fits = side_by_side([lambda s=s: identify(soap_problem(length_scale=s, substeps=4, initial_friction=friction),
                                               scan=0, profile_points=0, ftol=1e-6) for s in scales])

@@ -257,8 +257,9 @@ class OptionsConfig:
     """Each fitted start offset (the ``fit_*`` axes above) also gets one residual row for what the observed frames
     say of it: the start frame's error for a pose offset, the finite-difference velocity's for a velocity offset,
     in the frames' own units. It holds the offsets the frames leave free (a resting object's velocity into the
-    floor) near the frames' value and weighs under 0.1 % of a 10-frame window's frames for the others; ``false``: plain
-    least squares."""
+    floor) near the frames' value; a moving start's velocity row weighs 0.04 % of a 10-interval window's frames, a pose
+    offset's row one frame. Velocities that are given (``velocities``, rest frames) get none; ``false``: plain least
+    squares."""
     window: int = 0
     """> 0: multiple shooting, windows of this many frame intervals (>= 2); 0: one shot per trajectory."""
     auto_windows: bool = False

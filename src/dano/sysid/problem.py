@@ -709,12 +709,15 @@ class SysIdProblem:
     is the start frame's error (√w·δp, like a frame's residual), a rotation offset likewise
     (L·δr), and a velocity offset the error of the finite-difference velocity, whose noise is
     √26/2·σ/Δt for frames of position noise σ: Δt·2/√26·√w·δv (angular: Δt·2/√26·L·δω), in
-    the residuals' own units, so that no noise level is needed. Where the frames determine an
-    offset (a moving start) its row weighs (4/26)/Σk² of them (frame k moves by k·Δt·δv),
-    0.05 % for a window of 10 frames; where they do not (the velocity of a resting object
-    into the floor, which its contact absorbs) the row holds the offset near the frames'
-    value instead of letting the solver wander along a flat direction. False: plain least
-    squares over the frames.
+    the residuals' own units, so that no noise level is needed. A pose offset's row counts as
+    one frame more (N/(N + 1) of a start frame's own error is corrected); a velocity offset's
+    row, where the frames determine it (a moving start: frame k moves by k·Δt·δv), weighs
+    (4/26)/Σk² of them, 0.04 % for a window of 10 intervals; where they do not (the velocity
+    of a resting object into the floor, which its contact absorbs) the row holds the offset
+    near the frames' value instead of letting the solver wander along a flat direction. The
+    finite difference reuses frames 1 and 2, which are residuals too: counted twice, a
+    negligible amount for moving starts, a little optimistic for the offsets' own standard
+    errors. False: plain least squares over the frames.
     Raises DanoError for inconsistent input (see :func:`_check_observation`), unknown
     parameters, bounds that exclude the initial guess, or fewer residuals than parameters.
     """
@@ -959,22 +962,31 @@ class SysIdProblem:
     def start_prior_rows(self) -> StartPriorRows:
         """The start prior's residual rows (see the class docstring), after the frames'
         residuals; empty without ``start_prior`` or fitted offsets. Rows of zero weight (an axis
-        weighed 0) are left out."""
+        weighed 0) are left out, and so are the velocity offsets of starts whose velocity is not
+        a finite difference (``qvel0``, measured ``velocities``, ``rest_frames``); a start pose
+        averaged over k ``rest_frames`` weighs √k times a frame."""
         rows: list[tuple[int, float, int, int, float]] = []
         if self.start_prior and self.fit_axes:
             wpos = np.sqrt(np.asarray(self.weights.position, dtype=np.float64))
             wrot = self.rotation_weights() if self._rotation_weighted() else np.zeros(len(self.scene.dano_names))
             offsets, n_axes = self._nuisance_offsets(), len(self.fit_axes)
             for s, seg in enumerate(self.segments):
-                dt = self.observations[seg.obs].frame_dt
+                o = self.observations[seg.obs]
+                first = seg.start == 0
+                # a start pose averaged over k rest frames carries σ/√k; a start velocity that is
+                # given (qvel0, measured velocities, or 0 for rest frames) has no finite difference
+                # to stand for: its offsets get no row
+                frames = min(o.rest_frames, seg.frames) if first and o.rest_frames > 1 else 1
                 for b, name in enumerate(self._tracked[seg.obs]):
                     d = self.scene.dano_index(name)
+                    differenced = name not in o.velocities and not (first and (o.qvel0 is not None or frames > 1))
                     for k, a in enumerate(self.fit_axes):
                         kind, axis = divmod(a, 3)  # velocity, angular velocity, position, rotation
                         unit = wrot[d] if kind in (1, 3) else wpos[axis]
-                        if unit > 0:
-                            rows.append((offsets[s] + b * n_axes + k, unit * (dt / _FD_GAIN if kind < 2 else 1.0),
-                                         seg.obs, 3 if kind in (1, 3) else axis, unit))
+                        if unit > 0 and (kind >= 2 or differenced):
+                            scale = o.frame_dt / _FD_GAIN if kind < 2 else np.sqrt(frames)
+                            rows.append((offsets[s] + b * n_axes + k, unit * scale, seg.obs,
+                                         3 if kind in (1, 3) else axis, unit))
         index, weight, owner, noise, unit = zip(*rows) if rows else ((),) * 5
         return StartPriorRows(np.asarray(index, dtype=np.int64), np.asarray(weight, dtype=np.float64),
                               np.asarray(owner, dtype=np.int64), np.asarray(noise, dtype=np.int64),

@@ -233,8 +233,8 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     jacobian: "ad" (forward-mode AD, default) or "fd" (SciPy's 2-point finite
     differences, for comparison). xtol, ftol, gtol: SciPy's convergence tests; ftol None
     (default): :func:`statistical_ftol`, an iteration that lowers the cost by less than
-    :data:`COST_TOLERANCE` of the residual variance ends the solve. max_iterations: the most residual evaluations per
-    local solve (SciPy's ``max_nfev``; the trust-region method makes about one per iteration);
+    :data:`COST_TOLERANCE` of the residual variance ends the solve. max_iterations: the most
+    residual evaluations per local solve (SciPy's ``max_nfev``; the trust-region method makes about one per iteration);
     default max(50, 10 × the parameters, nuisance included: the starts' velocities that
     ``fit_velocity="auto"`` adds converge more slowly, 85 evaluations for 13 parameters).
     horizons: continuation over the trajectory length, e.g. (0.4,): first fit on the first
@@ -408,8 +408,10 @@ def statistical_ftol(num_residuals: int, num_parameters: int) -> float:
     underestimates the cost's and it converges linearly, crawling along a valley for
     hundreds of evaluations at the fixed 1e-8: on a bunny's slide made by plain MuJoCo C
     (14 parameters), 1e-8 ran to the evaluation limit (140) without a convergence test
-    met, this stopped after 23, 0.1 standard errors from where the 140 had crawled. For
-    noise-free data (F near 0) the test is as strict as before, relative to F."""
+    met, this stopped after 23, 0.1 standard errors from where the 140 had crawled. The test
+    stays relative to F, so a fit to noise-free data (F near 0, Gauss–Newton converging
+    quadratically) still ends at rounding. The bootstrap's refits keep SciPy's 1e-8: they
+    start at the estimate, and stopping them early would shrink their spread."""
     return 2.0 * COST_TOLERANCE / max(num_residuals - num_parameters, 1)
 
 
