@@ -84,10 +84,11 @@ def sysid_table(config: str, problem, result, report: dict, out_dir: Path) -> Ta
         t.add_row(lab, f"{v:.5g}", inside, f"{sd:.2g}", f"{x0:.4g}")
     if many:  # one row per kind of start offset (every value is in result.json)
         for prefix, what in _START_OFFSETS.items():
-            values = [abs(v) for lab, v, _, _ in nuisance if lab.startswith(prefix)]
+            values = [(abs(v), lab) for lab, v, _, _ in nuisance if lab.startswith(prefix)]
             if values:
-                t.add_row(escape(f"{prefix[:-1]}[...]: {len(values)} {what}"), f"|max| {max(values):.3g}", "-",
-                          "-", "0")
+                largest, where = max(values)
+                t.add_row(escape(f"{prefix[:-1]}[...]: {len(values)} {what}"),
+                          escape(f"|max| {largest:.3g} ({where})"), "-", "-", "0")
     t.caption = (f"rms residual {result.rms_residual:.3g} over {result.num_residuals} residuals; "
                  f"{result.nfev} evaluations; {result.wall_time_s:.2f} s (+{result.compile_time_s:.1f} s compile); "
                  f"wrote {out_dir}/result.json, config.json, fit.png")

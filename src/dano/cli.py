@@ -249,11 +249,19 @@ def _sysid(c) -> None:
         _print_report(_sysid_json(report))
     else:
         out.print(sysid_table(c.config, problem, result, report, out_dir))
+        _print_sysid_notes(report)
 
 
 def _print_sysid_warnings(name, report: dict) -> None:
     for note in report["warnings"]:
         err.print(f"[yellow]warning:[/] {escape(f'{name}: {note}')}", highlight=False, soft_wrap=True)
+
+
+def _print_sysid_notes(report: dict) -> None:
+    """The result's notes (what the defaults decided: a drag held neutral, start velocities
+    fitted, ...) after its table; --json carries them under "notes"."""
+    for note in report.get("notes", []):
+        out.print(f"[dim]note:[/] {escape(note)}", highlight=False, soft_wrap=True)
 
 
 def _sysid_json(report: dict) -> dict:
@@ -366,6 +374,7 @@ def _track(c) -> None:
         report = {**report, "identification": _sysid_json(identified)}
         if not c.json_:
             out.print(sysid_table(str(toml), problem, result, identified, sysid_dir))
+            _print_sysid_notes(identified)
     if c.json_:
         _print_report(report)
 

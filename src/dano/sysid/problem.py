@@ -274,8 +274,9 @@ def noisy_start_velocities(observations, segments, position_noise, axes: str) ->
     if found is None or found[1] <= 0 or found[0] <= START_VELOCITY_NOISE * found[1]:
         return None
     spread, typical = found
-    sigma = 1e3 * float(np.linalg.norm(np.asarray(position_noise)[["xyz".index(a) for a in axes]]))
-    return (f"finite differences of the observed frames, whose position noise along {axes} is {sigma:.3g} mm, "
+    per_axis = 1e3 * np.asarray(position_noise, dtype=np.float64)[["xyz".index(a) for a in axes]]
+    sigma = ", ".join(f"{v:.3g}" for v in per_axis) + (" mm per axis" if len(axes) > 1 else " mm")
+    return (f"finite differences of the observed frames, whose position noise along {axes} is {sigma}, "
             f"start the rollouts from velocities uncertain by about {spread:.3g} m/s, "
             f"{100 * spread / typical:.0f} % of the typical moving start's speed ({typical:.3g} m/s)")
 
