@@ -233,10 +233,11 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     jacobian: "ad" (forward-mode AD, default) or "fd" (SciPy's 2-point finite
     differences, for comparison). xtol, ftol, gtol: SciPy's convergence tests; ftol None
     (default): :func:`statistical_ftol`, an iteration that lowers the cost by less than
-    :data:`COST_TOLERANCE` of the residual variance ends the solve. max_iterations: the most
-    residual evaluations per local solve (SciPy's ``max_nfev``; the trust-region method makes about one per iteration);
-    default max(50, 10 × the parameters, nuisance included: the starts' velocities that
-    ``fit_velocity="auto"`` adds converge more slowly, 85 evaluations for 13 parameters).
+    :data:`COST_TOLERANCE` of the residual variance ends the solve. max_iterations: the
+    most residual evaluations per local solve (SciPy's ``max_nfev``; the trust-region method
+    makes about one per iteration); default max(50, 10 × the parameters, nuisance included:
+    the starts' velocities that ``fit_velocity="auto"`` adds converge more slowly, 85
+    evaluations for 13 parameters).
     horizons: continuation over the trajectory length, e.g. (0.4,): first fit on the first
     40 % of every trajectory, then on all of it from that estimate (contact-rich cost
     landscapes are much smoother over short horizons). Raises DanoError if the scene is not
