@@ -998,10 +998,10 @@ class SysIdProblem:
         prior = self.start_prior_rows
         return np.asarray(theta, dtype=np.float64)[..., prior.index] * prior.weight
 
-    def _prior_jacobian(self) -> np.ndarray:
-        """(k, n) the start prior rows' Jacobian (constant)."""
+    def _prior_jacobian(self, n: int) -> np.ndarray:
+        """(k, n) the start prior rows' Jacobian (constant) for θ of n entries."""
         prior = self.start_prior_rows
-        P = np.zeros((len(prior.index), self.num_parameters))
+        P = np.zeros((len(prior.index), n))
         P[np.arange(len(prior.index)), prior.index] = prior.weight
         return P
 
@@ -1170,7 +1170,7 @@ class SysIdProblem:
         J, (r, states) = _run(_residuals_and_jacobian_jit, layout, self.scene, self.base_params, data,
                               jnp.asarray(theta, dtype=jnp.float64))
         return (np.concatenate([r[keep], self._prior_residuals(theta)]),
-                np.concatenate([J[keep], self._prior_jacobian()]), layout, states)
+                np.concatenate([J[keep], self._prior_jacobian(J.shape[1])]), layout, states)
 
     def fitted(self, theta) -> list[np.ndarray]:
         """Fitted qpos (frames, nq) of every segment at θ (n,), as :meth:`simulate` gives them
