@@ -209,10 +209,28 @@ def test_velocity_from_poses_recovers_a_constant_velocity(degree, n):
     np.testing.assert_allclose(pose.velocity_from_poses(times, poses, degree), np.tile(np.r_[v, w], (2, 1)), atol=1e-9)
 
 
+def test_velocity_from_poses_at_an_offset_is_the_parabolas_slope_there():
+    """A constant acceleration (linear, world frame; angular about a fixed body axis):
+    the degree-2 slope ``at`` τ after the first pose is v + a·τ, before it (τ < 0) too."""
+    t = 0.7 + np.arange(3) / 40.0
+    v, a = np.array([1.2, -0.4, 2.0]), np.array([-3.4, 1.0, -9.81])
+    w, alpha, axis = 0.8, -5.0, np.array([0.0, 0.6, 0.8])
+    s = t - t[0]
+    angle = w * s + 0.5 * alpha * s**2
+    q = pose.quat_multiply(pose.random_quats(np.random.default_rng(2)), pose.rotvec_to_quat(angle[:, None] * axis))
+    poses = np.c_[v * s[:, None] + 0.5 * a * s[:, None] ** 2, q]
+    for tau in (0.0, -0.0125, -0.003, 0.01):
+        np.testing.assert_allclose(pose.velocity_from_poses(t, poses, 2, at=tau),
+                                   np.r_[v + a * tau, (w + alpha * tau) * axis], atol=1e-9)
+    with pytest.raises(DanoError, match="finite time offset"):
+        pose.velocity_from_poses(t, poses, 2, at=float("nan"))
+
+
 def test_velocity_from_poses_is_what_sysid_and_tracking_use():
     """finite_difference_velocity (sysid) and initial_velocity (tracking) are the one function:
     the one-sided difference −(3x₀ − 4x₁ + x₂)/(2h) and the least-squares slope."""
     from dano.sysid import finite_difference_velocity
+    from dano.sysid.problem import finite_difference_gain
     from dano.tracking import initial_velocity
 
     rng = np.random.default_rng(5)
@@ -225,6 +243,11 @@ def test_velocity_from_poses_is_what_sysid_and_tracking_use():
     r1, r2 = (Rotation.from_quat(poses[0, 3:], scalar_first=True).inv()
               * Rotation.from_quat(poses[1:3, 3:], scalar_first=True)).as_rotvec()
     np.testing.assert_allclose(fd[3:], (4 * r1 - r2) / (2 * h), atol=1e-12)
+    for rho in (1.0, 0.25):  # half a simulation step of ρ·h earlier, and the stencil's noise gain
+        stencil = np.array([-(3 + rho), 4 + 2 * rho, -(1 + rho)]) / (2 * h)
+        np.testing.assert_allclose(finite_difference_velocity(t, poses, rho * h)[:3], stencil @ poses[:3, :3], atol=1e-12)
+        np.testing.assert_allclose(finite_difference_gain(rho), np.linalg.norm(stencil) * h, rtol=1e-14)
+    assert finite_difference_gain(0.0) == pytest.approx(np.sqrt(26) / 2, rel=1e-14)
     iv = initial_velocity(t, poses, frames=4)
     np.testing.assert_allclose(iv[:3], np.polyfit(t[:4], poses[:4, :3], 1)[0], atol=1e-12)
     np.testing.assert_allclose(iv, pose.velocity_from_poses(t[:4], poses[:4]), atol=0)

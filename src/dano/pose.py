@@ -168,17 +168,19 @@ def random_quats(rng: np.random.Generator, shape: int | tuple = ()) -> np.ndarra
     return xyzw[..., [3, 0, 1, 2]]
 
 
-def _derivative_weights(t: np.ndarray, degree: int, intercept: bool) -> np.ndarray:
-    """(..., n) weights c with Σ_k c_k·x_k the derivative at t = 0 of the least-squares
+def _derivative_weights(t: np.ndarray, degree: int, intercept: bool, at: float = 0.0) -> np.ndarray:
+    """(..., n) weights c with Σ_k c_k·x_k the derivative at t = ``at`` of the least-squares
     polynomial of ``degree`` through (t_k, x_k) (without a constant term: through zero)."""
     scale = np.max(np.abs(t), axis=-1, keepdims=True)
     powers = np.arange(0 if intercept else 1, degree + 1)
     vander = (t / scale)[..., None] ** powers  # (..., n, p), columns of order 1
-    return np.linalg.pinv(vander)[..., 1 if intercept else 0, :] / scale
+    slope = np.where(powers > 0, powers * (at / scale) ** np.maximum(powers - 1, 0), 0.0)  # d/dt of each column
+    return np.einsum("...p,...pn->...n", slope, np.linalg.pinv(vander)) / scale
 
 
-def velocity_from_poses(times, poses, degree: int = 1) -> np.ndarray:
-    """A free body's velocity (..., 6) at the first of the poses, from a polynomial fit.
+def velocity_from_poses(times, poses, degree: int = 1, at: float = 0.0) -> np.ndarray:
+    """A free body's velocity (..., 6) at the first of the poses (or ``at`` [s] after it:
+    negative is before it), from a polynomial fit.
 
     times (..., n) [s] (increasing), poses (..., n, 7) (x y z [m, world], quaternion w x y z).
     Linear velocity [m/s, world frame]: the slope at the first time of the least-squares
@@ -188,7 +190,8 @@ def velocity_from_poses(times, poses, degree: int = 1) -> np.ndarray:
     per interval below π). degree 1 with n = 2 is a difference quotient, with n = 3 a
     least-squares slope (steadier against tracking noise); degree 2 with n = 3 is the
     second-order one-sided difference (−3x₀ + 4x₁ − x₂)/(2h). Host code: NumPy in, NumPy
-    (float64) out. Raises DanoError with fewer than degree + 1 poses or bad shapes."""
+    (float64) out. Raises DanoError with fewer than degree + 1 poses, bad shapes or a
+    non-finite ``at``."""
     t = np.asarray(times, dtype=np.float64)
     p = np.asarray(poses, dtype=np.float64)
     if p.shape[-1:] != (7,) or p.shape[:-1] != t.shape or t.ndim == 0:
@@ -198,7 +201,9 @@ def velocity_from_poses(times, poses, degree: int = 1) -> np.ndarray:
     t = t - t[..., :1]
     if np.any(np.diff(t, axis=-1) <= 0):
         raise DanoError("velocity_from_poses needs increasing times")
-    linear = np.einsum("...k,...ki->...i", _derivative_weights(t[..., :], degree, True), p[..., :3])
+    if not np.isfinite(at):
+        raise DanoError(f"velocity_from_poses needs a finite time offset at, got {at!r}")
+    linear = np.einsum("...k,...ki->...i", _derivative_weights(t[..., :], degree, True, at), p[..., :3])
     r = quat_error(p[..., :1, 3:], p[..., 1:, 3:])  # (..., n - 1, 3), body frame of the first pose
-    angular = np.einsum("...k,...ki->...i", _derivative_weights(t[..., 1:], degree, False), r)
+    angular = np.einsum("...k,...ki->...i", _derivative_weights(t[..., 1:], degree, False, at), r)
     return np.concatenate([linear, angular], axis=-1)

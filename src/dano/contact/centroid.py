@@ -9,7 +9,8 @@ import jax
 import jax.numpy as jnp
 
 from .base import PairGeometry, register_contact_model
-from .law import check_drag, pair_wrench, smooth_max0
+from .law import check_drag, check_steepness, pair_wrench, smooth_max0
+from .params import FRICTION_STEEPNESS
 
 
 @jax.tree_util.register_dataclass
@@ -30,7 +31,9 @@ class CentroidState:
 class Centroid:
     """Each pair applies one force and torque at its centroid χ with the pair's overlap ψ,
     normal n and the relative velocity at χ (paper Eqs. 8–12). drag: "normal_force" (the
-    paper) or "overlap" (drags scaled by ψ, dano 0.1).
+    paper) or "overlap" (drags scaled by ψ, dano 0.1). friction_steepness: s [s/m] of the
+    smoothed Coulomb direction (:func:`~dano.contact.params.smooth_direction`; 30 is the
+    paper's code), finite and positive (else DanoError).
 
     Over a step with relative twist u the overlap and the centroid advance to first order,
     ψ + h·ψ̇u and χ + h·Ṁu/ψ (M the first moment of the overlap about χ), so the contact
@@ -43,9 +46,11 @@ class Centroid:
     #: a rollout of its step compiles into one XLA kernel on the CPU (docs/simulation.md, Speed)
     single_kernel_rollout: ClassVar[bool] = True
     drag: str = "normal_force"
+    friction_steepness: float = FRICTION_STEEPNESS
 
     def __post_init__(self):
         check_drag(self.drag)
+        object.__setattr__(self, "friction_steepness", check_steepness(self.friction_steepness))
 
     def prepare(self, g: PairGeometry, h, u=None) -> CentroidState:
         return CentroidState(g.psi, g.psi_rate, g.moment_rate, g.normal, jnp.asarray(h, g.psi.dtype))
@@ -60,5 +65,5 @@ class Centroid:
         psi = jnp.where(touching, clamped[0], 0.0)
         denom = 0.5 * ref + clamped[1]
         arm = jnp.where(touching, st.h * (st.moment_rate @ u) / denom, 0.0)
-        force, torque = pair_wrench(p, psi, st.normal, u[:3], u[3:], self.drag)  # velocity at χ
+        force, torque = pair_wrench(p, psi, st.normal, u[:3], u[3:], self.drag, self.friction_steepness)  # at χ
         return jnp.concatenate([force, torque + jnp.cross(arm, force)])

@@ -26,9 +26,10 @@ from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..errors import DanoError
-from .params import ContactParams, direction_profile, smooth_direction
+from .params import FRICTION_STEEPNESS, ContactParams, direction_profile, smooth_direction
 
 #: how the viscous drags scale: by ‖F_n‖ (paper Eqs. 9–11) or by ψ (dano 0.1)
 DRAG_SCALINGS = ("normal_force", "overlap")
@@ -39,6 +40,15 @@ def check_drag(drag: str) -> str:
     if drag not in DRAG_SCALINGS:
         raise DanoError(f"drag must be one of {DRAG_SCALINGS}, got {drag!r}")
     return drag
+
+
+def check_steepness(steepness) -> float:
+    """``friction_steepness`` [s/m] as a float if it is finite and positive; raises DanoError
+    otherwise (a contact model's static field: it is part of the compiled program)."""
+    value = float(steepness) if isinstance(steepness, (int, float)) and not isinstance(steepness, bool) else np.nan
+    if not (np.isfinite(value) and value > 0):
+        raise DanoError(f"friction_steepness must be a positive number [s/m], got {steepness!r}")
+    return value
 
 
 #: width of the smooth clamp of the normal force, relative to the impact spring k
@@ -56,12 +66,14 @@ def normal_force(p: ContactParams, psi, vn):
     return psi * smooth_max0(p.impact_spring - p.impact_damper * vn, CLAMP_WIDTH * p.impact_spring)
 
 
-def pair_wrench(p: ContactParams, psi, normal, v, w, drag: str = "normal_force"):
+def pair_wrench(p: ContactParams, psi, normal, v, w, drag: str = "normal_force",
+                steepness: float = FRICTION_STEEPNESS):
     """Force (3,) [N] and torque (3,) [N·m] on A, world frame, of one contact pair.
 
     p: parameters of this pair (scalars); psi: overlap (mass units); normal: (3,) from B
     into A; v, w: (3,) relative linear [m/s] and angular [rad/s] velocity of A w.r.t. B
-    at the centroid χ. Eqs. 8–11.
+    at the centroid χ; steepness: of the smoothed Coulomb direction [s/m]
+    (:func:`~dano.contact.params.smooth_direction`). Eqs. 8–11.
     """
     vn = jnp.dot(normal, v)
     vt = v - vn * normal
@@ -70,7 +82,7 @@ def pair_wrench(p: ContactParams, psi, normal, v, w, drag: str = "normal_force")
     fn = normal_force(p, psi, vn)
     s = fn if drag == "normal_force" else psi
     # the three smoothed Coulomb directions in one call (fewer, larger XLA kernels per step)
-    d_slide, d_twist, d_roll = smooth_direction(jnp.stack([vt, wn * normal, wt]))
+    d_slide, d_twist, d_roll = smooth_direction(jnp.stack([vt, wn * normal, wt]), steepness)
     force = fn * normal + fn * p.sliding_friction * d_slide - s * p.sliding_drag * vt
     torque = (fn * p.torsional_friction * d_twist - s * p.torsional_drag * wn * normal
               + fn * p.rolling_friction * d_roll - s * p.rolling_drag * wt)
@@ -95,7 +107,8 @@ class SampleForceSlopes:
     per_weight: jax.Array
 
 
-def sample_forces(p: ContactParams, weight, normal, v, drag: str = "normal_force"):
+def sample_forces(p: ContactParams, weight, normal, v, drag: str = "normal_force",
+                  steepness: float = FRICTION_STEEPNESS):
     """Forces (3, S) [N] on A of S contact samples, each with its own share of the overlap.
 
     weight: (S,) α·w_i·o_i, the sample's share of ψ (mass units); normal: (3, S) from B
@@ -104,10 +117,11 @@ def sample_forces(p: ContactParams, weight, normal, v, drag: str = "normal_force
     share, so the forces add up to the pair's normal force at rest; torsional and rolling
     resistance then come from how the forces are distributed.
     """
-    return sample_forces_and_slopes(p, weight, normal, v, drag)[0]
+    return sample_forces_and_slopes(p, weight, normal, v, drag, steepness)[0]
 
 
-def sample_forces_and_slopes(p: ContactParams, weight, normal, v, drag: str = "normal_force"):
+def sample_forces_and_slopes(p: ContactParams, weight, normal, v, drag: str = "normal_force",
+                             steepness: float = FRICTION_STEEPNESS):
     """:func:`sample_forces` (3, S) and its :class:`SampleForceSlopes` (same arguments).
 
     With v_n = n·v, v_t = v − v_n·n (speed ρ, direction t̂), x = k − c·v_n, the clamp
@@ -124,7 +138,7 @@ def sample_forces_and_slopes(p: ContactParams, weight, normal, v, drag: str = "n
     x = p.impact_spring - p.impact_damper * vn
     clamp = smooth_max0(x, width)
     fn = weight * clamp
-    speed, unit, phi, dphi = direction_profile(vt, axis=0)
+    speed, unit, phi, dphi = direction_profile(vt, steepness, axis=0)
     speed, phi, dphi = speed[0], phi[0], dphi[0]  # (S,)
     mu, beta = p.sliding_friction, p.sliding_drag
     push = normal + mu * (-(2.0 / jnp.pi) * phi * vt)  # n + μ·d

@@ -13,7 +13,8 @@ import jax.numpy as jnp
 from ..errors import DanoError
 from .base import (Compacted, PairGeometry, cross_columns, occupancy, occupancy_slope, register_contact_model,
                    sample_rates, skew, twist_rows, world_points)
-from .law import check_drag, sample_forces_and_slopes
+from .law import check_drag, check_steepness, sample_forces_and_slopes
+from .params import FRICTION_STEEPNESS
 from .samples import SAMPLE_BLOCK
 
 
@@ -75,7 +76,7 @@ class PerSample:
     resistance emerge from the distribution of the forces: the torsional and rolling
     parameters are not used. Over a step each sample's depth advances to first order
     (z_i + h·ż_i, its occupancy following), so samples entering contact during the step
-    push back within it. drag: as for the centroid model.
+    push back within it. drag, friction_steepness: as for the centroid model.
 
     Only samples within reach can act in a step: those whose depth, advanced over the step
     at the step's start velocity where that deepens it, comes within :data:`REACH_MARGIN`
@@ -111,9 +112,11 @@ class PerSample:
     drag: str = "normal_force"
     max_active: int = 64
     blocks_searched: int = 48
+    friction_steepness: float = FRICTION_STEEPNESS
 
     def __post_init__(self):
         check_drag(self.drag)
+        object.__setattr__(self, "friction_steepness", check_steepness(self.friction_steepness))
         for name in ("max_active", "blocks_searched"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -209,7 +212,8 @@ class PerSample:
         moved = st.h * st.moves
         arm = st.arm + moved * motion
         depth = st.depth + st.h * (u @ st.rate)
-        forces, slopes = sample_forces_and_slopes(p, st.weight * occupancy(depth), st.normal, motion, self.drag)
+        forces, slopes = sample_forces_and_slopes(p, st.weight * occupancy(depth), st.normal, motion, self.drag,
+                                                  self.friction_steepness)
         wrench = jnp.concatenate([jnp.sum(forces, axis=1), jnp.sum(cross_columns(arm, forces), axis=1)])
         if not jacobian:
             return wrench

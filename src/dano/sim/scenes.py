@@ -339,7 +339,8 @@ BUILTIN_SCENES: dict[str, Callable[..., Setup]] = {
 
 def load_scene(name: str, dt: float | None = None, contact_model: str = "centroid") -> Setup:
     """A built-in scene by name, with time step ``dt`` [s] (default: the scene's) and
-    ``contact_model`` ("centroid" or "per_sample") for every pair. Raises DanoError
+    ``contact_model`` ("centroid", "per_sample" or a contact model instance, e.g.
+    ``PerSample(friction_steepness=30.0)``) for every pair. Raises DanoError
     (listing the names) for an unknown one."""
     if name not in BUILTIN_SCENES:
         raise DanoError(f"unknown scene {name!r}; built-in scenes: {', '.join(BUILTIN_SCENES)} (or an MJCF path)")

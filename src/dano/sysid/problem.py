@@ -206,36 +206,58 @@ def _check_observation_values(obs: Observation, scene: Scene, k: int) -> None:
                 raise DanoError(f"{tag}: {what} must be finite with shape ({len(t) - 1}, {width}), got {a.shape}")
 
 
-def _one_sided_difference(times: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Second-order one-sided derivative at the first sample: (−3x₀ + 4x₁ − x₂)/(2h)."""
-    return (-3 * x[0] + 4 * x[1] - x[2]) / (2 * (times[1] - times[0]))
+def _one_sided_difference(times: np.ndarray, x: np.ndarray, step: float = 0.0) -> np.ndarray:
+    """Slope at the first sample less half a ``step`` [s] of the parabola through the first
+    three samples: (−3x₀ + 4x₁ − x₂)/(2Δ) − (x₀ − 2x₁ + x₂)·step/(2Δ²) (Δ = t₁ − t₀); see
+    :func:`finite_difference_velocity`."""
+    dt = times[1] - times[0]
+    return (-3 * x[0] + 4 * x[1] - x[2]) / (2 * dt) - (x[0] - 2 * x[1] + x[2]) * step / (2 * dt * dt)
 
 
-def finite_difference_velocity(times: np.ndarray, poses: np.ndarray) -> np.ndarray:
+def finite_difference_velocity(times: np.ndarray, poses: np.ndarray, step: float = 0.0) -> np.ndarray:
     """(6,) initial velocity of a free body from its first three poses (times (≥3,) [s],
     poses (≥3, 7) x y z qw qx qy qz): linear velocity (world frame) [m/s] by a second-order
     one-sided difference, angular velocity (body frame) [rad/s] from the relative rotations
-    (:func:`dano.pose.velocity_from_poses` of degree 2)."""
-    return velocity_from_poses(np.asarray(times)[:3], np.asarray(poses)[:3], degree=2)
+    (:func:`dano.pose.velocity_from_poses` of degree 2), both taken ``step``/2 before the
+    first pose.
+
+    step: the simulation step h [s] that starts from this velocity, 0 for the velocity at the
+    first pose. MuJoCo's Euler integrator, and dano's implicit step with it, is semi-implicit:
+    x_{k+1} = x_k + h·v_{k+1}, so its velocities lag its positions by half a step, and a
+    rollout started from the true velocity v(t₀) under a constant acceleration a falls behind
+    by a·h·t/2 (a slide to a stop by v₀·h/2: 6 mm for 1.2 m/s at h = 10 ms, which moves an
+    identified friction by several percent). Started from v(t₀ − h/2) = v − a·h/2 (exact for
+    a parabola), its positions match the parabola's at every step. The stencil is
+    (−(3 + ρ)x₀ + (4 + 2ρ)x₁ − (1 + ρ)x₂)/(2Δ), ρ = h/Δ: its noise gain is
+    :func:`finite_difference_gain`."""
+    times = np.asarray(times, dtype=np.float64)[:3]
+    return velocity_from_poses(times, np.asarray(poses)[:3], degree=2, at=-0.5 * float(step))
+
+
+def finite_difference_gain(step_ratio: float = 0.0) -> float:
+    """How many times a start velocity from :func:`finite_difference_velocity` amplifies the
+    position noise σ of equally spaced frames, over the frame interval Δ (its noise is
+    gain·σ/Δ): ‖(3 + ρ, 4 + 2ρ, 1 + ρ)‖/2 for ρ = step/Δ (√26/2 = 2.55 at ρ = 0, √14 = 3.74
+    at ρ = 1, one simulation step per frame)."""
+    r = float(step_ratio)
+    return float(np.sqrt((3 + r) ** 2 + (4 + 2 * r) ** 2 + (1 + r) ** 2) / 2.0)
 
 
 #: start velocities from finite differences uncertain by more than this fraction of the
 #: typical start speed are fitted by ``fit_velocity="auto"`` (and warned of where not fitted)
 START_VELOCITY_NOISE = 0.05
-#: (−3x₀ + 4x₁ − x₂)/(2h): the noise of x amplified √26/2 times, over h
-_FD_GAIN = np.sqrt(26.0) / 2.0
-
 
 #: position noise below this [m] is rounding, not measurement: no start is fitted for it
 NOISE_FLOOR = 1e-6
 
 
-def start_velocity_uncertainty(observations, segments, position_noise, axes: str = "xyz"
+def start_velocity_uncertainty(observations, segments, position_noise, axes: str = "xyz", substeps: int = 1
                                ) -> tuple[float, float] | None:
     """How uncertain the rollouts' start velocities are where finite differences of the
-    observed frames give them: (spread, typical) [m/s], spread = √26/2·‖σ_axes‖/Δt (σ the
+    observed frames give them: (spread, typical) [m/s], spread = g·‖σ_axes‖/Δt (σ the
     position noise per axis (3,) [m], e.g. from :func:`dano.sysid.uncertainty.
-    noise_of_observations`; Δt the median frame interval) and typical the median speed of the
+    noise_of_observations`; Δt the median frame interval; g = :func:`finite_difference_gain`
+    of 1/``substeps``, simulation steps per frame) and typical the median speed of the
     *moving* starts: those whose segment's net displacement exceeds 3√2‖σ‖ (a still object's
     start velocity is noise that its contact damps at once). Starts with measured
     velocities, a given ``qvel0`` or ``rest_frames`` are left out. None where no moving start
@@ -262,15 +284,16 @@ def start_velocity_uncertainty(observations, segments, position_noise, axes: str
     if not speeds:
         return None
     sigma = sigma_all[["xyz".index(a) for a in axes]]
-    return _FD_GAIN * float(np.linalg.norm(sigma)) / float(np.median(dts)), float(np.median(speeds))
+    gain = finite_difference_gain(1.0 / substeps)
+    return gain * float(np.linalg.norm(sigma)) / float(np.median(dts)), float(np.median(speeds))
 
 
-def noisy_start_velocities(observations, segments, position_noise, axes: str) -> str | None:
+def noisy_start_velocities(observations, segments, position_noise, axes: str, substeps: int = 1) -> str | None:
     """Where :func:`start_velocity_uncertainty` along ``axes`` exceeds
     :data:`START_VELOCITY_NOISE` of the typical moving start's speed, the phrase that says so
     (for the notes of ``fit_velocity="auto"`` and the warning where they are not fitted);
     None otherwise. position_noise: (3,) per axis [m], or None."""
-    found = start_velocity_uncertainty(observations, segments, position_noise, axes)
+    found = start_velocity_uncertainty(observations, segments, position_noise, axes, substeps)
     if found is None or found[1] <= 0 or found[0] <= START_VELOCITY_NOISE * found[1]:
         return None
     spread, typical = found
@@ -709,11 +732,13 @@ class SysIdProblem:
     row saying what the observed frames say of it (:attr:`start_prior_rows`): a position offset
     is the start frame's error (√w·δp, like a frame's residual), a rotation offset likewise
     (L·δr), and a velocity offset the error of the finite-difference velocity, whose noise is
-    √26/2·σ/Δt for frames of position noise σ: Δt·2/√26·√w·δv (angular: Δt·2/√26·L·δω), in
-    the residuals' own units, so that no noise level is needed. A pose offset's row counts as
-    one frame more (N/(N + 1) of a start frame's own error is corrected); a velocity offset's
-    row, where the frames determine it (a moving start: frame k moves by k·Δt·δv), weighs
-    (4/26)/Σk² of them, 0.04 % for a window of 10 intervals; where they do not (the velocity
+    g·σ/Δt for frames of position noise σ (g = :func:`finite_difference_gain` of
+    1/``substeps``: √14 at one step per frame, √26/2 for many): Δt/g·√w·δv (angular:
+    Δt/g·L·δω), in the residuals' own units, so that no noise level is needed. A pose
+    offset's row counts as one frame more (N/(N + 1) of a start frame's own error is
+    corrected); a velocity offset's row, where the frames determine it (a moving start: frame
+    k moves by k·Δt·δv), weighs (1/g²)/Σk² of them, 0.02 % for a window of 10 intervals at
+    one step per frame; where they do not (the velocity
     of a resting object into the floor, which its contact absorbs) the row holds the offset
     near the frames' value instead of letting the solver wander along a flat direction. The
     finite difference reuses frames 1 and 2, which are residuals too: counted twice, a
@@ -826,7 +851,7 @@ class SysIdProblem:
 
         axes = "".join(a for a, w in zip("xyz", self.weights.position) if w > 0)
         noise = noise_of_observations(self.observations)["position_m"]
-        why = noisy_start_velocities(self.observations, self.segments, noise, axes)
+        why = noisy_start_velocities(self.observations, self.segments, noise, axes, self.substeps)
         fit("")
         if why is None:
             return ()
@@ -971,6 +996,7 @@ class SysIdProblem:
             wpos = np.sqrt(np.asarray(self.weights.position, dtype=np.float64))
             wrot = self.rotation_weights() if self._rotation_weighted() else np.zeros(len(self.scene.dano_names))
             offsets, n_axes = self._nuisance_offsets(), len(self.fit_axes)
+            gain = finite_difference_gain(1.0 / self.substeps)
             for s, seg in enumerate(self.segments):
                 o = self.observations[seg.obs]
                 first = seg.start == 0
@@ -985,7 +1011,7 @@ class SysIdProblem:
                         kind, axis = divmod(a, 3)  # velocity, angular velocity, position, rotation
                         unit = wrot[d] if kind in (1, 3) else wpos[axis]
                         if unit > 0 and (kind >= 2 or differenced):
-                            scale = o.frame_dt / _FD_GAIN if kind < 2 else np.sqrt(frames)
+                            scale = o.frame_dt / gain if kind < 2 else np.sqrt(frames)
                             rows.append((offsets[s] + b * n_axes + k, unit * scale, seg.obs,
                                          3 if kind in (1, 3) else axis, unit))
         index, weight, owner, noise, unit = zip(*rows) if rows else ((),) * 5
@@ -1030,6 +1056,7 @@ class SysIdProblem:
         t = np.asarray(o.time, dtype=np.float64)[sl]
         qpos = np.array(o.qpos0, dtype=np.float64) if (o.qpos0 is not None and seg.start == 0) else sc.qpos0
         qvel = np.zeros(sc.nv)
+        step = (t[1] - t[0]) / self.substeps  # differenced velocities are the integrator's: half a step early
         if o.qvel0 is not None and seg.start == 0:
             qvel = np.array(o.qvel0, dtype=np.float64)
         for name, p in o.poses.items():
@@ -1043,7 +1070,7 @@ class SysIdProblem:
             if seg.start > 0 or (o.qvel0 is None and o.rest_frames <= 1):
                 qvel[sc.dof_adr[i] : sc.dof_adr[i] + 6] = (
                     np.asarray(o.velocities[name], dtype=np.float64)[seg.start] if name in o.velocities
-                    else finite_difference_velocity(t, p))
+                    else finite_difference_velocity(t, p, step))
             elif o.qvel0 is None:  # known to be at rest
                 qvel[sc.dof_adr[i] : sc.dof_adr[i] + 6] = 0.0
         jadr = []
@@ -1053,7 +1080,7 @@ class SysIdProblem:
             v = np.asarray(v, dtype=np.float64)[sl]
             qpos[qa] = v[:min(o.rest_frames, len(v))].mean() if seg.start == 0 else v[0]
             if seg.start > 0 or (o.qvel0 is None and o.rest_frames <= 1):
-                qvel[da] = _one_sided_difference(t, v)
+                qvel[da] = _one_sided_difference(t, v, step)
             elif o.qvel0 is None:
                 qvel[da] = 0.0
             jadr.append(qa)

@@ -639,15 +639,17 @@ def _misfit_warning(rms: float, expected: float, position_noise) -> str:
 
 def start_velocity_warning(problem: SysIdProblem, noise: dict) -> str | None:
     """A warning when the rollouts start from velocities that finite differences of noisy
-    frames make uncertain along the weighed axes not fitted: by √26/2·σ/Δt (σ the position
-    noise estimated from the observations, Δt the frame interval), more than
+    frames make uncertain along the weighed axes not fitted: by g·σ/Δt (σ the position
+    noise estimated from the observations, Δt the frame interval, g the stencil's
+    :func:`~dano.sysid.problem.finite_difference_gain`), more than
     :data:`~dano.sysid.problem.START_VELOCITY_NOISE` of the moving starts' median speed
     (:func:`~dano.sysid.problem.noisy_start_velocities`, which leaves out starts with
     measured velocities, a given ``qvel0`` or ``rest_frames``). None where there is nothing
     to say."""
     weighed = [a for a, w in zip("xyz", problem.weights.position) if w > 0]
     missing = "".join(a for a in weighed if a not in problem.fit_velocity)
-    why = noisy_start_velocities(problem.observations, problem.segments, noise.get("position_m"), missing)
+    why = noisy_start_velocities(problem.observations, problem.segments, noise.get("position_m"), missing,
+                                 problem.substeps)
     if why is None:
         return None
     suggest = "".join(a for a in "xyz" if a in missing or a in problem.fit_velocity)
@@ -732,7 +734,8 @@ def _verify_and_assess(problem: SysIdProblem, best: SysIdResult, points: int, le
         redo, out = {}, {}
         rng = np.random.default_rng(seed)
         for i, pr in profiles.items():
-            lower, upper, at_a, at_b = unc.profile_interval(pr.values, pr.costs, threshold)
+            lower, upper, at_a, at_b = unc.profile_interval(pr.values, pr.costs, threshold,
+                                                            (best.estimates[i], best.final_cost))
             step = pr.values[1] - pr.values[0]
             boot = unc.profile_bootstrap(pr, BOOTSTRAP_RESAMPLES, rng) if use_boot else None
             open_a, open_b = pr.values[0] > lo[i] + 1e-12, pr.values[-1] < hi[i] - 1e-12
@@ -806,7 +809,7 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
             lower, upper = min(lower, b_lo), max(upper, b_hi)
         interval["lower"][label], interval["upper"][label] = float(lower), float(upper)
         # the local curvature's standard error, where the profile at the interval's scale agrees
-        lo0, hi0, _, _ = unc.profile_interval(pr.values, pr.costs, level_q * sigma2)
+        lo0, hi0, _, _ = unc.profile_interval(pr.values, pr.costs, level_q * sigma2, (theta_i, best.final_cost))
         step = pr.values[1] - pr.values[0]
         se = best.standard_errors[i]
         ratio = (hi0 - lo0) / (2 * z * se) if np.isfinite(se) and se > 0 else None

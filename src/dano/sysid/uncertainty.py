@@ -194,10 +194,18 @@ def profile(problem: SysIdProblem, theta: np.ndarray, jac: np.ndarray, index: in
     return Profile(index, values, best_cost, best_theta, per_traj)
 
 
-def profile_interval(values: np.ndarray, costs: np.ndarray, threshold: float) -> tuple[float, float, bool, bool]:
+def profile_interval(values: np.ndarray, costs: np.ndarray, threshold: float,
+                     estimate: tuple[float, float] | None = None) -> tuple[float, float, bool, bool]:
     """The hull of the values whose cost lies within ``threshold`` of the lowest, its ends
     interpolated linearly to the crossing; returns (lower, upper, reaches the first value,
-    reaches the last)."""
+    reaches the last). estimate: (value, cost) of the estimate, taken as one more point of
+    the profile, so that the hull holds it: a grid that steps over a minimum narrower than
+    its spacing (noise-free data) would otherwise leave only its nearest grid point within
+    the threshold, an interval beside the estimate."""
+    if estimate is not None:
+        values, costs = np.r_[values, estimate[0]], np.r_[costs, estimate[1]]
+        order = np.argsort(values, kind="stable")
+        values, costs = values[order], costs[order]
     c = costs - np.min(costs)
     inside = np.flatnonzero(c <= threshold)
     a, b = int(inside[0]), int(inside[-1])
