@@ -3,8 +3,9 @@ three per-sample bunny steps from the energy check's random drops (paper Table I
 ranges; ``dano bench --suite energy --contact-model per_sample``) where Newton's method with
 halving alone fails, each checked against MINPACK's hybrid method (``scipy.optimize.root``)
 on the same velocity equation. The drops were drawn with the paper code's friction
-steepness, 30 s/m (the default since 2026-11-27 is 300, under which the two stalls below
-converge on the first try, in 24 iterations): the per-sample model here keeps 30."""
+steepness, 30 s/m (the default since 2026-11-27 is 100, under which the stalls below were
+not checked: at 300 two of them converged on the first try): the per-sample model here keeps
+30."""
 
 import jax
 import jax.numpy as jnp

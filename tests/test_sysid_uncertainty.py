@@ -218,18 +218,17 @@ def test_misfit_warning_names_a_ratio_only_for_noisy_observations():
 
 
 def test_a_profile_interval_holds_its_estimate_between_grid_points():
-    """Noise-free data: a minimum far narrower than the profile's spacing. Without the
-    estimate as a point of the profile only the nearest grid value lies within the threshold,
-    and the README's tumbling drop reported [0.2954, 0.2954] for its estimate 0.3; with it the
-    hull holds the estimate, and on a wide minimum the estimate changes nothing."""
+    """Noise-free data: a minimum far narrower than the profile's spacing. On the grid alone
+    only the nearest value lies within the threshold, and the README's tumbling drop reported
+    [0.2954, 0.2954] for its estimate 0.3; the hull now holds the estimate, and where the
+    grid's interval holds it already the estimate changes nothing."""
     from dano.sysid.uncertainty import profile_interval
 
     values = np.linspace(0.157, 0.443, 32)
     narrow = 1e4 * (values - 0.3) ** 2
     lower, upper, _, _ = profile_interval(values, narrow, 1e-20)
     assert not lower <= 0.3 <= upper  # the grid alone: beside the estimate
-    lower, upper, at_a, at_b = profile_interval(values, narrow, 1e-20, (0.3, 0.0))
-    assert lower <= 0.3 <= upper and upper - lower < 1e-6 and not (at_a or at_b)
+    lower, upper, at_a, at_b = profile_interval(values, narrow, 1e-20, 0.3)
+    assert lower <= 0.3 <= upper and upper - lower < values[1] - values[0] and not (at_a or at_b)
     wide = (values - 0.3) ** 2
-    np.testing.assert_allclose(profile_interval(values, wide, 1e-3, (0.3, 0.0))[:2],
-                               profile_interval(values, wide, 1e-3)[:2], atol=1e-3)
+    assert profile_interval(values, wide, 1e-3, 0.3) == profile_interval(values, wide, 1e-3)

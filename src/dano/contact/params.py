@@ -65,7 +65,7 @@ class ContactParams:
 
 
 #: smoothing of the Coulomb direction: steepness s [s/m] (the paper's code: 30) and regulariser r [m/s]
-FRICTION_STEEPNESS = 300.0
+FRICTION_STEEPNESS = 100.0
 FRICTION_REGULARIZER = 1e-3
 
 
@@ -76,15 +76,18 @@ def smooth_direction(v: jax.Array, steepness: float = FRICTION_STEEPNESS,
     The paper's code used −atan(s|v|)·v/(r+|v|) with s = 30, r = 1e-3, whose magnitude
     tends to π/2 (so its friction coefficients act as 1.57·μ at speed); a later revision
     multiplied by 2/π so that the magnitude tends to 1 (full Coulomb friction); we use that
-    revision with s = 300 (:data:`FRICTION_STEEPNESS`). The magnitude is 0.52 at 5 mm/s,
-    0.81 at 1.5 cm/s, 0.97 at 10 cm/s and 0.997 at 1 m/s, and an object held by friction
-    against half its limit creeps at 4.7 mm/s (with the paper's s = 30: 0.17 at 1 cm/s, 0.80
-    at 10 cm/s, 0.98 at 1 m/s, so that a slide felt 2–5 % less than μ·‖F_n‖, and the creep
-    was 3.4 cm/s). Measured against
-    hard Coulomb friction (plain MuJoCo C slides of a box, Spot and a bunny at μ = 0.2–0.8)
-    and on the real soap (its cost 4 % lower), docs/simulation.md. It is 0 (and smooth, with
-    a finite derivative) at v = 0, so there is no NaN at rest; the implicit step
-    (:mod:`dano.sim.implicit`) takes its stiffness at any step.
+    revision with s = 100 (:data:`FRICTION_STEEPNESS`). The magnitude is 0.46 at 1 cm/s,
+    0.80 at 3.5 cm/s, 0.93 at 10 cm/s, 0.985 at 0.5 m/s and 0.993 at 1 m/s, and an object
+    held by friction against half its limit creeps at 1.1 cm/s (with the paper's s = 30: 0.80
+    at 10.7 cm/s, 0.96 at 0.5 m/s, 0.98 at 1 m/s, so that a slide felt 2–5 % less than
+    μ·‖F_n‖, and the creep was 3.5 cm/s). Measured against hard Coulomb friction (plain
+    MuJoCo C slides of a box, Spot and a bunny at μ = 0.2–0.8) in docs/sysid.md. Steeper is
+    nearer Coulomb still (300 fitted those slides a little better), but the steeper the
+    friction, the harder the step's solve: with the grasp's stiff pads (spring 1e6) at 10 ms
+    steps, 200 and 300 dropped the bunny, 100 pushed a finger 3.6 cm past its joint limit,
+    and 30 held it within 1 cm (docs/simulation.md). Contact models take
+    ``friction_steepness`` (``Centroid(friction_steepness=30.0)``: the paper code's). It is 0
+    (and smooth, with a finite derivative) at v = 0, so there is no NaN at rest.
     """
     _, _, phi, _ = direction_profile(v, steepness, regularizer, axis)
     return -(2.0 / jnp.pi) * phi * v

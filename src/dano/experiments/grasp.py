@@ -34,7 +34,9 @@ faces) touch the bunny, each made 2 cm thick outwards with the inner face where 
 it (a thin box lets the centroid pass its mid-plane and the normal flip); the pads are stiff
 (impact spring 1e6, damper 1e7 per unit overlap: the paper's 3e4 lets the 1.7 cm pad's
 largest overlap carry only ≈ 5 N) and the table keeps the paper's values; sliding friction 0.8
-on both (rubber pads, a wooden table); h = 2 ms. At the push tasks' 10 ms, with one
+on both (rubber pads, a wooden table), with the paper code's friction steepness, 30 s/m
+(:data:`GRASP_FRICTION_STEEPNESS`: dano's default 100 is not robust with these pads at 10 ms);
+h = 2 ms. At the push tasks' 10 ms, with one
 constraint pass per step, this contact diverged (at 10 N the fingers were driven through
 their limits and the state grew to 1e124 within two steps); the step's second constraint
 pass (:class:`dano.sim.NewtonConfig`) keeps 10 ms bounded too, but 2 ms is what was
@@ -61,7 +63,7 @@ from ..errors import DanoError
 from ..sim import DanoObject, NewtonConfig, compose, make_data, step
 from ..sim.dynamics import tied
 from ..sim.rollout import carried
-from ..sim.scene import add_ground
+from ..sim.scene import add_ground, contact_model_or_error
 from ..sim.scenes import initial_state, menagerie_panda, resting_height
 from ..trajopt.ilqr import ILQRConfig, solve
 from ..trajopt.problem import Problem, mjx_dynamics
@@ -401,16 +403,26 @@ class GraspTask:
     approach: ApproachPlan | None = None
 
 
-def grasp_scene(config: GraspPandaConfig, contact_model: str | None = None):
+#: the friction steepness [s/m] of every grasp-panda pair: the paper code's. With the default
+#: (100) the stiff pads at h = 10 ms drove a finger 3.6 cm past its joint limit even with the
+#: step's second constraint pass, and 200 or 300 dropped the bunny at 30 and 50 N (2026-11-27)
+GRASP_FRICTION_STEEPNESS = 30.0
+
+
+def grasp_scene(config: GraspPandaConfig, contact_model=None):
     """The scene (the hand, the 15 cm, 0.25 kg bunny at rest at (0.5, 0) on the table), its
     params (pads stiffened) and x0 = [qpos, qvel] (nx,): the arm at Menagerie's home, the
-    fingers open. contact_model: None for the config's."""
+    fingers open. contact_model: None for the config's, a name ("centroid", "per_sample")
+    with :data:`GRASP_FRICTION_STEEPNESS`, or a contact model instance used as it is."""
     spec = hand_spec()
     add_ground(spec)
     bunny = load_builtin("bunny").scaled(0.15).with_mass(0.25)
     start = np.array([0.5, 0.0, resting_height(bunny) + 0.0005])
+    model = contact_model or config.contact_model
+    if isinstance(model, str):
+        model = dataclasses.replace(contact_model_or_error(model), friction_steepness=GRASP_FRICTION_STEEPNESS)
     scene = compose([DanoObject("bunny", bunny, tuple(start))], spec, dt=config.dt, name="grasp-panda",
-                    contact_model=contact_model or config.contact_model)
+                    contact_model=model)
     params = scene.default_params(sliding_friction=config.sliding_friction)
     for pair in scene.pair_names:
         if pair.endswith("_pad"):
@@ -422,8 +434,9 @@ def grasp_scene(config: GraspPandaConfig, contact_model: str | None = None):
     return scene, params, np.r_[qpos, np.zeros(scene.nv)]
 
 
-def with_contact_model(task: GraspTask, contact_model: str) -> GraspTask:
-    """The same task (grasp, waypoints, config) in a scene with another contact model."""
+def with_contact_model(task: GraspTask, contact_model) -> GraspTask:
+    """The same task (grasp, waypoints, config) in a scene with another contact model (a name
+    or an instance, as :func:`grasp_scene` takes it)."""
     scene, params, x0 = grasp_scene(task.config, contact_model)
     return dataclasses.replace(task, scene=scene, params=params, x0=x0)
 

@@ -734,8 +734,7 @@ def _verify_and_assess(problem: SysIdProblem, best: SysIdResult, points: int, le
         redo, out = {}, {}
         rng = np.random.default_rng(seed)
         for i, pr in profiles.items():
-            lower, upper, at_a, at_b = unc.profile_interval(pr.values, pr.costs, threshold,
-                                                            (best.estimates[i], best.final_cost))
+            lower, upper, at_a, at_b = unc.profile_interval(pr.values, pr.costs, threshold, best.estimates[i])
             step = pr.values[1] - pr.values[0]
             boot = unc.profile_bootstrap(pr, BOOTSTRAP_RESAMPLES, rng) if use_boot else None
             open_a, open_b = pr.values[0] > lo[i] + 1e-12, pr.values[-1] < hi[i] - 1e-12
@@ -809,7 +808,7 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
             lower, upper = min(lower, b_lo), max(upper, b_hi)
         interval["lower"][label], interval["upper"][label] = float(lower), float(upper)
         # the local curvature's standard error, where the profile at the interval's scale agrees
-        lo0, hi0, _, _ = unc.profile_interval(pr.values, pr.costs, level_q * sigma2, (theta_i, best.final_cost))
+        lo0, hi0, _, _ = unc.profile_interval(pr.values, pr.costs, level_q * sigma2, theta_i)
         step = pr.values[1] - pr.values[0]
         se = best.standard_errors[i]
         ratio = (hi0 - lo0) / (2 * z * se) if np.isfinite(se) and se > 0 else None

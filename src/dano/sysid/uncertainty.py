@@ -195,17 +195,15 @@ def profile(problem: SysIdProblem, theta: np.ndarray, jac: np.ndarray, index: in
 
 
 def profile_interval(values: np.ndarray, costs: np.ndarray, threshold: float,
-                     estimate: tuple[float, float] | None = None) -> tuple[float, float, bool, bool]:
+                     estimate: float | None = None) -> tuple[float, float, bool, bool]:
     """The hull of the values whose cost lies within ``threshold`` of the lowest, its ends
-    interpolated linearly to the crossing; returns (lower, upper, reaches the first value,
-    reaches the last). estimate: (value, cost) of the estimate, taken as one more point of
-    the profile, so that the hull holds it: a grid that steps over a minimum narrower than
-    its spacing (noise-free data) would otherwise leave only its nearest grid point within
-    the threshold, an interval beside the estimate."""
-    if estimate is not None:
-        values, costs = np.r_[values, estimate[0]], np.r_[costs, estimate[1]]
-        order = np.argsort(values, kind="stable")
-        values, costs = values[order], costs[order]
+    interpolated linearly to the crossing, and of ``estimate`` (the estimate's value, when
+    given); returns (lower, upper, reaches the first value, reaches the last). A grid that
+    steps over a minimum narrower than its spacing (noise-free data) leaves only its nearest
+    value within the threshold: without the estimate, an interval beside it. (The threshold
+    stays relative to the grid's lowest cost, not the estimate's: a profile's other
+    parameters are re-optimised by a few chord steps, which leave every grid cost a little
+    high alike.)"""
     c = costs - np.min(costs)
     inside = np.flatnonzero(c <= threshold)
     a, b = int(inside[0]), int(inside[-1])
@@ -218,6 +216,8 @@ def profile_interval(values: np.ndarray, costs: np.ndarray, threshold: float,
 
     lower = values[0] if a == 0 else cross(a - 1, a)
     upper = values[-1] if b == len(values) - 1 else cross(b + 1, b)
+    if estimate is not None:
+        lower, upper = min(lower, estimate), max(upper, estimate)
     return float(lower), float(upper), a == 0, b == len(values) - 1
 
 
