@@ -438,6 +438,8 @@ substeps = 1
     ("[[parameter]]\nname = \"sliding_friction\"\ninitial = 0.2\nlower = 0.0\nupper = 2.0\n", "",
      "[[parameter]]: at least one parameter"),
     ("dt = 0.01", "dt = true", "[scene].dt: expected a number, got true"),
+    ("dt = 0.01", "dt = 0.01\nfriction_steepness = -30.0", "[scene].friction_steepness: must be a finite positive"),
+    ("dt = 0.01", 'dt = 0.01\nfriction_steepness = "steep"', "[scene].friction_steepness: expected a number"),
     ("substeps = 1", "substeps = 1\nwindow = 5\nauto_windows = true", "auto_windows = true, not both"),
     ("substeps = 1", "substeps = 1\nnoise_rms = -1.0", "[options].noise_rms: a positive rms residual"),
     ("substeps = 1", "substeps = 1\nbootstrap = 5", "at least two [[trajectory]] to resample"),
@@ -454,6 +456,23 @@ def test_sysid_configuration_errors_name_the_key(tmp_path, capsys, old, new, mes
     err = " ".join(capsys.readouterr().err.split())
     assert code == 1 and f"{cfg}: " in err and message in err
     assert not (tmp_path / "out").exists()
+
+
+def test_the_friction_steepness_is_a_scene_key(tmp_path):
+    """[scene] friction_steepness sets every pair's smoothed Coulomb direction (default 100;
+    docs/simulation.md); the resolved configuration keeps it for the rerun."""
+    from dano.sysid.config import problem_from_toml
+
+    t, poses = analytic_slide(0.45, frames=10)
+    np.savetxt(tmp_path / "slide.csv", np.column_stack([t, poses]), delimiter=",", header="t,x,y,z,qw,qx,qy,qz",
+               comments="")
+    cfg = tmp_path / "p.toml"
+    for text, expected in ((_GOOD_TOML, 100.0), (_GOOD_TOML.replace("dt = 0.01", "dt = 0.01\nfriction_steepness = 300"),
+                                                  300.0)):
+        cfg.write_text(text)
+        problem, _, resolved = problem_from_toml(cfg)
+        assert {p.model.friction_steepness for p in problem.scene.pairs} == {expected}
+        assert resolved["scene"]["friction_steepness"] == (None if expected == 100.0 else 300.0)
 
 
 def test_configuration_accepts_signed_dynamics_parameters(tmp_path):
