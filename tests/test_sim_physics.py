@@ -192,7 +192,7 @@ def test_friction_steepness_sets_the_creep_under_a_steady_load():
     positive number is refused."""
     from scipy.optimize import brentq
 
-    from dano.contact import Centroid, smooth_direction
+    from dano.contact import Centroid, PerSample, contact_model, smooth_direction
     from dano.errors import DanoError
 
     asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
@@ -213,3 +213,18 @@ def test_friction_steepness_sets_the_creep_under_a_steady_load():
     for bad in (0.0, -30.0, float("nan"), "steep", True):
         with pytest.raises(DanoError, match="friction_steepness must be a positive number"):
             Centroid(friction_steepness=bad)
+    # by name with a steepness (TOML [scene] friction_steepness, grasp-panda); refused for a model without one
+    assert contact_model("per_sample", 30.0) == PerSample(friction_steepness=30.0)
+
+    @dataclasses.dataclass(frozen=True)
+    class Plain:
+        name = "plain"
+
+        def prepare(self, g, h, u=None):
+            return None
+
+        def wrench(self, p, state, u):
+            return jnp.zeros(6)
+
+    with pytest.raises(DanoError, match="'plain' has no friction_steepness"):
+        contact_model(Plain(), 30.0)

@@ -27,7 +27,7 @@ from ._compiled import cached_jit
 from .errors import DanoError
 
 __all__ = ["normalize_quat", "quat_error", "quat_inverse", "quat_mean", "quat_multiply", "quat_to_matrix",
-           "quat_to_rotvec", "random_quats", "rotate", "rotvec_to_quat", "velocity_from_poses"]
+           "quat_to_rotvec", "random_quats", "rotate", "rotvec_to_quat", "slope_weights", "velocity_from_poses"]
 
 #: below this squared norm of the quaternion's vector part, the logarithm's factor comes from
 #: its Taylor series (jaxlie's thresholds: the series' error is below the type's rounding)
@@ -178,6 +178,32 @@ def _derivative_weights(t: np.ndarray, degree: int, intercept: bool, at: float =
     return np.einsum("...p,...pn->...n", slope, np.linalg.pinv(vander)) / scale
 
 
+def _fit_times(times, degree: int, at: float, what: str, count: str) -> np.ndarray:
+    """times (..., n) [s] relative to the first, checked for a polynomial fit of ``degree``
+    (DanoError naming ``what``: too few ``count``, times not increasing, ``at`` not finite)."""
+    t = np.asarray(times, dtype=np.float64)
+    if t.ndim == 0:
+        raise DanoError(f"{what} needs times (..., n), got a scalar")
+    if degree < 1 or t.shape[-1] < degree + 1:
+        raise DanoError(f"a degree-{degree} fit needs at least {degree + 1} {count}, got {t.shape[-1]}")
+    t = t - t[..., :1]
+    if np.any(np.diff(t, axis=-1) <= 0):
+        raise DanoError(f"{what} needs increasing times")
+    if not np.isfinite(at):
+        raise DanoError(f"{what} needs a finite time offset at, got {at!r}")
+    return t
+
+
+def slope_weights(times, degree: int = 1, at: float = 0.0) -> np.ndarray:
+    """(..., n) weights c: Σ_k c_k·x_k is the slope, ``at`` [s] after the first of ``times``
+    (..., n) [s] (negative: before it), of the least-squares polynomial of ``degree``
+    through (t_k, x_k), for samples x of any unit (the slope in that unit per second).
+    degree 2 through 3 samples at spacing Δ: (−3, 4, −1)/(2Δ) at the first; ``at`` = −ρΔ/2:
+    (−(3 + ρ), 4 + 2ρ, −(1 + ρ))/(2Δ). Raises DanoError with fewer than degree + 1 times,
+    times not increasing or a non-finite ``at``."""
+    return _derivative_weights(_fit_times(times, degree, at, "slope_weights", "samples"), degree, True, at)
+
+
 def velocity_from_poses(times, poses, degree: int = 1, at: float = 0.0) -> np.ndarray:
     """A free body's velocity (..., 6) at the first of the poses (or ``at`` [s] after it:
     negative is before it), from a polynomial fit.
@@ -196,13 +222,7 @@ def velocity_from_poses(times, poses, degree: int = 1, at: float = 0.0) -> np.nd
     p = np.asarray(poses, dtype=np.float64)
     if p.shape[-1:] != (7,) or p.shape[:-1] != t.shape or t.ndim == 0:
         raise DanoError(f"velocity_from_poses needs times (..., n) and poses (..., n, 7), got {t.shape} and {p.shape}")
-    if degree < 1 or t.shape[-1] < degree + 1:
-        raise DanoError(f"a degree-{degree} fit needs at least {degree + 1} poses, got {t.shape[-1]}")
-    t = t - t[..., :1]
-    if np.any(np.diff(t, axis=-1) <= 0):
-        raise DanoError("velocity_from_poses needs increasing times")
-    if not np.isfinite(at):
-        raise DanoError(f"velocity_from_poses needs a finite time offset at, got {at!r}")
+    t = _fit_times(t, degree, at, "velocity_from_poses", "poses")
     linear = np.einsum("...k,...ki->...i", _derivative_weights(t[..., :], degree, True, at), p[..., :3])
     r = quat_error(p[..., :1, 3:], p[..., 1:, 3:])  # (..., n - 1, 3), body frame of the first pose
     angular = np.einsum("...k,...ki->...i", _derivative_weights(t[..., 1:], degree, False, at), r)

@@ -11,6 +11,7 @@ the centroid into a wrench; the step solves the implicit velocity equation with 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import inspect
 from dataclasses import dataclass, field
@@ -276,8 +277,16 @@ def register_contact_model(name: str):
     return deco
 
 
-def contact_model(spec) -> ContactModel:
-    """A contact model from its name or an instance. Raises DanoError for unknown names."""
+def contact_model(spec, friction_steepness: float | None = None) -> ContactModel:
+    """A contact model from its name or an instance; ``friction_steepness`` [s/m], when given,
+    replaces the model's (:func:`~dano.contact.params.smooth_direction`). Raises DanoError for
+    unknown names, and for a steepness given to a model without one."""
+    if friction_steepness is not None:
+        model = contact_model(spec)
+        fields = {f.name for f in dataclasses.fields(model)} if dataclasses.is_dataclass(model) else set()
+        if "friction_steepness" not in fields:
+            raise DanoError(f"contact model {model.name!r} has no friction_steepness")
+        return dataclasses.replace(model, friction_steepness=friction_steepness)
     if isinstance(spec, str):
         if spec not in CONTACT_MODELS:
             raise DanoError(f"unknown contact model {spec!r}; known: {', '.join(sorted(CONTACT_MODELS))}")

@@ -420,7 +420,7 @@ def grasp_scene(config: GraspPandaConfig, contact_model=None):
     start = np.array([0.5, 0.0, resting_height(bunny) + 0.0005])
     model = contact_model or config.contact_model
     if isinstance(model, str):
-        model = dataclasses.replace(contact_model_or_error(model), friction_steepness=GRASP_FRICTION_STEEPNESS)
+        model = contact_model_or_error(model, GRASP_FRICTION_STEEPNESS)
     scene = compose([DanoObject("bunny", bunny, tuple(start))], spec, dt=config.dt, name="grasp-panda",
                     contact_model=model)
     params = scene.default_params(sliding_friction=config.sliding_friction)

@@ -641,9 +641,9 @@ def compose(
     return scene.astype(dtype) if dtype is not None else scene
 
 
-def contact_model_or_error(spec):
+def contact_model_or_error(spec, friction_steepness: float | None = None):
     """:func:`dano.contact.contact_model`, re-raised with the option's name."""
     try:
-        return contact_model(spec)
+        return contact_model(spec, friction_steepness)
     except DanoError as exc:
         raise DanoError(f"contact_model: {exc}") from None

@@ -266,8 +266,8 @@ class OptionsConfig:
     """Each fitted start offset (the ``fit_*`` axes above) also gets one residual row for what the observed frames
     say of it: the start frame's error for a pose offset, the finite-difference velocity's for a velocity offset,
     in the frames' own units. It holds the offsets the frames leave free (a resting object's velocity into the
-    floor) near the frames' value; a moving start's velocity row weighs 0.04 % of a 10-interval window's frames, a pose
-    offset's row one frame. Velocities that are given (``velocities``, rest frames) get none; ``false``: plain least
+    floor) near the frames' value; a moving start's velocity row weighs 0.02–0.04 % of a 10-interval window's frames
+    (one to many simulation steps per frame), a pose offset's row one frame. Velocities that are given (``velocities``, rest frames) get none; ``false``: plain least
     squares."""
     window: int = 0
     """> 0: multiple shooting, windows of this many frame intervals (>= 2); 0: one shot per trajectory."""
@@ -405,15 +405,8 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
             asset = load_builtin(o.asset.split(":", 1)[1]) if o.asset.startswith("builtin:") else load(base / o.asset)
             objects.append(DanoObject(o.name, asset, o.pos, o.quat))
         mjcf = base / sc.mjcf if sc.mjcf is not None else None
-        model = sc.contact_model
-        if sc.friction_steepness is not None:
-            model = contact_model_or_error(model)
-            if "friction_steepness" not in {f.name for f in dataclasses.fields(model)}:
-                raise DanoError(f"[scene].friction_steepness: contact model {sc.contact_model!r} has no friction "
-                                "steepness")
-            model = dataclasses.replace(model, friction_steepness=sc.friction_steepness)
         scene = compose(objects, mjcf, dt=sc.dt, ground=None if mjcf else True, name=path.stem,
-                        contact_model=model)
+                        contact_model=contact_model_or_error(sc.contact_model, sc.friction_steepness))
         # each process of a multi-process run reads its share of the files (dano.sharding)
         obs = sharding.load_shares(cfg.trajectory,
                                    lambda t: _read_observation(base / t.file, t.object, scene, t.velocities))

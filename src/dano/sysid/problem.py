@@ -24,7 +24,8 @@ from .. import _compiled, sharding
 from .._compiled import cached_jit
 from ..contact.params import ContactParams
 from ..errors import DanoError
-from ..pose import quat_error, quat_inverse, quat_mean, quat_multiply, rotate, rotvec_to_quat, velocity_from_poses
+from ..pose import (quat_error, quat_inverse, quat_mean, quat_multiply, rotate, rotvec_to_quat, slope_weights,
+                    velocity_from_poses)
 from ..sim.dynamics import State
 from ..sim.implicit import NewtonConfig
 from ..sim.rollout import rollout_arrays
@@ -206,14 +207,6 @@ def _check_observation_values(obs: Observation, scene: Scene, k: int) -> None:
                 raise DanoError(f"{tag}: {what} must be finite with shape ({len(t) - 1}, {width}), got {a.shape}")
 
 
-def _one_sided_difference(times: np.ndarray, x: np.ndarray, step: float = 0.0) -> np.ndarray:
-    """Slope at the first sample less half a ``step`` [s] of the parabola through the first
-    three samples: (−3x₀ + 4x₁ − x₂)/(2Δ) − (x₀ − 2x₁ + x₂)·step/(2Δ²) (Δ = t₁ − t₀); see
-    :func:`finite_difference_velocity`."""
-    dt = times[1] - times[0]
-    return (-3 * x[0] + 4 * x[1] - x[2]) / (2 * dt) - (x[0] - 2 * x[1] + x[2]) * step / (2 * dt * dt)
-
-
 def finite_difference_velocity(times: np.ndarray, poses: np.ndarray, step: float = 0.0) -> np.ndarray:
     """(6,) initial velocity of a free body from its first three poses (times (≥3,) [s],
     poses (≥3, 7) x y z qw qx qy qz): linear velocity (world frame) [m/s] by a second-order
@@ -237,10 +230,10 @@ def finite_difference_velocity(times: np.ndarray, poses: np.ndarray, step: float
 def finite_difference_gain(step_ratio: float = 0.0) -> float:
     """How many times a start velocity from :func:`finite_difference_velocity` amplifies the
     position noise σ of equally spaced frames, over the frame interval Δ (its noise is
-    gain·σ/Δ): ‖(3 + ρ, 4 + 2ρ, 1 + ρ)‖/2 for ρ = step/Δ (√26/2 = 2.55 at ρ = 0, √14 = 3.74
-    at ρ = 1, one simulation step per frame)."""
-    r = float(step_ratio)
-    return float(np.sqrt((3 + r) ** 2 + (4 + 2 * r) ** 2 + (1 + r) ** 2) / 2.0)
+    gain·σ/Δ): the norm of its stencil's weights (:func:`dano.pose.slope_weights`) at unit
+    spacing, ‖(3 + ρ, 4 + 2ρ, 1 + ρ)‖/2 for ρ = step/Δ (√26/2 = 2.55 at ρ = 0, √14 = 3.74 at
+    ρ = 1, one simulation step per frame)."""
+    return float(np.linalg.norm(slope_weights(np.arange(3.0), 2, at=-0.5 * float(step_ratio))))
 
 
 #: start velocities from finite differences uncertain by more than this fraction of the
@@ -1080,7 +1073,7 @@ class SysIdProblem:
             v = np.asarray(v, dtype=np.float64)[sl]
             qpos[qa] = v[:min(o.rest_frames, len(v))].mean() if seg.start == 0 else v[0]
             if seg.start > 0 or (o.qvel0 is None and o.rest_frames <= 1):
-                qvel[da] = _one_sided_difference(t, v, step)
+                qvel[da] = slope_weights(t[:3], 2, at=-0.5 * step) @ v[:3]  # as finite_difference_velocity's
             elif o.qvel0 is None:
                 qvel[da] = 0.0
             jadr.append(qa)
