@@ -92,6 +92,18 @@ def test_bootstrap_needs_two_trajectories(box):
                         ).residual_observations().tolist() == [0] * 24 + [1] * 24
 
 
+def test_bootstrap_leaves_out_refits_stopped_at_the_evaluation_limit(box):
+    """A refit that stops at its evaluation limit, even after a second try from where it
+    stopped, is left out and counted: it sits between the estimate and its own minimum and
+    would narrow the spread. With one evaluation per try none converges: refused, saying so;
+    with the default limit every refit converges and none is left out."""
+    problem = slide_problem(box)
+    with pytest.raises(DanoError, match="still at the evaluation limit"):
+        bootstrap(problem, np.array([0.3]), samples=3, max_iterations=1)
+    b = bootstrap(problem, np.array([0.45]), samples=3)
+    assert b["unconverged"] == 0 and b["failed"] == 0 and len(b["estimates"]) == 3
+
+
 def _clean_slides(noise: float, seed: int = 0, trajectories: int = 2) -> list:
     """Analytic slides whose first frame is exact and later frames carry ``noise`` [m] (x, y)."""
     rng = np.random.default_rng(seed)

@@ -279,6 +279,12 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     if bootstrap_samples:
         result.bootstrap = unc.bootstrap(problem, result.estimates, samples=bootstrap_samples, seed=seed,
                                          max_iterations=max_iterations)
+        left = result.bootstrap["failed"] + result.bootstrap["unconverged"]
+        if left:
+            result.warnings.append(
+                f"{left} of {bootstrap_samples} bootstrap refits left out ({result.bootstrap['unconverged']} still at "
+                f"the evaluation limit, {result.bootstrap['failed']} not finite): the bootstrap's interval is from "
+                "the rest, and may be too narrow if the left-out draws were the far ones")
     if not result.fitted:  # (AD: from the Jacobian's program, already compiled; FD: a rollout of its own)
         result.fitted = problem.fitted(result.estimates) if jacobian == "ad" else problem.simulate(result.estimates)
     result.compile_time_s = compile_seconds(started)  # tracing, lowering and compiling (loads too), scan included

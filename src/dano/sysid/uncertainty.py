@@ -284,9 +284,11 @@ def bootstrap(problem: SysIdProblem, estimates: np.ndarray, *, samples: int = 10
     usual small-sample correction), "lower"/"upper" (estimate ∓ t_{n−1}·std at ``level``,
     clipped to the bounds: percentile intervals of a bootstrap over few trajectories are too
     narrow), "percentile_lower"/"percentile_upper", "estimates" (refits, k), "failed" (draws
-    whose refit gave a non-finite result, left out)}. Raises DanoError for fewer than two
-    trajectories, fewer than two samples, a level outside (0, 1), or fewer than two finite
-    refits."""
+    whose refit gave a non-finite result, left out), "unconverged" (draws whose refit was still
+    at the evaluation limit after a second ``max_iterations`` from where the first stopped,
+    left out: a refit stopped on its way from the estimate to its own minimum would narrow the
+    spread)}. Raises DanoError for fewer than two trajectories, fewer than two samples, a level
+    outside (0, 1), or fewer than two finite, converged refits."""
     n_obs = len(problem.observations)
     if n_obs < 2:
         raise DanoError("the bootstrap resamples whole trajectories: it needs at least two")
@@ -299,18 +301,24 @@ def bootstrap(problem: SysIdProblem, estimates: np.ndarray, *, samples: int = 10
                                                                problem.num_parameters))
     x0 = np.clip(np.asarray(estimates, dtype=np.float64), lo, hi)
     rng = np.random.default_rng(seed)
-    out, failed = [], 0
+    out, failed, unconverged = [], 0, 0
     for _ in range(samples):
         scale = np.sqrt(np.bincount(rng.integers(0, n_obs, n_obs), minlength=n_obs).astype(np.float64))[owner]
         fun, jac, _ = least_squares_functions(problem, scale)
         sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_iterations)
-        if np.all(np.isfinite(sol.x)) and np.isfinite(sol.cost):
-            out.append(sol.x[keep])
-        else:
+        if sol.status == 0 and np.all(np.isfinite(sol.x)):  # at the evaluation limit: once more from there
+            sol = least_squares(fun, np.clip(sol.x, lo, hi), jac=jac, bounds=(lo, hi), method="trf", x_scale="jac",
+                                max_nfev=max_iterations)
+        if not (np.all(np.isfinite(sol.x)) and np.isfinite(sol.cost)):
             failed += 1
+        elif sol.status == 0:
+            unconverged += 1
+        else:
+            out.append(sol.x[keep])
     est = np.array(out).reshape(len(out), len(keep))
     if len(out) < 2:
-        raise DanoError(f"the bootstrap's refits failed ({failed} of {samples} non-finite)")
+        raise DanoError(f"the bootstrap's refits failed: {failed} of {samples} non-finite, {unconverged} still at "
+                        f"the evaluation limit ({max_iterations}, twice)")
     q = 100 * (1 - level) / 2
     std = est.std(axis=0, ddof=1) * np.sqrt(n_obs / (n_obs - 1))  # small-sample correction of a cluster bootstrap
     half = t_quantile(level, n_obs - 1) * std
@@ -321,7 +329,7 @@ def bootstrap(problem: SysIdProblem, estimates: np.ndarray, *, samples: int = 10
             "lower": np.maximum(centre - half, lo_k).tolist(), "upper": np.minimum(centre + half, hi_k).tolist(),
             "percentile_lower": np.percentile(est, q, axis=0).tolist(),
             "percentile_upper": np.percentile(est, 100 - q, axis=0).tolist(),
-            "estimates": est.tolist(), "failed": failed}
+            "estimates": est.tolist(), "failed": failed, "unconverged": unconverged}
 
 
 def cramer_rao(problem: SysIdProblem, theta, noise) -> np.ndarray:
