@@ -292,7 +292,7 @@ def obs_ok(frames=20, dt=0.01):
     (lambda o: dataclasses.replace(o, poses={"box": np.where(np.arange(20)[:, None] == 5, np.nan, o.poses["box"])}),
      "poses of 'box' contain NaN or infinite values \\(first at frame 5\\)"),
     (lambda o: dataclasses.replace(o, time=o.time[::-1].copy()), "timestamps must increase"),
-    (lambda o: dataclasses.replace(o, time=np.r_[o.time[:10], o.time[10:] + 0.003]), "uniformly spaced"),
+    (lambda o: dataclasses.replace(o, time=np.r_[o.time[:10], o.time[10:] + 0.003]), "the interval 0.013 s after frame 9 is not a whole number of the smallest"),
     (lambda o: dataclasses.replace(o, units="cm"), "poses are in 'cm'"),
     (lambda o: dataclasses.replace(o, time=o.time * 2), "does not match the scene's time step"),
     (lambda o: dataclasses.replace(o, poses={"ball": o.poses["box"]}), "no DANO named 'ball'"),

@@ -23,10 +23,10 @@ def box():
     return compose([DanoObject("box", asset, (0, 0, 0.05))], dt=0.0025)
 
 
-def slide_problem(scene, upper=2.0, trajectories=8):
+def slide_problem(scene, upper=2.0, trajectories=8, observations=None):
     # 8 trajectories of 20 frames: the structure of bootstrap_coverage's problems (the same box,
     # weights and base parameters), so that the file compiles its residual and scan programs once
-    obs = analytic_slides(0, 0.05, trajectories, noise=0.002)
+    obs = analytic_slides(0, 0.05, trajectories, noise=0.002) if observations is None else observations
     return SysIdProblem(scene, obs, [FitParameter("sliding_friction", 0.2, 0.0, upper)],
                         weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=4,
                         base_params=scene.default_params(sliding_drag=0.0))
@@ -102,6 +102,51 @@ def test_bootstrap_leaves_out_refits_stopped_at_the_evaluation_limit(box):
         bootstrap(problem, np.array([0.3]), samples=3, max_iterations=1)
     b = bootstrap(problem, np.array([0.45]), samples=3)
     assert b["unconverged"] == 0 and b["failed"] == 0 and len(b["estimates"]) == 3
+
+
+def _without(obs: Observation, frames) -> Observation:
+    keep = np.ones(obs.num_frames, dtype=bool)
+    keep[list(frames)] = False
+    return dataclasses.replace(obs, time=obs.time[keep], poses={k: v[keep] for k, v in obs.poses.items()})
+
+
+def test_missing_frames_split_the_rollouts_and_keep_the_answer(box):
+    """Analytic Coulomb slides (μ = 0.45, not simulated by dano) with frames dropped as a
+    camera drops them: each run of consecutive frames is rolled out from its own first frame
+    (a run of two frames is left out), a note says so, the start velocities those runs
+    difference from noisy frames are fitted (fit_velocity "auto"), and the estimate stays
+    inside the full data's interval."""
+    full = slide_problem(box)
+    obs = list(full.observations)
+    obs[0], obs[1] = _without(obs[0], [6, 13, 14]), _without(obs[1], [2])
+    gapped = slide_problem(box, observations=obs)
+    # the runs after a gap start from differenced velocities of 2 mm frames: fitted (auto)
+    assert full.fit_velocity == "" and gapped.fit_velocity == "xy"
+    assert obs[0].runs() == ((0, 6), (6, 6), (12, 5)) and obs[1].runs() == ((0, 2), (2, 17))
+    assert [(s.start, s.frames) for s in gapped.segments if s.obs < 2] == [(0, 6), (6, 6), (12, 5), (2, 17)]
+    notes = [n for n in gapped.notes if "missing" in n]
+    assert len(notes) == 2 and "slide_0: 3 frames missing (after t = 0.05, 0.12 s)" in notes[0]
+    assert "slide_1: 1 frame missing" in notes[1] and "left out (frames 0-1)" in notes[1]
+    assert len([n for n in dataclasses.replace(gapped, window=None).notes if "missing" in n]) == 2  # not twice
+    a, b = identify(full), identify(gapped)
+    lo, hi = a.interval["lower"]["sliding_friction"], a.interval["upper"]["sliding_friction"]
+    assert lo < b.estimates[0] < hi, (a.estimates, b.estimates, lo, hi)
+    assert any("missing" in n for n in b.notes)
+
+
+def test_missing_frames_refused_where_they_cannot_be(box):
+    """Frames shifted off the frame rate's grid, a gap too long for dropped frames, no three
+    consecutive frames, and rest frames past the first gap are refused, each saying why."""
+    o = slide_problem(box, trajectories=2).observations[0]
+    param = [FitParameter("sliding_friction", 0.3, 0, 1)]
+    shifted = dataclasses.replace(o, time=o.time + np.r_[np.zeros(5), np.full(15, 0.004)])
+    cases = [(shifted, "not a whole number of the smallest"),
+             (dataclasses.replace(o, time=o.time + np.r_[np.zeros(19), 100.0]), "more than 1000 frames missing"),
+             (_without(o, [2, 4, 6, 8, 10, 12, 14, 16, 18]), "no 3 consecutive frames"),
+             (dataclasses.replace(_without(o, [3]), rest_frames=4), "rest_frames = 4")]
+    for bad, message in cases:
+        with pytest.raises(DanoError, match=message):
+            SysIdProblem(box, [bad], param, substeps=4)
 
 
 def _clean_slides(noise: float, seed: int = 0, trajectories: int = 2) -> list:

@@ -36,7 +36,10 @@ from ..sim.scene import INERTIAL_PARAMETERS, Scene, SimParams
 class Observation:
     """One observed trajectory.
 
-    time: (T,) strictly increasing frame times [s], uniformly spaced, T >= 3;
+    time: (T,) strictly increasing frame times [s] at one frame rate, T >= 3: every interval a
+    whole number of the smallest (frames may be missing, e.g. dropped by a camera; each run of
+    consecutive frames is then rolled out from its own first frame, as windows are:
+    :meth:`runs`);
     poses: {DANO name: (T, 7)} observed centre-of-mass position [m] (scene/world frame)
     and wxyz orientation of each tracked DANO;
     joints: {joint name: (T,)} observed positions of other one-dof (slide or hinge) joints,
@@ -81,7 +84,28 @@ class Observation:
 
     @property
     def frame_dt(self) -> float:
-        return float(np.median(np.diff(self.time)))
+        """The frame interval Δ [s]: the smallest interval between frames."""
+        return float(np.min(np.diff(self.time)))
+
+    def runs(self) -> tuple[tuple[int, int], ...]:
+        """The runs of consecutive frames, split where frames are missing (an interval of two
+        or more frame intervals): ((first frame, frames), ...), one run when none is missing."""
+        gaps = np.flatnonzero(np.diff(np.asarray(self.time, dtype=np.float64)) > 1.5 * self.frame_dt) + 1
+        edges = np.r_[0, gaps, self.num_frames]
+        return tuple((int(a), int(b - a)) for a, b in zip(edges[:-1], edges[1:]))
+
+    def frames(self, first: int, stop: int) -> "Observation":
+        """The observation of frames ``first`` to ``stop`` − 1 (time, poses, joints, velocities,
+        and the controls and forces of the intervals between them); the full initial state and
+        the rest frames only where ``first`` is 0."""
+        cut = lambda a, k=0: None if a is None else np.asarray(a)[first:stop - k]  # noqa: E731
+        start = first == 0
+        return dataclasses.replace(
+            self, time=cut(self.time), poses={k: cut(v) for k, v in self.poses.items()},
+            velocities={k: cut(v) for k, v in self.velocities.items()},
+            joints={k: cut(v) for k, v in self.joints.items()}, controls=cut(self.controls, 1),
+            qfrc=cut(self.qfrc, 1), qpos0=self.qpos0 if start else None, qvel0=self.qvel0 if start else None,
+            rest_frames=self.rest_frames if start else 1, settle_steps=self.settle_steps if start else 0)
 
 
 @dataclass(frozen=True)
@@ -119,6 +143,11 @@ class Weights:
 
 
 MAX_OBSERVED_SPEED = 100.0  # m/s: faster observed motion means the positions are not in metres
+#: the most frames an observation may miss in a row (more points to a wrong time stamp)
+MAX_MISSING_FRAMES = 1000
+#: the fewest consecutive frames a rollout starts from (its start velocity is differenced from
+#: three); shorter runs between missing frames are left out
+MIN_RUN_FRAMES = 3
 
 
 def check_units(obs: Observation) -> None:
@@ -158,9 +187,18 @@ def _check_observation_values(obs: Observation, scene: Scene, k: int) -> None:
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
         raise DanoError(f"{tag}: timestamps must increase; frame {i + 1} (t = {t[i + 1]:.6g}) is not after frame {i}")
-    if np.max(np.abs(dt - dt.mean())) > 1e-6 * dt.mean() + 1e-9:
-        raise DanoError(f"{tag}: frames must be uniformly spaced (a known frame rate); intervals range over "
-                        f"[{dt.min():.6g}, {dt.max():.6g}] s")
+    step = dt.min()
+    whole = np.round(dt / step)
+    off = np.abs(dt - whole * step) > 1e-6 * dt + 1e-9
+    if np.any(off):
+        i = int(np.argmax(off))
+        raise DanoError(f"{tag}: frames must be at one frame rate (frames may be missing, not shifted): the interval "
+                        f"{dt[i]:.6g} s after frame {i} is not a whole number of the smallest, {step:.6g} s")
+    if whole.max() > MAX_MISSING_FRAMES + 1:
+        i = int(np.argmax(whole))
+        raise DanoError(f"{tag}: frame {i + 1} (t = {t[i + 1]:.6g} s) comes {int(whole[i])} frame intervals after "
+                        f"frame {i}: more than {MAX_MISSING_FRAMES} frames missing in a row (a wrong time stamp?); "
+                        "give the parts as separate trajectories")
     if obs.units != "m":
         raise DanoError(f"{tag}: poses are in {obs.units!r}; convert them to the scene's units (m) first")
     if not obs.poses and not obs.joints:
@@ -656,12 +694,40 @@ def identification_params(scene: Scene, parameters: Sequence[FitParameter], give
 
 _AUTO_NOTE = "start velocities (fit_velocity auto):"
 _GIVEN_NOTE = " (given: base_params or TOML [contact])"
+_MISSING_NOTE = " frames missing"  # (" frame missing" for one)
 
 
 def _derived_anew(note: str, auto: bool) -> bool:
     """Whether ``note`` is one that SysIdProblem derives again on this construction: a given
-    drag's (always), the start velocities' (when fit_velocity is "auto" again)."""
-    return _GIVEN_NOTE in note or auto and note.startswith(_AUTO_NOTE)
+    drag's (always), missing frames' (always), the start velocities' (when fit_velocity is
+    "auto" again)."""
+    return (_GIVEN_NOTE in note or _MISSING_NOTE in note or _MISSING_NOTE.replace("frames", "frame") in note
+            or auto and note.startswith(_AUTO_NOTE))
+
+
+def _missing_frames_note(obs: Observation, k: int) -> str | None:
+    """What an observation that misses frames is fitted by (None where none is missing);
+    raises DanoError where no run of :data:`MIN_RUN_FRAMES` consecutive frames is left, or its
+    rest frames run past the first run."""
+    runs = obs.runs()
+    if len(runs) == 1:
+        return None
+    tag = obs.name or f"trajectory {k}"
+    t = np.asarray(obs.time, dtype=np.float64)
+    missing = int(round((t[-1] - t[0]) / obs.frame_dt)) + 1 - obs.num_frames
+    short = [(a, n) for a, n in runs if n < MIN_RUN_FRAMES]
+    if len(short) == len(runs):
+        raise DanoError(f"{tag}: no {MIN_RUN_FRAMES} consecutive frames between its missing ones: a rollout starts "
+                        f"from {MIN_RUN_FRAMES} (its start velocity is differenced from them)")
+    if obs.rest_frames > runs[0][1]:
+        raise DanoError(f"{tag}: rest_frames = {obs.rest_frames}, but frames are missing after frame {runs[0][1] - 1}")
+    after = ", ".join(f"{t[a - 1]:.6g}" for a, _ in runs[1:][:5]) + (", ..." if len(runs) > 6 else "")
+    left = (f"; runs of fewer than {MIN_RUN_FRAMES} frames are left out (frames "
+            + ", ".join(f"{a}" if n == 1 else f"{a}-{a + n - 1}" for a, n in short[:5])
+            + (", ..." if len(short) > 5 else "") + ")") if short else ""
+    return (f"{tag}: {missing}{_MISSING_NOTE if missing > 1 else _MISSING_NOTE.replace('frames', 'frame')} "
+            f"(after t = {after} s): each of its {len(runs)} runs of consecutive "
+            f"frames is rolled out from its own first frame, as windows are{left}")
 
 
 def _given_drag_notes(params: SimParams, parameters: Sequence[FitParameter]) -> tuple[str, ...]:
@@ -778,8 +844,10 @@ class SysIdProblem:
                  ("fit_position", self.fit_position), ("fit_rotation", self.fit_rotation))
         if not self.parameters and not any(axes for _, axes in kinds):
             raise DanoError("no parameters to identify")
+        missing = []
         for k, obs in enumerate(self.observations):
             _check_observation(obs, scene, k)
+            missing.append(_missing_frames_note(obs, k))
             expected = obs.frame_dt / self.substeps
             if abs(expected - scene.dt) > 1e-9 * max(scene.dt, 1e-12) + 1e-12:
                 raise DanoError(
@@ -813,7 +881,8 @@ class SysIdProblem:
             if not (p.lower <= p.initial <= p.upper) or not np.isfinite(p.initial):
                 raise DanoError(f"bounds [{p.lower}, {p.upper}] of {p.label} exclude the initial guess {p.initial}")
         # notes this method derives are made anew (dataclasses.replace passes the old ones on)
-        put("notes", tuple(n for n in self.notes if not _derived_anew(n, self.fit_velocity == "auto")))
+        put("notes", tuple(n for n in self.notes if not _derived_anew(n, self.fit_velocity == "auto"))
+            + tuple(n for n in missing if n))
         if self.base_params is None:
             params, notes = identification_params(scene, self.parameters)
             put("base_params", params)
@@ -860,15 +929,7 @@ class SysIdProblem:
 
     def truncated(self, fraction: float) -> "SysIdProblem":
         """The same problem on the first ``fraction`` of every trajectory (at least 3 frames)."""
-        obs = []
-        for o in self.observations:
-            n = max(3, int(np.ceil(fraction * o.num_frames)))
-            cut = lambda a, k=n: None if a is None else np.asarray(a)[:k]  # noqa: E731
-            obs.append(dataclasses.replace(
-                o, time=cut(o.time), poses={k: cut(v) for k, v in o.poses.items()},
-                velocities={k: cut(v) for k, v in o.velocities.items()},
-                joints={k: cut(v) for k, v in o.joints.items()}, controls=cut(o.controls, n - 1),
-                qfrc=cut(o.qfrc, n - 1)))
+        obs = [o.frames(0, max(3, int(np.ceil(fraction * o.num_frames)))) for o in self.observations]
         return dataclasses.replace(self, observations=tuple(obs))
 
     def with_initial(self, theta) -> "SysIdProblem":
@@ -889,25 +950,28 @@ class SysIdProblem:
 
     @functools.cached_property
     def segments(self) -> tuple[Segment, ...]:
-        """The rollout segments: whole trajectories, or their windows."""
+        """The rollout segments: whole trajectories, or their windows; a trajectory that misses
+        frames is split where it does (:meth:`Observation.runs`; runs of fewer than
+        :data:`MIN_RUN_FRAMES` frames are left out)."""
         segs, window = [], self.window
+        if window is not None and window != "auto" and (
+                not isinstance(window, (int, np.integer)) or isinstance(window, bool) or window < 2):
+            raise DanoError(f"window must be an integer of at least 2 frame intervals or 'auto', got {window!r}")
         for k, o in enumerate(self.observations):
-            T = o.num_frames
-            if window is None:
-                segs.append(Segment(k, 0, T))
-            else:
-                if window == "auto":
-                    starts = impact_windows(o)
-                elif not isinstance(window, (int, np.integer)) or isinstance(window, bool) or window < 2:
-                    raise DanoError(f"window must be an integer of at least 2 frame intervals or 'auto', got "
-                                    f"{window!r}")
+            for first, T in o.runs():
+                if T < MIN_RUN_FRAMES:
+                    continue
+                if window is None:
+                    starts = [0]
+                elif window == "auto":
+                    starts = impact_windows(o.frames(first, first + T))
                 else:
                     starts = list(range(0, T - 1, window))
                 if len(starts) > 1 and T - 1 - starts[-1] < 2:
                     starts.pop()  # fold a 1-interval remainder into the previous window
                 for i, s in enumerate(starts):
                     end = starts[i + 1] if i + 1 < len(starts) else T - 1
-                    segs.append(Segment(k, s, end - s + 1))
+                    segs.append(Segment(k, first + s, end - s + 1))
         return tuple(segs)
 
     @functools.cached_property

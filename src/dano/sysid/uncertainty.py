@@ -89,18 +89,22 @@ def noise_of_observations(observations) -> dict:
     rotation increments log(q_t⁻¹ q_{t+1}) (their second differences, i.e. third differences
     of the angle [deg], reported as the rms rotation angle: √3 × the per-axis value, as
     :meth:`SysIdProblem.residual_noise` takes it) and of joint positions; the median over
-    frames of all trajectories (robust to impacts and stops). Returns {"position_m" (3,),
+    frames of all trajectories (robust to impacts and stops), within each run of consecutive
+    frames (:meth:`~dano.sysid.Observation.runs`). Returns {"position_m" (3,),
     "rotation_deg", "joints", "method"}; a level the observations are too short for (fewer
     than 5 third differences) or that they do not observe is None."""
     pos, rot, joints = [], [], []
     for o in observations:
-        for p in o.poses.values():
-            p = np.asarray(p, dtype=np.float64)
-            pos.append(np.diff(p[:, :3], n=3, axis=0))
-            inc = quat_error(p[:-1, 3:], p[1:, 3:])
-            rot.append(np.diff(inc, n=2, axis=0))
-        for v in o.joints.values():
-            joints.append(np.diff(np.asarray(v, dtype=np.float64), n=3))
+        for first, n in o.runs():  # (differences across missing frames would not be noise)
+            if n < 4:
+                continue
+            for p in o.poses.values():
+                p = np.asarray(p, dtype=np.float64)[first:first + n]
+                pos.append(np.diff(p[:, :3], n=3, axis=0))
+                inc = quat_error(p[:-1, 3:], p[1:, 3:])
+                rot.append(np.diff(inc, n=2, axis=0))
+            for v in o.joints.values():
+                joints.append(np.diff(np.asarray(v, dtype=np.float64)[first:first + n], n=3))
 
     def level(ds, cols):
         if not ds or sum(len(d) for d in ds) < 5:
