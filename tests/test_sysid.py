@@ -288,6 +288,29 @@ def obs_ok(frames=20, dt=0.01):
     return Observation(time=t, poses={"box": poses})
 
 
+def test_rows_without_a_pose_are_missing_frames(tmp_path, box_setup):
+    """A CSV row whose pose is all empty or NaN (a frame the tracker lost) is left out, so that
+    the frame is missing like a dropped one; a row missing only some values is refused."""
+    from dano.sysid.config import _read_observation
+
+    _, scene, _ = box_setup
+    o = obs_ok()
+    rows = [",".join(repr(float(v)) for v in [t, *p]) for t, p in zip(o.time, o.poses["box"])]
+    rows[4], rows[11] = rows[4].split(",")[0] + ",,,,,,,", rows[11].split(",")[0] + ",nan" * 7
+    path = tmp_path / "lost.csv"
+    path.write_text("t,x,y,z,qw,qx,qy,qz\n" + "\n".join(rows) + "\n")
+    read = _read_observation(path, "box", scene)
+    assert read.num_frames == 18 and read.runs() == ((0, 4), (4, 6), (10, 8))
+    np.testing.assert_array_equal(read.poses["box"][4], o.poses["box"][5])
+    problem = SysIdProblem(scene, [read], [FitParameter("sliding_friction", 0.3, 0, 1)], substeps=4)
+    assert any("lost.csv: 2 frames missing" in n for n in problem.notes)
+    rows[7] = ",".join(rows[7].split(",")[:4] + ["nan"] * 4)
+    path.write_text("t,x,y,z,qw,qx,qy,qz\n" + "\n".join(rows) + "\n")
+    with pytest.raises(DanoError, match="contain NaN or infinite values"):
+        SysIdProblem(scene, [_read_observation(path, "box", scene)], [FitParameter("sliding_friction", 0.3, 0, 1)],
+                     substeps=4)
+
+
 @pytest.mark.parametrize("change, message", [
     (lambda o: dataclasses.replace(o, poses={"box": np.where(np.arange(20)[:, None] == 5, np.nan, o.poses["box"])}),
      "poses of 'box' contain NaN or infinite values \\(first at frame 5\\)"),

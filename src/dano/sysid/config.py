@@ -92,7 +92,21 @@ from .solve import identify
 VELOCITY_COLUMNS = ("vx", "vy", "vz", "wx", "wy", "wz")
 
 
+def _without_lost_frames(time, poses: np.ndarray, vel: dict) -> tuple:
+    """(time, poses, velocities) without the rows whose seven pose values are all missing
+    (empty or NaN: a frame the tracker lost), which are then missing frames like dropped ones
+    (:meth:`~dano.sysid.Observation.runs`); a row missing only some values stays (and is refused)."""
+    lost = ~np.any(np.isfinite(poses), axis=1)
+    if not np.any(lost) or np.all(lost):
+        return time, poses, vel
+    return np.asarray(time)[~lost], poses[~lost], {k: np.asarray(v)[~lost] for k, v in vel.items()}
+
+
 def _read_observation(path: Path, obj: str | None, scene, velocities: bool = False) -> Observation:
+    """A ``[[trajectory]]`` file as an :class:`~dano.sysid.Observation`: a CSV (t, x, y, z,
+    qw, qx, qy, qz [, vx, vy, vz, wx, wy, wz]), an NPZ of time and poses [and velocities], or
+    a dano trajectory. CSV and NPZ rows whose pose is all empty or NaN are frames the tracker
+    lost: left out, as missing frames. Raises FileFormatError or DanoError naming the file."""
     if not path.is_file():
         raise FileFormatError(f"{path}: no such trajectory file")
     if path.suffix.lower() == ".csv":
@@ -117,7 +131,8 @@ def _read_observation(path: Path, obj: str | None, scene, velocities: bool = Fal
                 raise FileFormatError(f"{path}: velocities = true needs the columns {', '.join(VELOCITY_COLUMNS)}; "
                                       f"missing {', '.join(missing)}")
             vel = {obj: np.stack([data[c] for c in VELOCITY_COLUMNS], axis=1)}
-        return Observation(time=np.asarray(data["t"]), poses={obj: poses}, velocities=vel, name=path.name)
+        time, poses, vel = _without_lost_frames(np.asarray(data["t"]), poses, vel)
+        return Observation(time=time, poses={obj: poses}, velocities=vel, name=path.name)
 
     arrays = read_npz(path, (), "trajectory")
     if "poses" in arrays:  # the plain layout: time (T,), poses (T, 7), optional velocities (T, 6)
@@ -130,8 +145,11 @@ def _read_observation(path: Path, obj: str | None, scene, velocities: bool = Fal
             if "velocities" not in arrays:
                 raise FileFormatError(f"{path}: velocities = true needs an array velocities (T, 6)")
             vel = {obj: np.asarray(arrays["velocities"], dtype=np.float64)}
-        return Observation(time=np.asarray(arrays["time"], dtype=np.float64),
-                           poses={obj: np.asarray(arrays["poses"], dtype=np.float64)}, velocities=vel, name=path.name)
+        poses = np.asarray(arrays["poses"], dtype=np.float64)
+        time = np.asarray(arrays["time"], dtype=np.float64)
+        if poses.ndim == 2 and poses.shape[1] == 7 and time.shape == (len(poses),):  # (else refused, shape named)
+            time, poses, vel = _without_lost_frames(time, poses, vel)
+        return Observation(time=time, poses={obj: poses}, velocities=vel, name=path.name)
     traj = load_trajectory(path)
     names = [obj] if obj else list(traj.dano_names)
     poses, vel = {}, {}
@@ -206,7 +224,9 @@ class TrajectoryConfig:
     file: str
     """The observation (relative to the TOML file's folder): a CSV with a header line and columns
     ``t,x,y,z,qw,qx,qy,qz`` (time [s], body position [m] and wxyz quaternion, world frame), a ``.npz`` with arrays
-    ``time`` (T,), ``poses`` (T, 7) [, ``velocities`` (T, 6)], or a dano trajectory ``.npz``."""
+    ``time`` (T,), ``poses`` (T, 7) [, ``velocities`` (T, 6)], or a dano trajectory ``.npz``. Frames at one frame
+    rate; frames may be missing (dropped rows, or CSV/``.npz`` rows whose pose is all empty or NaN: lost by a
+    tracker), each run of consecutive frames then rolled out from its own first frame."""
     object: str | None = None
     """Which ``[[scene.object]]`` the CSV or plain ``.npz`` tracks; left out for a dano trajectory: every object
     it holds."""
@@ -509,7 +529,8 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
         lines += ["", "[[trajectory]]"] + ([f"file = {json.dumps(tracked)}          # dano track's poses (a dano "
                                             "trajectory)"] if tracked is not None else [
                   f'file = "{name}_1.csv"          # CSV: header t,x,y,z,qw,qx,qy,qz; one row per frame; time [s],',
-                  "                                 # centre of mass [m], world frame; orientation quaternion (w first).",
+                  "                                 # centre of mass [m], world frame; orientation quaternion (w first);",
+                  "                                 # frames may be missing (rows left out, or a pose left empty).",
                   "                                 # Or a .npz with time (T,) and poses (T, 7), or a dano trajectory"]) + [
                   f'object = {json.dumps(name)}',
                   "velocities = false              # true: start from measured velocities (CSV columns vx,vy,vz",
