@@ -311,11 +311,34 @@ def test_rows_without_a_pose_are_missing_frames(tmp_path, box_setup):
                      substeps=4)
 
 
+def test_frames_a_tracker_flagged_poor_are_left_out(tmp_path, box_setup):
+    """A dano track trajectory lists its poor frames (metadata ``poor_frames``): they are left
+    out as missing frames by default, kept with ``skip_poor_frames = false``, and a trajectory
+    with no three good frames in a row is refused, saying how to keep them."""
+    from dano.sysid.config import _read_observation
+    from dano.trajectory import Trajectory, save_trajectory
+
+    _, scene, _ = box_setup
+    o = obs_ok()
+    q = o.poses["box"]
+
+    def saved(poor):
+        traj = Trajectory(o.time, q, np.zeros((len(q), 6)), np.zeros((len(q), 0)), ("box",), ("box",), (0,), (0,), (),
+                          {"source": "dano track", "poor_frames": poor})
+        return save_trajectory(traj, tmp_path / "poses.npz")
+
+    read = _read_observation(saved([5, 6]), None, scene)
+    assert read.num_frames == 18 and read.runs() == ((0, 5), (5, 13))
+    assert _read_observation(saved([5, 6]), None, scene, skip_poor_frames=False).num_frames == 20
+    with pytest.raises(DanoError, match="skip_poor_frames = false"):
+        _read_observation(saved(list(range(1, 20, 2))), None, scene)
+
+
 @pytest.mark.parametrize("change, message", [
     (lambda o: dataclasses.replace(o, poses={"box": np.where(np.arange(20)[:, None] == 5, np.nan, o.poses["box"])}),
      "poses of 'box' contain NaN or infinite values \\(first at frame 5\\)"),
     (lambda o: dataclasses.replace(o, time=o.time[::-1].copy()), "timestamps must increase"),
-    (lambda o: dataclasses.replace(o, time=np.r_[o.time[:10], o.time[10:] + 0.003]), "the interval 0.013 s after frame 9 is not a whole number of the smallest"),
+    (lambda o: dataclasses.replace(o, time=np.r_[o.time[:10], o.time[10:] + 0.003]), "the interval 0.013 s after frame 9 is not a whole number of the frame interval"),
     (lambda o: dataclasses.replace(o, units="cm"), "poses are in 'cm'"),
     (lambda o: dataclasses.replace(o, time=o.time * 2), "does not match the scene's time step"),
     (lambda o: dataclasses.replace(o, poses={"ball": o.poses["box"]}), "no DANO named 'ball'"),

@@ -136,14 +136,18 @@ def test_missing_frames_split_the_rollouts_and_keep_the_answer(box):
 
 def test_missing_frames_refused_where_they_cannot_be(box):
     """Frames shifted off the frame rate's grid, a gap too long for dropped frames, no three
-    consecutive frames, and rest frames past the first gap are refused, each saying why."""
+    consecutive frames, rest frames past the first gap and a frame interval longer than the
+    frames' are refused, each saying why."""
     o = slide_problem(box, trajectories=2).observations[0]
     param = [FitParameter("sliding_friction", 0.3, 0, 1)]
     shifted = dataclasses.replace(o, time=o.time + np.r_[np.zeros(5), np.full(15, 0.004)])
-    cases = [(shifted, "not a whole number of the smallest"),
+    cases = [(shifted, "not a whole number of the frame interval"),
              (dataclasses.replace(o, time=o.time + np.r_[np.zeros(19), 100.0]), "more than 1000 frames missing"),
              (_without(o, [2, 4, 6, 8, 10, 12, 14, 16, 18]), "no 3 consecutive frames"),
-             (dataclasses.replace(_without(o, [3]), rest_frames=4), "rest_frames = 4")]
+             (dataclasses.replace(_without(o, [3]), rest_frames=4), "rest_frames = 4"),
+             (dataclasses.replace(o, frame_interval=0.02), "frame_interval must be positive and at most"),
+             # every other frame missing: the given frame interval keeps them missing, not a slower rate
+             (dataclasses.replace(_without(o, range(1, 20, 2)), frame_interval=0.01), "no 3 consecutive frames")]
     for bad, message in cases:
         with pytest.raises(DanoError, match=message):
             SysIdProblem(box, [bad], param, substeps=4)

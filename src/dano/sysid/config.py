@@ -81,7 +81,7 @@ from ..errors import DanoError, FileFormatError
 from ..sim.scenes import DEFAULT_DT, stated_timestep
 from ..sim.scene import DanoObject, compose, contact_model_or_error
 from ..trajectory import load_trajectory
-from .problem import (FitParameter, Observation, SysIdProblem, Weights,
+from .problem import (MIN_RUN_FRAMES, FitParameter, Observation, SysIdProblem, Weights,
                       identification_params)
 from .outputs import estimates_report
 from .solve import identify
@@ -93,20 +93,24 @@ VELOCITY_COLUMNS = ("vx", "vy", "vz", "wx", "wy", "wz")
 
 
 def _without_lost_frames(time, poses: np.ndarray, vel: dict) -> tuple:
-    """(time, poses, velocities) without the rows whose seven pose values are all missing
+    """(time, poses, velocities, frame interval or None) without the rows whose seven pose values are all missing
     (empty or NaN: a frame the tracker lost), which are then missing frames like dropped ones
     (:meth:`~dano.sysid.Observation.runs`); a row missing only some values stays (and is refused)."""
     lost = ~np.any(np.isfinite(poses), axis=1)
     if not np.any(lost) or np.all(lost):
-        return time, poses, vel
-    return np.asarray(time)[~lost], poses[~lost], {k: np.asarray(v)[~lost] for k, v in vel.items()}
+        return time, poses, vel, None
+    step = float(np.min(np.diff(time))) if len(time) > 1 else None  # (the interval, whichever frames are lost)
+    return np.asarray(time)[~lost], poses[~lost], {k: np.asarray(v)[~lost] for k, v in vel.items()}, step
 
 
-def _read_observation(path: Path, obj: str | None, scene, velocities: bool = False) -> Observation:
+def _read_observation(path: Path, obj: str | None, scene, velocities: bool = False,
+                      skip_poor_frames: bool = True) -> Observation:
     """A ``[[trajectory]]`` file as an :class:`~dano.sysid.Observation`: a CSV (t, x, y, z,
     qw, qx, qy, qz [, vx, vy, vz, wx, wy, wz]), an NPZ of time and poses [and velocities], or
     a dano trajectory. CSV and NPZ rows whose pose is all empty or NaN are frames the tracker
-    lost: left out, as missing frames. Raises FileFormatError or DanoError naming the file."""
+    lost: left out, as missing frames; so are the frames a dano track trajectory lists as
+    poor (metadata ``poor_frames``) where ``skip_poor_frames``. Raises FileFormatError or
+    DanoError naming the file."""
     if not path.is_file():
         raise FileFormatError(f"{path}: no such trajectory file")
     if path.suffix.lower() == ".csv":
@@ -131,8 +135,8 @@ def _read_observation(path: Path, obj: str | None, scene, velocities: bool = Fal
                 raise FileFormatError(f"{path}: velocities = true needs the columns {', '.join(VELOCITY_COLUMNS)}; "
                                       f"missing {', '.join(missing)}")
             vel = {obj: np.stack([data[c] for c in VELOCITY_COLUMNS], axis=1)}
-        time, poses, vel = _without_lost_frames(np.asarray(data["t"]), poses, vel)
-        return Observation(time=time, poses={obj: poses}, velocities=vel, name=path.name)
+        time, poses, vel, step = _without_lost_frames(np.asarray(data["t"]), poses, vel)
+        return Observation(time=time, poses={obj: poses}, velocities=vel, name=path.name, frame_interval=step)
 
     arrays = read_npz(path, (), "trajectory")
     if "poses" in arrays:  # the plain layout: time (T,), poses (T, 7), optional velocities (T, 6)
@@ -147,9 +151,10 @@ def _read_observation(path: Path, obj: str | None, scene, velocities: bool = Fal
             vel = {obj: np.asarray(arrays["velocities"], dtype=np.float64)}
         poses = np.asarray(arrays["poses"], dtype=np.float64)
         time = np.asarray(arrays["time"], dtype=np.float64)
+        step = None
         if poses.ndim == 2 and poses.shape[1] == 7 and time.shape == (len(poses),):  # (else refused, shape named)
-            time, poses, vel = _without_lost_frames(time, poses, vel)
-        return Observation(time=time, poses={obj: poses}, velocities=vel, name=path.name)
+            time, poses, vel, step = _without_lost_frames(time, poses, vel)
+        return Observation(time=time, poses={obj: poses}, velocities=vel, name=path.name, frame_interval=step)
     traj = load_trajectory(path)
     names = [obj] if obj else list(traj.dano_names)
     poses, vel = {}, {}
@@ -160,7 +165,21 @@ def _read_observation(path: Path, obj: str | None, scene, velocities: bool = Fal
         if velocities:  # the file's qvel at the DANO's free joint (simulated, or central differences of tracking)
             adr = traj.dof_adr[traj.dano_names.index(n)]
             vel[n] = np.asarray(traj.qvel)[:, adr : adr + 6]
-    return Observation(time=traj.time, poses=poses, velocities=vel, name=path.name)
+    time, step = np.asarray(traj.time, dtype=np.float64), None
+    poor = np.asarray(traj.metadata.get("poor_frames", []) if skip_poor_frames else [], dtype=int)
+    poor = poor[(poor >= 0) & (poor < len(time))]
+    if len(poor) and len(time) > 1:
+        keep = np.ones(len(time), dtype=bool)
+        keep[poor] = False
+        step = float(np.min(np.diff(time)))  # (the interval, whichever frames are left out)
+        runs = Observation(time=time[keep], frame_interval=step).runs() if keep.sum() > 1 else ()
+        if max((n for _, n in runs), default=0) < MIN_RUN_FRAMES:
+            raise DanoError(f"{path}: {len(poor)} of its {len(time)} frames are flagged poor by the tracker, and "
+                            f"without them no {MIN_RUN_FRAMES} consecutive frames are left: check the tracking "
+                            "(overlay.mp4), or "
+                            "keep them ([[trajectory]] skip_poor_frames = false)")
+        time, poses, vel = time[keep], {k: v[keep] for k, v in poses.items()}, {k: v[keep] for k, v in vel.items()}
+    return Observation(time=time, poses=poses, velocities=vel, name=path.name, frame_interval=step)
 
 
 # ------------------------------------------------------------------ typed schema
@@ -233,6 +252,9 @@ class TrajectoryConfig:
     velocities: bool = False
     """Start every window from measured velocities: CSV columns ``vx,vy,vz`` (world [m/s]) and ``wx,wy,wz`` (body
     [rad/s]), the ``.npz``'s ``velocities`` (T, 6) or the dano trajectory's qvel."""
+    skip_poor_frames: bool = True
+    """Leave out the frames a tracker flagged poor (``dano track``'s trajectory lists them: silhouette IoU below its
+    cut, e.g. where something hides the object), as missing frames; false: keep their poses as tracked."""
 
 
 @dataclass(frozen=True)
@@ -429,7 +451,8 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
                         contact_model=contact_model_or_error(sc.contact_model, sc.friction_steepness))
         # each process of a multi-process run reads its share of the files (dano.sharding)
         obs = sharding.load_shares(cfg.trajectory,
-                                   lambda t: _read_observation(base / t.file, t.object, scene, t.velocities))
+                                   lambda t: _read_observation(base / t.file, t.object, scene, t.velocities,
+                                                                               t.skip_poor_frames))
         params = [FitParameter(p.name, p.initial, p.lower, np.inf if p.upper is None else p.upper, p.target)
                   for p in cfg.parameter]
         base_params, notes = identification_params(scene, params, cfg.contact)
@@ -536,7 +559,9 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
                   "velocities = false              # true: start from measured velocities (CSV columns vx,vy,vz",
                   "                                 # world [m/s], wx,wy,wz body [rad/s])",
                   "# add one [[trajectory]] per recording" if tracked is None else
-                  "# (poses tracked from a video by dano track: its world frame is camera.json's, the ground z = 0)"]
+                  "skip_poor_frames = true         # frames the tracker flagged poor (track.csv) left out as missing",
+                  *([] if tracked is None else
+                    ["# (poses tracked from a video by dano track: its world frame is camera.json's, the ground z = 0)"])]
     route = "" if tracked is not None else "# "  # the two-stage route's options: set for a tracked video
     lines += ["", "[[parameter]]", 'name = "sliding_friction"       # or impact_spring, impact_damper, torsional_friction,',
               "                                 # rolling_friction, com_offset_x|y|z, ...; alpha (mass scale) only",

@@ -59,6 +59,8 @@ class Observation:
     ``rest_frames`` frames: the initial pose is their mean (rotations averaged with
     :func:`dano.pose.quat_mean`), which reduces tracking noise in the
     initial state by about √rest_frames;
+    frame_interval: the frame interval Δ [s] where frames are missing in a pattern that hides it
+    (every other one: the smallest interval is then 2Δ); None (default): the smallest interval;
     settle_steps: with rest_frames > 1, simulate this many steps from that initial state
     (controls held at their first value) before the rollout is compared with the frames,
     so that the bodies start in the model's own resting contact (a pose estimate off by a
@@ -77,6 +79,7 @@ class Observation:
     name: str = ""
     rest_frames: int = 1
     settle_steps: int = 0
+    frame_interval: float | None = None
 
     @property
     def num_frames(self) -> int:
@@ -84,8 +87,9 @@ class Observation:
 
     @property
     def frame_dt(self) -> float:
-        """The frame interval Δ [s]: the smallest interval between frames."""
-        return float(np.min(np.diff(self.time)))
+        """The frame interval Δ [s]: ``frame_interval`` where given, else the smallest interval
+        between frames."""
+        return float(self.frame_interval) if self.frame_interval is not None else float(np.min(np.diff(self.time)))
 
     def runs(self) -> tuple[tuple[int, int], ...]:
         """The runs of consecutive frames, split where frames are missing (an interval of two
@@ -187,13 +191,16 @@ def _check_observation_values(obs: Observation, scene: Scene, k: int) -> None:
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
         raise DanoError(f"{tag}: timestamps must increase; frame {i + 1} (t = {t[i + 1]:.6g}) is not after frame {i}")
-    step = dt.min()
+    step = dt.min() if obs.frame_interval is None else obs.frame_interval
+    if not (np.isfinite(step) and 0 < step <= dt.min() * (1 + 1e-6) + 1e-9):
+        raise DanoError(f"{tag}: frame_interval must be positive and at most the smallest interval between frames, "
+                        f"{dt.min():.6g} s, got {step!r}")
     whole = np.round(dt / step)
     off = np.abs(dt - whole * step) > 1e-6 * dt + 1e-9
     if np.any(off):
         i = int(np.argmax(off))
         raise DanoError(f"{tag}: frames must be at one frame rate (frames may be missing, not shifted): the interval "
-                        f"{dt[i]:.6g} s after frame {i} is not a whole number of the smallest, {step:.6g} s")
+                        f"{dt[i]:.6g} s after frame {i} is not a whole number of the frame interval, {step:.6g} s")
     if whole.max() > MAX_MISSING_FRAMES + 1:
         i = int(np.argmax(whole))
         raise DanoError(f"{tag}: frame {i + 1} (t = {t[i + 1]:.6g} s) comes {int(whole[i])} frame intervals after "

@@ -178,10 +178,12 @@ MIN_IDENTIFY_FRAMES = 8
 
 def poor_frames_warning(report: dict) -> list[str]:
     """The warning (a list of none or one line) that a track ``report`` has frames flagged
-    poor, whose poses the identification uses as they are."""
+    poor, which the identification leaves out as missing frames (``problem.toml``'s
+    ``skip_poor_frames``)."""
     n = int(report.get("poor_frames", 0))
     return [f"{n} of the {report['frames']} tracked frames are flagged poor (silhouette IoU below the poor_iou cut): "
-            "their poses are in the identification as tracked; check overlay.mp4 and track.csv"] if n else []
+            "the identification leaves them out as missing frames (skip_poor_frames = false in problem.toml keeps "
+            "them); check overlay.mp4 and track.csv"] if n else []
 
 
 def write_tracked_problem(out_dir: str | Path, object_spec: str, frame_interval: float) -> Path:
