@@ -224,12 +224,16 @@ def inspect(
 def _simulate(c):
     from .sim.run import simulate, write_outputs
 
-    with _progress(not c.quiet) as progress:
+    with _progress(not c.quiet and not c.json_) as progress:
         run = simulate(c.resolved(), progress=progress)  # (a deep start is warned of by the rollout)
-    out.print(simulation_table(run.setup, run.trajectory, run.wall_time_s))
-    with _progress(not c.quiet) as progress:
-        for path in write_outputs(run, out=c.out, video=c.video, progress=progress):
-            err.print(f"wrote {path}")
+    if not c.json_:
+        out.print(simulation_table(run.setup, run.trajectory, run.wall_time_s))
+    with _progress(not c.quiet and not c.json_) as progress:
+        written = write_outputs(run, out=c.out, video=c.video, progress=progress)
+    for path in written:
+        err.print(f"wrote {path}")
+    if c.json_:
+        _print_report({**run.summary(), "files": [str(p) for p in written]})
     return run
 
 

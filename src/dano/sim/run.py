@@ -25,6 +25,7 @@ import numpy as np
 import tyro
 
 from .._config import read_table, typed_table
+from .._compiled import compile_seconds
 from .._files import atomic_path, config_json
 from ..contact import CONTACT_MODELS
 from ..data import load_asset
@@ -188,13 +189,30 @@ def apply_params(scene: Scene, params: SimParams, assignments) -> SimParams:
 @dataclass(frozen=True)
 class SimulationRun:
     """A finished run: the scene set-up, the parameters used, the trajectory, the wall time
-    [s] (compilation included) and the resolved configuration (every default filled in)."""
+    [s] (compilation included), the resolved configuration (every default filled in) and the
+    part of the wall time spent tracing, lowering and compiling (loads from the caches
+    included) [s]."""
 
     setup: Setup
     params: SimParams
     trajectory: Trajectory
     wall_time_s: float
     config: SimulateConfig
+    compile_time_s: float = 0.0
+
+    def summary(self) -> dict:
+        """The run in numbers (JSON-able): scene, steps, dt [s], duration [s], wall_time_s,
+        compile_time_s, run_time_s (their difference), and per DANO its mass [kg], final
+        centre of mass (world [m]) and final speed [m/s], and per contact pair its final
+        overlap ψ."""
+        scene, traj = self.setup.scene, self.trajectory
+        return {"scene": scene.name, "steps": len(traj.time) - 1, "dt": scene.dt, "duration": float(traj.time[-1]),
+                "wall_time_s": self.wall_time_s, "compile_time_s": self.compile_time_s,
+                "run_time_s": max(self.wall_time_s - self.compile_time_s, 0.0),
+                "objects": {n: {"mass": float(a.mass), "final_center_of_mass": traj.dano_pose(n)[0][-1].tolist(),
+                                "final_speed": float(np.linalg.norm(traj.qvel[-1, d : d + 3]))}
+                            for n, a, d in zip(scene.dano_names, scene.assets, scene.dof_adr)},
+                "final_overlap": {p: float(x) for p, x in zip(scene.pair_names, traj.psi[-1])}}
 
 
 def setup_for(config: SimulateConfig) -> Setup:
@@ -232,10 +250,10 @@ def simulate(config: SimulateConfig, progress=None) -> SimulationRun:
         raise DanoError(f"--duration / --dt: {T} steps of {dt:g} s is more than --max-steps {config.max_steps} "
                         f"(the trajectory alone would take {T * (setup.scene.nq + setup.scene.nv) * 8 / 1e9:.2g} GB)")
     controls = setup.controls(np.arange(T) * dt) if setup.controls else None
-    t0 = time.perf_counter()
+    t0, started = time.perf_counter(), time.time()
     traj = rollout(setup.scene, state0, controls, params, T, progress=progress)
     resolved = dataclasses.replace(config.absolute(), duration=T * dt, dt=dt)
-    return SimulationRun(setup, params, traj, time.perf_counter() - t0, resolved)
+    return SimulationRun(setup, params, traj, time.perf_counter() - t0, resolved, compile_seconds(started))
 
 
 def check_video_path(video: str | Path | None) -> None:
@@ -286,6 +304,10 @@ class SimulateCommandConfig:
     (default: the MJCF's reference pose qpos0, at rest)."""
     quiet: bool = False
     """no progress bars."""
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False
+    """print one JSON object (SimulationRun.summary: scene, steps, dt, duration, wall_time_s, compile_time_s,
+    run_time_s, objects (mass, final_center_of_mass, final_speed), final_overlap) and the files written, under
+    "files", instead of the table."""
 
     def __post_init__(self):
         check_video_path(self.video)
