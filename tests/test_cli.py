@@ -38,6 +38,14 @@ def test_build_voxel_then_inspect_json_and_plot(tmp_path, capsys):
     J = np.array(s["inertia"])
     assert np.allclose(J, J.T) and np.allclose(J, J[0, 0] * np.eye(3), rtol=0.01, atol=1e-4)
     assert len(s["band"]) == 2 and (tmp_path / "ball.png").stat().st_size > 10_000
+    # build --json: the same summary as inspect's, the file and the times
+    code, stdout, err = run(capsys, "build", src, "-o", tmp_path / "b2.dano", "--mass", 2.0, "--samples", 500,
+                            "--name", "ball_2", "--json")
+    assert code == 0, err
+    built = json.loads(stdout)
+    assert built["file"] == str(tmp_path / "b2.dano") and built["calibration"] is None
+    assert built["mass"] == s["mass"] and built["inertia"] == s["inertia"]
+    assert 0 <= built["compile_time_s"] <= built["wall_time_s"]
 
 
 def test_build_paper_collider_with_mass(tmp_path, capsys, shared):

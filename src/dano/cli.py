@@ -172,9 +172,11 @@ def _primary() -> bool:
 def _build(c) -> None:
     from .sources import build_file
 
-    with _progress(not c.quiet) as progress:
+    with _progress(not c.quiet and not c.json_) as progress:
         result = build_file(c, progress=progress)
     cal, asset = result.calibration, result.asset
+    if c.json_:
+        _print_report({**asset.summary(), "file": str(c.out), "calibration": cal or None})
     if cal:
         err.print(f"solid surface moved out by {cal['surface_offset']:.4g} m ({cal['surface_offset_nodes']:.2f} nodes): "
                   f"silhouette area {cal['silhouette_area_ratio_before']:.3f} -> "

@@ -232,6 +232,9 @@ class BuildConfig:
     source's file or folder name, e.g. spot for spot.obj)."""
     quiet: bool = False
     """no progress bar."""
+    json_: Annotated[bool, tyro.conf.arg(name="json")] = False
+    """print one JSON object: the asset's summary (as dano inspect --json), the file written ("file"), the
+    surface calibration of a trained field ("calibration", or null), wall_time_s and compile_time_s."""
 
     def __post_init__(self):
         up_rotation(self.up)
