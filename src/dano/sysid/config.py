@@ -92,15 +92,31 @@ from .solve import identify
 VELOCITY_COLUMNS = ("vx", "vy", "vz", "wx", "wy", "wz")
 
 
-def _without_lost_frames(time, poses: np.ndarray, vel: dict) -> tuple:
-    """(time, poses, velocities, frame interval or None) without the rows whose seven pose values are all missing
-    (empty or NaN: a frame the tracker lost), which are then missing frames like dropped ones
-    (:meth:`~dano.sysid.Observation.runs`); a row missing only some values stays (and is refused)."""
-    lost = ~np.any(np.isfinite(poses), axis=1)
-    if not np.any(lost) or np.all(lost):
-        return time, poses, vel, None
-    step = float(np.min(np.diff(time))) if len(time) > 1 else None  # (the interval, whichever frames are lost)
-    return np.asarray(time)[~lost], poses[~lost], {k: np.asarray(v)[~lost] for k, v in vel.items()}, step
+def _observation(path: Path, time, poses: dict, vel: dict, left_out=(), why: str = "") -> Observation:
+    """The :class:`~dano.sysid.Observation` of a file's ``time`` (T,), ``poses`` {name: (T, 7)}
+    and ``vel`` {name: (T, 6)} without the frames ``left_out`` (indices), which are then
+    missing frames like dropped ones (:meth:`~dano.sysid.Observation.runs`), its frame interval
+    kept from all the frames. Raises DanoError naming the file and ``why`` they were left out
+    where no run of :data:`MIN_RUN_FRAMES` frames is left."""
+    time = np.asarray(time, dtype=np.float64)
+    keep = np.ones(len(time), dtype=bool)
+    keep[np.asarray(left_out, dtype=int)] = False
+    if keep.all() or time.ndim != 1 or len(time) < 2:
+        return Observation(time=time, poses=poses, velocities=vel, name=path.name)
+    step = float(np.min(np.diff(time)))  # (the interval, whichever frames are left out)
+    runs = Observation(time=time[keep], frame_interval=step).runs() if keep.sum() > 1 else ()
+    if max((n for _, n in runs), default=0) < MIN_RUN_FRAMES:
+        raise DanoError(f"{path}: {len(time) - keep.sum()} of its {len(time)} frames {why}, and without them no "
+                        f"{MIN_RUN_FRAMES} consecutive frames are left")
+    return Observation(time=time[keep], poses={k: np.asarray(v)[keep] for k, v in poses.items()},
+                       velocities={k: np.asarray(v)[keep] for k, v in vel.items()}, name=path.name,
+                       frame_interval=step)
+
+
+def _lost_rows(poses: np.ndarray) -> np.ndarray:
+    """Indices of the rows (T, 7) whose seven pose values are all missing (empty or NaN: a frame
+    the tracker lost); a row missing only some stays (and is refused)."""
+    return np.flatnonzero(~np.any(np.isfinite(poses), axis=1)) if poses.ndim == 2 else np.zeros(0, dtype=int)
 
 
 def _read_observation(path: Path, obj: str | None, scene, velocities: bool = False,
@@ -135,8 +151,7 @@ def _read_observation(path: Path, obj: str | None, scene, velocities: bool = Fal
                 raise FileFormatError(f"{path}: velocities = true needs the columns {', '.join(VELOCITY_COLUMNS)}; "
                                       f"missing {', '.join(missing)}")
             vel = {obj: np.stack([data[c] for c in VELOCITY_COLUMNS], axis=1)}
-        time, poses, vel, step = _without_lost_frames(np.asarray(data["t"]), poses, vel)
-        return Observation(time=time, poses={obj: poses}, velocities=vel, name=path.name, frame_interval=step)
+        return _observation(path, data["t"], {obj: poses}, vel, _lost_rows(poses), "have no pose")
 
     arrays = read_npz(path, (), "trajectory")
     if "poses" in arrays:  # the plain layout: time (T,), poses (T, 7), optional velocities (T, 6)
@@ -151,10 +166,8 @@ def _read_observation(path: Path, obj: str | None, scene, velocities: bool = Fal
             vel = {obj: np.asarray(arrays["velocities"], dtype=np.float64)}
         poses = np.asarray(arrays["poses"], dtype=np.float64)
         time = np.asarray(arrays["time"], dtype=np.float64)
-        step = None
-        if poses.ndim == 2 and poses.shape[1] == 7 and time.shape == (len(poses),):  # (else refused, shape named)
-            time, poses, vel, step = _without_lost_frames(time, poses, vel)
-        return Observation(time=time, poses={obj: poses}, velocities=vel, name=path.name, frame_interval=step)
+        fits = poses.ndim == 2 and poses.shape[1] == 7 and time.shape == (len(poses),)  # (else refused, shape named)
+        return _observation(path, time, {obj: poses}, vel, _lost_rows(poses) if fits else (), "have no pose")
     traj = load_trajectory(path)
     names = [obj] if obj else list(traj.dano_names)
     poses, vel = {}, {}
@@ -165,21 +178,10 @@ def _read_observation(path: Path, obj: str | None, scene, velocities: bool = Fal
         if velocities:  # the file's qvel at the DANO's free joint (simulated, or central differences of tracking)
             adr = traj.dof_adr[traj.dano_names.index(n)]
             vel[n] = np.asarray(traj.qvel)[:, adr : adr + 6]
-    time, step = np.asarray(traj.time, dtype=np.float64), None
     poor = np.asarray(traj.metadata.get("poor_frames", []) if skip_poor_frames else [], dtype=int)
-    poor = poor[(poor >= 0) & (poor < len(time))]
-    if len(poor) and len(time) > 1:
-        keep = np.ones(len(time), dtype=bool)
-        keep[poor] = False
-        step = float(np.min(np.diff(time)))  # (the interval, whichever frames are left out)
-        runs = Observation(time=time[keep], frame_interval=step).runs() if keep.sum() > 1 else ()
-        if max((n for _, n in runs), default=0) < MIN_RUN_FRAMES:
-            raise DanoError(f"{path}: {len(poor)} of its {len(time)} frames are flagged poor by the tracker, and "
-                            f"without them no {MIN_RUN_FRAMES} consecutive frames are left: check the tracking "
-                            "(overlay.mp4), or "
-                            "keep them ([[trajectory]] skip_poor_frames = false)")
-        time, poses, vel = time[keep], {k: v[keep] for k, v in poses.items()}, {k: v[keep] for k, v in vel.items()}
-    return Observation(time=time, poses=poses, velocities=vel, name=path.name, frame_interval=step)
+    poor = poor[(poor >= 0) & (poor < len(traj.time))]
+    return _observation(path, traj.time, poses, vel, poor, "are flagged poor by the tracker (check overlay.mp4, or "
+                        "keep them: [[trajectory]] skip_poor_frames = false)")
 
 
 # ------------------------------------------------------------------ typed schema
@@ -452,7 +454,7 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
         # each process of a multi-process run reads its share of the files (dano.sharding)
         obs = sharding.load_shares(cfg.trajectory,
                                    lambda t: _read_observation(base / t.file, t.object, scene, t.velocities,
-                                                                               t.skip_poor_frames))
+                                                               t.skip_poor_frames))
         params = [FitParameter(p.name, p.initial, p.lower, np.inf if p.upper is None else p.upper, p.target)
                   for p in cfg.parameter]
         base_params, notes = identification_params(scene, params, cfg.contact)
@@ -558,10 +560,9 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
                   f'object = {json.dumps(name)}',
                   "velocities = false              # true: start from measured velocities (CSV columns vx,vy,vz",
                   "                                 # world [m/s], wx,wy,wz body [rad/s])",
-                  "# add one [[trajectory]] per recording" if tracked is None else
-                  "skip_poor_frames = true         # frames the tracker flagged poor (track.csv) left out as missing",
-                  *([] if tracked is None else
-                    ["# (poses tracked from a video by dano track: its world frame is camera.json's, the ground z = 0)"])]
+                  *(["# add one [[trajectory]] per recording"] if tracked is None else
+                    ["skip_poor_frames = true         # frames the tracker flagged poor (track.csv) left out as missing",
+                     "# (poses tracked from a video by dano track: its world frame is camera.json's, the ground z = 0)"])]
     route = "" if tracked is not None else "# "  # the two-stage route's options: set for a tracked video
     lines += ["", "[[parameter]]", 'name = "sliding_friction"       # or impact_spring, impact_damper, torsional_friction,',
               "                                 # rolling_friction, com_offset_x|y|z, ...; alpha (mass scale) only",

@@ -701,15 +701,14 @@ def identification_params(scene: Scene, parameters: Sequence[FitParameter], give
 
 _AUTO_NOTE = "start velocities (fit_velocity auto):"
 _GIVEN_NOTE = " (given: base_params or TOML [contact])"
-_MISSING_NOTE = " frames missing"  # (" frame missing" for one)
+_MISSING_NOTE = "rolled out from its own first frame, as windows are"  # (in every missing-frames note)
 
 
 def _derived_anew(note: str, auto: bool) -> bool:
     """Whether ``note`` is one that SysIdProblem derives again on this construction: a given
     drag's (always), missing frames' (always), the start velocities' (when fit_velocity is
     "auto" again)."""
-    return (_GIVEN_NOTE in note or _MISSING_NOTE in note or _MISSING_NOTE.replace("frames", "frame") in note
-            or auto and note.startswith(_AUTO_NOTE))
+    return _GIVEN_NOTE in note or _MISSING_NOTE in note or auto and note.startswith(_AUTO_NOTE)
 
 
 def _missing_frames_note(obs: Observation, k: int) -> str | None:
@@ -732,9 +731,8 @@ def _missing_frames_note(obs: Observation, k: int) -> str | None:
     left = (f"; runs of fewer than {MIN_RUN_FRAMES} frames are left out (frames "
             + ", ".join(f"{a}" if n == 1 else f"{a}-{a + n - 1}" for a, n in short[:5])
             + (", ..." if len(short) > 5 else "") + ")") if short else ""
-    return (f"{tag}: {missing}{_MISSING_NOTE if missing > 1 else _MISSING_NOTE.replace('frames', 'frame')} "
-            f"(after t = {after} s): each of its {len(runs)} runs of consecutive "
-            f"frames is rolled out from its own first frame, as windows are{left}")
+    return (f"{tag}: {missing} frame{'s' if missing > 1 else ''} missing (after t = {after} s): each of its "
+            f"{len(runs)} runs of consecutive frames is {_MISSING_NOTE}{left}")
 
 
 def _given_drag_notes(params: SimParams, parameters: Sequence[FitParameter]) -> tuple[str, ...]:
