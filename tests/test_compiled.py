@@ -93,6 +93,41 @@ def test_values_are_arguments_statics_and_shapes_are_the_key(tmp_path, monkeypat
         _compiled.set_directory(None)
 
 
+_TRACES = []
+
+
+def _slow_to_trace(tag, x):
+    import threading
+    import time
+
+    start = time.perf_counter()
+    time.sleep(0.2)  # (Python's lock released: another thread's trace could run meanwhile)
+    _TRACES.append((tag, threading.get_ident(), start, time.perf_counter()))
+    return x * 2.0
+
+
+def test_threads_trace_one_at_a_time_and_a_structure_once(tmp_path, monkeypatch):
+    """Programs traced from threads (a program compiling in the background while another is
+    traced, dano._threads.in_background) are traced one after the other, and two threads
+    asking for the same structure trace it once."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    monkeypatch.delenv("DANO_EXPORT_CACHE", raising=False)
+    _compiled.set_directory(tmp_path)
+    _TRACES.clear()
+    try:
+        f = cached_jit(_slow_to_trace, static_argnums=(0,))
+        with ThreadPoolExecutor(4) as pool:
+            out = list(pool.map(lambda a: f(*a), [("a", jnp.ones(2)), ("b", jnp.ones(2)), ("a", jnp.ones(2)),
+                                                   ("b", jnp.ones(3))]))
+        assert all(np.allclose(o, 2.0) for o in out)
+        assert sorted(t[0] for t in _TRACES) == ["a", "b", "b"] and f.counts["traced"] == 3
+        spans = sorted((t[2], t[3]) for t in _TRACES)
+        assert all(later[0] >= earlier[1] for earlier, later in zip(spans, spans[1:]))  # no two at once
+    finally:
+        _compiled.set_directory(None)
+
+
 def test_off_without_the_compilation_cache(monkeypatch):
     monkeypatch.setenv("DANO_EXPORT_CACHE", "0")
     f = cached_jit(_affine, static_argnums=(0,))

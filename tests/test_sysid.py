@@ -260,7 +260,7 @@ def test_real_soap_video(monkeypatch, tmp_path, capsys):
     # here with the starts run one after the other
     ran = []
     monkeypatch.setattr(solve, "side_by_side", lambda calls, warm=None: ran.append(len(calls)) or [
-        solve._or_error(c) for c in calls])
+        solve.or_error(c) for c in calls])
     _, _, without = run_sysid("soap", sensitivity=False)
     assert ran == [2]
     assert "length_scale_sensitivity" not in without["report"] and without["config"]["sensitivity"] is False
@@ -695,7 +695,7 @@ def test_side_by_side_keeps_the_order_and_returns_errors_in_place():
     import threading
     import time as _time
 
-    from dano.sysid.solve import side_by_side
+    from dano._threads import side_by_side
 
     log = []
 
@@ -714,6 +714,25 @@ def test_side_by_side_keeps_the_order_and_returns_errors_in_place():
     assert log[0][0] == "warm" and sorted(k for kind, k, _ in log[1:]) == [0, 1, 2, 3]
     with pytest.raises(ZeroDivisionError):
         side_by_side([lambda: 1 / 0, lambda: 1])
+
+
+def test_in_background_gives_the_result_or_the_error_in_the_callers_64_bit_mode():
+    """A call started in the background gives its result, or its DanoError, when waited for,
+    and traces in the 64-bit mode of the thread that started it (``jax.enable_x64`` is
+    thread-local); other exceptions propagate to the waiter."""
+    from dano._threads import in_background
+
+    assert jax.config.jax_enable_x64  # (the suite's setting)
+    with jax.enable_x64(False):
+        wait32 = in_background(lambda: jnp.asarray(1.0).dtype)
+    wait64 = in_background(lambda: jnp.asarray(1.0).dtype)
+    assert wait32() == jnp.float32 and wait64() == jnp.float64
+
+    def fails():
+        raise DanoError("diverged")
+    assert isinstance(in_background(fails)(), DanoError)
+    with pytest.raises(ZeroDivisionError):
+        in_background(lambda: 1 / 0)()
 
 
 def test_the_fit_plot_shows_every_window_of_a_trajectory(box_setup, monkeypatch):

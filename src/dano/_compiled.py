@@ -74,6 +74,10 @@ HOST_ONLY = {"cache_key": False, "traced": False}
 _DIRECTORY: list[Path | None] = [None]
 _FUNCTIONS: "weakref.WeakSet[CachedFunction]" = weakref.WeakSet()
 _LOCK = threading.Lock()
+#: held while a program is traced and exported (or loaded): one trace at a time. Tracing is
+#: Python, under Python's lock, so two traces side by side both finish late; one after the
+#: other, the first program compiles in XLA (without Python's lock) while the second traces
+_TRACING = threading.RLock()
 _MEMORY_SIZE = 64  # loaded programs kept per process (least recently used dropped first)
 
 
@@ -417,14 +421,19 @@ class CachedFunction:
         if program is not None:
             self.counts["reused"] += 1
             return program
-        path = where / f"{digest}.jaxexp"
-        program = _load(path, mesh, self._options())
-        kind = "loaded" if program is not None else "traced"
-        if program is None:
-            program = self._export(tree, statics, leaves, path, mesh)
-        COUNTS[kind] += 1
-        self.counts[kind] += 1
-        _remember(self._by_digest, digest, program)
+        with _TRACING:
+            program = self._by_digest.get(digest)  # (traced by another thread meanwhile)
+            if program is not None:
+                self.counts["reused"] += 1
+                return program
+            path = where / f"{digest}.jaxexp"
+            program = _load(path, mesh, self._options())
+            kind = "loaded" if program is not None else "traced"
+            if program is None:
+                program = self._export(tree, statics, leaves, path, mesh)
+            COUNTS[kind] += 1
+            self.counts[kind] += 1
+            _remember(self._by_digest, digest, program)
         return program
 
     def _export(self, tree, statics, leaves, path: Path, mesh=None):

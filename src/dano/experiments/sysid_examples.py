@@ -27,7 +27,8 @@ from ..sim.scenes import resting_height
 from ..sysid.config import solver_options
 from ..sysid.outputs import estimates_report
 from ..sysid.problem import FitParameter, Observation, SEGMENT_NUISANCE_PREFIXES, SysIdProblem, Weights
-from ..sysid.solve import identify, scan_costs, side_by_side
+from .._threads import side_by_side
+from ..sysid.solve import identify, scan_costs
 from ..sysid.uncertainty import cramer_rao
 
 # ../shared/README.md: the soap video is 120 frames/s; the paper Froude-scaled time by
@@ -571,7 +572,7 @@ def soap_sensitivity(friction: float) -> dict:
     2e-3/(m − n) ≈ 3e-5 here, for a difference of two fits): that moves their friction by
     about 3e-6, 3000 times less than its standard error (0.0095), in half the evaluations of
     1e-8."""
-    scales = (0.9, 1.1)  # the two identifications side by side (:func:`~dano.sysid.solve.side_by_side`)
+    scales = (0.9, 1.1)  # the two identifications side by side (:func:`dano._threads.side_by_side`)
     fits = side_by_side([lambda s=s: identify(soap_problem(length_scale=s, substeps=4, initial_friction=friction),
                                               scan=0, profile_points=0, ftol=1e-6) for s in scales])
     for fit in fits:

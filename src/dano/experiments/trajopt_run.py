@@ -15,6 +15,7 @@ import tyro
 
 from .._config import read_table, typed_table
 from .._files import atomic_path, config_json, json_safe
+from .._threads import in_background
 from ..contact import CONTACT_MODELS
 from ..errors import DanoError
 from ..sim import SimulationDiverged, State, rollout
@@ -134,7 +135,11 @@ def run(source: str, progress=None, **overrides):
         progress(1, 1, "building the task")
     cb = None if progress is None else (lambda e: progress(e["iteration"], cfg.max_iterations,
                                                              f"iLQR (violation {e['max_violation']:.2g})"))
+    # the report's replay (the scene's own rollout of the plan's controls) compiles while the
+    # solver runs: the plain push has the plan's shapes
+    replayed = in_background(lambda: replay(task, task.X_plain, task.U_plain))
     solution = solve_task(task, callback=cb)
+    replayed()
     me = None
     if cfg.model_error > 0:
         T = task.problem.horizon

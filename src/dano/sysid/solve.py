@@ -19,9 +19,7 @@ identifiability of each parameter are reported, with warnings.
 
 from __future__ import annotations
 
-import os
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import jax
@@ -32,6 +30,7 @@ from scipy.optimize import least_squares
 from ..errors import DanoError
 from . import uncertainty as unc
 from .._compiled import compile_seconds
+from .._threads import in_background, or_error, side_by_side
 from .problem import NOISE_FLOOR, SysIdProblem, noisy_start_velocities
 
 
@@ -512,39 +511,11 @@ def _basin_starts(points: np.ndarray, costs: np.ndarray, lo: np.ndarray, hi: np.
     return chosen
 
 
-def _or_error(call):
-    """``call()``, or the DanoError it raised."""
-    try:
-        return call()
-    except DanoError as exc:
-        return exc
-
-
 def _evaluate(problem: SysIdProblem, x: np.ndarray, jacobian: str) -> None:
     """One evaluation at the global parameters ``x`` (the others at their initial values), to
     compile (or load) the program the local solves share."""
     x0 = np.concatenate([x, problem.initial()[len(problem.parameters):]])
     problem.residuals_and_jacobian(x0) if jacobian == "ad" else problem.residuals_only(x0)
-
-
-def side_by_side(calls: list, warm=None) -> list:
-    """The results of ``calls`` (functions of no argument), in order, run in threads, as many
-    at a time as the machine has cores; a call that raises DanoError gives that error in its
-    place (other exceptions propagate). XLA runs a compiled program without Python's lock, so
-    local solves whose time is in their residual and Jacobian programs run side by side: on
-    two cores the soap's two starts take about the time of one. ``warm`` (a function of no
-    argument) runs first, alone, so that the calls do not compile the same program twice.
-    Every call computes the same thing as it would alone: the results do not depend on the
-    threads. Across processes (``jax.distributed``) the calls run one after another: every
-    process must start the same programs in the same order."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    workers = min(len(calls), cores) if jax.process_count() == 1 else 1
-    if workers <= 1:
-        return [_or_error(c) for c in calls]
-    if warm is not None:
-        _or_error(warm)
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(_or_error, calls))
 
 
 def _minus_compiling(t0: float, started: float) -> float:
@@ -564,6 +535,8 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
     t0, started = time.perf_counter(), time.time()
     points = scan_points(lo, hi, scan)
     guess = problem.initial()[:n]
+    # the local solves' program compiles (or loads) while the scan's runs
+    warmed = in_background(lambda: _evaluate(problem, guess, local["jacobian"])) if not local["horizons"] else None
     costs_all = scan_costs(problem, np.vstack([points, guess[None]]))  # the given guess is a candidate too
     costs = costs_all[:-1]
     scan_time = _minus_compiling(t0, started)
@@ -575,12 +548,12 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
     opts = {k: v for k, v in local.items() if k != "horizons"}
     t_local, started = time.perf_counter(), time.time()
     if local["horizons"]:  # continuation: truncated problems (compiled once per structure), one start at a time
-        outcomes = [_or_error(lambda x=x: _identify(problem.with_initial(x), scan=0, starts=starts, **local))
+        outcomes = [or_error(lambda x=x: _identify(problem.with_initial(x), scan=0, starts=starts, **local))
                     for x in candidates]
     else:  # one compiled residual and Jacobian for every start: the starts side by side
         outcomes = side_by_side([lambda x=x: _local_solve(problem, np.concatenate([x, problem.initial()[n:]]), **opts)
                                  for x in candidates],
-                                warm=lambda: _evaluate(problem, candidates[0], local["jacobian"]))
+                                warm=warmed)
     # a start whose rollout is non-finite (e.g. the given guess) is skipped
     results = [r for r in outcomes if not isinstance(r, DanoError)]
     kept = [x for x, r in zip(candidates, outcomes) if not isinstance(r, DanoError)]

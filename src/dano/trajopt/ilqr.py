@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._compiled import cached_jit, compile_seconds
+from .._threads import in_background
 from ..errors import DanoError
 from .problem import Problem
 
@@ -258,6 +259,7 @@ class _Compiled:
         # arguments compiles again: the Panda's expansion twice, +100 s cold)
         self.backward = _JIT_BACKWARD if pr.key is None else _CACHED_BACKWARD
         self.sizes = sizes
+        self.expanded = set()  # (controls' shape, dtype) of the solves begun: their expansion compiled
 
     def evaluate(self, x0, U, lam, mu, p):
         """(X, cost, merit, violation) of the open-loop rollout: the forward pass with no
@@ -401,8 +403,16 @@ def solve(problem: Problem, x0, U0, params=None, options: ILQRConfig = ILQRConfi
         multipliers = Multipliers(*(jnp.zeros(s, x0.dtype) for s in shapes))
     lam = multipliers
     mu = jnp.asarray(options.penalty_initial if penalty is None else penalty, x0.dtype)
+    expanded = None
+    if (U.shape, x0.dtype) not in fns.expanded:  # the first solve of these shapes: the expansion's program
+        # (the largest) compiles in the background while the first rollout's traces and runs
+        fns.expanded.add((U.shape, x0.dtype))
+        X_guess = jnp.broadcast_to(x0, (problem.horizon + 1, problem.nx))
+        expanded = in_background(lambda: ready(fns.expand, X_guess, U, lam, mu, params))
     X, cost, merit, viol = ready(fns.evaluate, x0, U, lam, mu, params)
     if not np.isfinite(float(merit)):
+        if expanded is not None:
+            expanded()  # (not left compiling)
         raise DanoError("the initial rollout or its cost is not finite; check x0, the initial controls and the "
                         "dynamics")
     rho = options.regularization_initial
@@ -416,6 +426,9 @@ def solve(problem: Problem, x0, U0, params=None, options: ILQRConfig = ILQRConfi
     expansion = None
     while it < options.max_iterations:
         if expansion is None:  # the expansion changes only when the trajectory, λ or μ do
+            if expanded is not None:
+                expanded()
+                expanded = None
             expansion = ready(fns.expand, X, U, lam, mu, params)
         # backward pass, raising the regularisation until Q_uu is positive definite
         while True:
