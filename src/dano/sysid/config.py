@@ -82,7 +82,7 @@ from ..sim.scenes import DEFAULT_DT, stated_timestep
 from ..sim.scene import DanoObject, compose, contact_model_or_error
 from ..trajectory import load_trajectory
 from .problem import (MIN_RUN_FRAMES, FitParameter, Observation, SysIdProblem, Weights,
-                      identification_params)
+                      identification_params, is_jittered)
 from .outputs import estimates_report
 from .solve import identify
 
@@ -104,6 +104,8 @@ def _observation(path: Path, time, poses: dict, vel: dict, left_out=(), why: str
     if keep.all() or time.ndim != 1 or len(time) < 2:
         return Observation(time=time, poses=poses, velocities=vel, name=path.name)
     step = float(np.min(np.diff(time)))  # (the interval, whichever frames are left out)
+    if is_jittered(Observation(time=time)):  # (then the simulation's, dt x substeps: SysIdProblem)
+        step = None
     runs = Observation(time=time[keep], frame_interval=step).runs() if keep.sum() > 1 else ()
     if max((n for _, n in runs), default=0) < MIN_RUN_FRAMES:
         raise DanoError(f"{path}: {len(time) - keep.sum()} of its {len(time)} frames {why}, and without them no "

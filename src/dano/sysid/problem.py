@@ -152,6 +152,10 @@ MAX_MISSING_FRAMES = 1000
 #: the fewest consecutive frames a rollout starts from (its start velocity is differenced from
 #: three); shorter runs between missing frames are left out
 MIN_RUN_FRAMES = 3
+#: how far a frame's time stamp may stray from its run's frame-rate grid, as a fraction of the
+#: frame interval (jitter: each such frame is compared with the simulation interpolated to its
+#: own time, :func:`frame_shifts`)
+MAX_JITTER = 0.25
 
 
 def check_units(obs: Observation) -> None:
@@ -174,6 +178,54 @@ def check_units(obs: Observation) -> None:
                             f"t = {t[k]:.6g} s): {cause}")
 
 
+def is_jittered(obs: Observation) -> bool:
+    """Whether the observation's intervals are not all whole numbers of its frame interval
+    (to 1e-6): time stamps that jitter (a recording's clock), to be compared with the
+    simulation at their own times (:func:`frame_shifts`)."""
+    dt = np.diff(np.asarray(obs.time, dtype=np.float64))
+    if len(dt) == 0:
+        return False
+    step = obs.frame_dt
+    with np.errstate(all="ignore"):  # (a bad frame_interval is refused by the checks)
+        return bool(np.any(np.abs(dt - np.round(dt / step) * step) > 1e-6 * dt + 1e-9))
+
+
+def grid_offsets(t: np.ndarray, step: float) -> np.ndarray:
+    """(T,) each frame's time [s] less its place at one frame every ``step`` [s] from the first
+    frame of its run of consecutive frames (runs split where an interval is 1.5 steps or more,
+    as :meth:`Observation.runs`); 0 at every run's first frame."""
+    t = np.asarray(t, dtype=np.float64)
+    starts = np.r_[0, np.flatnonzero(np.diff(t) > 1.5 * step) + 1]
+    first = np.repeat(starts, np.diff(np.r_[starts, len(t)]))
+    return t - t[first] - (np.arange(len(t)) - first) * step
+
+
+def frame_shifts(t: np.ndarray, step: float, substeps: int) -> np.ndarray:
+    """(F,) where each of a segment's consecutive frames (times ``t`` (F,) [s]) falls in its
+    rollout, less its place at one frame every ``step`` [s]: in simulation steps (each
+    step/substeps); 0 for the first frame and for frames on the grid."""
+    t = np.asarray(t, dtype=np.float64)
+    return (t - t[0] - np.arange(len(t)) * step) * (substeps / step)
+
+
+def _at_frames(qpos, first: int, substeps: int, frames: int, shift=None, quat_adr=()):
+    """The rollout's qpos (steps + 1, nq) at ``frames`` frames from step ``first``, one every
+    ``substeps`` steps; with ``shift`` (frames,) [steps] (jittered time stamps,
+    :func:`frame_shifts`) interpolated to each frame's own time: linearly between the steps
+    around it, the quaternions at ``quat_adr`` (wxyz) renormalised (their chord; the steps are
+    short)."""
+    if shift is None:
+        return qpos[first : first + (frames - 1) * substeps + 1 : substeps]
+    s = first + jnp.arange(frames) * substeps + shift
+    i = jnp.clip(jnp.floor(s).astype(jnp.int32), 0, qpos.shape[0] - 2)
+    w = (s - i)[:, None]
+    out = qpos[i] * (1 - w) + qpos[i + 1] * w
+    for a in quat_adr:
+        q = out[:, a : a + 4]
+        out = out.at[:, a : a + 4].set(q / jnp.linalg.norm(q, axis=1, keepdims=True))
+    return out
+
+
 def _check_observation(obs: Observation, scene: Scene, k: int) -> None:
     with np.errstate(all="ignore"):  # absurd values are reported by the checks, not by numpy warnings
         _check_observation_values(obs, scene, k)
@@ -192,15 +244,20 @@ def _check_observation_values(obs: Observation, scene: Scene, k: int) -> None:
         i = int(np.argmax(dt <= 0))
         raise DanoError(f"{tag}: timestamps must increase; frame {i + 1} (t = {t[i + 1]:.6g}) is not after frame {i}")
     step = dt.min() if obs.frame_interval is None else obs.frame_interval
-    if not (np.isfinite(step) and 0 < step <= dt.min() * (1 + 1e-6) + 1e-9):
+    # (an interval between two frames that jitter towards each other may be 1 - 2 x MAX_JITTER of it)
+    if not (np.isfinite(step) and 0 < step and dt.min() >= step * (1 - 2 * MAX_JITTER) - 1e-9
+            and np.round(dt.min() / step) >= 1):
         raise DanoError(f"{tag}: frame_interval must be positive and at most the smallest interval between frames, "
                         f"{dt.min():.6g} s, got {step!r}")
     whole = np.round(dt / step)
-    off = np.abs(dt - whole * step) > 1e-6 * dt + 1e-9
-    if np.any(off):
-        i = int(np.argmax(off))
-        raise DanoError(f"{tag}: frames must be at one frame rate (frames may be missing, not shifted): the interval "
-                        f"{dt[i]:.6g} s after frame {i} is not a whole number of the frame interval, {step:.6g} s")
+    if is_jittered(obs):  # each frame within MAX_JITTER of its run's grid
+        off = np.abs(grid_offsets(t, step)) > MAX_JITTER * step
+        if np.any(off):
+            i = int(np.argmax(off))
+            raise DanoError(f"{tag}: frames must be at one frame rate (frames may be missing, and time stamps may "
+                            f"jitter by up to {MAX_JITTER:.0%} of the frame interval, {step:.6g} s): frame {i} "
+                            f"(t = {t[i]:.6g} s) is farther from its place at that rate (the frame rate differs from "
+                            "1/(dt x substeps), or the time stamps jitter more)")
     if whole.max() > MAX_MISSING_FRAMES + 1:
         i = int(np.argmax(whole))
         raise DanoError(f"{tag}: frame {i + 1} (t = {t[i + 1]:.6g} s) comes {int(whole[i])} frame intervals after "
@@ -388,12 +445,17 @@ class Segment:
 
 
 def _pad(a: np.ndarray, key: str, frames: int, steps: int) -> np.ndarray:
-    """Pad one segment's array to a batch's longest segment: controls and forces with zeros
-    (steps after the segment's end), observed frames by repeating the last one."""
+    """Pad one segment's array to a batch's longest segment: controls and forces by holding
+    their last values (steps after the segment's end: only a jittered last frame, compared a
+    fraction of a step after it, sees them), observed frames by repeating the last one,
+    frame shifts with zeros."""
     if key in ("ctrl", "qfrc"):
-        return np.concatenate([a, np.zeros((steps - len(a),) + a.shape[1:])])
+        return np.concatenate([a, np.repeat(a[-1:], steps - len(a), axis=0)]) if len(a) else np.zeros(
+            (steps,) + a.shape[1:])
     if key in ("obs_pose", "obs_joint") and a.shape[1] < frames:
         return np.concatenate([a, np.repeat(a[:, -1:], frames - a.shape[1], axis=1)], axis=1)
+    if key == "shift":
+        return np.concatenate([a, np.zeros(frames - len(a))])
     return a
 
 
@@ -542,6 +604,9 @@ class ResidualLayout:
     #: devices (in all processes) the segments of each batch are split over
     #: (:mod:`dano.sharding`); every batch's segment count is then a multiple of it
     shards: int = 1
+    #: whether some time stamps jitter: frames compared with the rollout interpolated to their
+    #: own times (the data's ``shift``, :func:`frame_shifts`), rolled out ``substeps`` steps further
+    jittered: bool = False
 
 
 def _layout_mesh(layout: ResidualLayout, *_):
@@ -596,14 +661,20 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
         blocks = jnp.stack([theta[layout.nuisance[s] : layout.nuisance[s + 1]].reshape(len(qadr), len(axes))
                             for s in batch.segments])
 
-        def one(qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, block):
+        def one(qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, block, shift=None):
             if layout.fit_ground:  # observations in the frame of the table (at z = height, tilted by R)
                 qpos0, qvel0 = _to_table(qpos0, qvel0, qadr, dadr, height, R)
                 obs_pose = jax.vmap(lambda p: _poses_to_table(p, height, R))(obs_pose)
             qpos0, qvel0 = _with_offsets(qpos0, qvel0, block, qadr, dadr, axes)
-            qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, batch.steps, qfrc,
+            if layout.jittered:  # the last frames may fall after their place: a frame interval more
+                ctrl = jnp.concatenate([ctrl, jnp.repeat(ctrl[-1:], substeps, axis=0)])
+                qfrc = jnp.concatenate([qfrc, jnp.repeat(qfrc[-1:], substeps, axis=0)])
+            qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params,
+                                        batch.steps + (substeps if layout.jittered else 0), qfrc,
                                         overlaps=False, newton=FORWARD_ONLY)
-            states = qpos[settle::substeps]  # states at frames 0..F-1
+            # states at frames 0..F-1
+            states = _at_frames(qpos, settle, substeps, (batch.steps - settle) // substeps + 1, shift,
+                                tuple(a + 3 for a in qadr))
             frames = states[1:]
             res = []  # components with zero weight are left out (they would dilute σ²)
             for k, a in enumerate(qadr):
@@ -623,8 +694,9 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
             return jnp.concatenate(res), states
 
         d = data["batches"][b]
-        r = sharding.split_rows(one, mesh, (0,) * 7)(d["qpos0"], d["qvel0"], d["ctrl"], d["qfrc"], d["obs_pose"],
-                                                     d["obs_joint"], blocks)
+        args = [d["qpos0"], d["qvel0"], d["ctrl"], d["qfrc"], d["obs_pose"], d["obs_joint"], blocks]
+        args += [d["shift"]] if layout.jittered else []
+        r = sharding.split_rows(one, mesh, (0,) * len(args))(*args)
         if with_frames:
             r, states = r
             fitted.append(states)
@@ -708,7 +780,28 @@ def _derived_anew(note: str, auto: bool) -> bool:
     """Whether ``note`` is one that SysIdProblem derives again on this construction: a given
     drag's (always), missing frames' (always), the start velocities' (when fit_velocity is
     "auto" again)."""
-    return _GIVEN_NOTE in note or _MISSING_NOTE in note or auto and note.startswith(_AUTO_NOTE)
+    return (_GIVEN_NOTE in note or _MISSING_NOTE in note or _JITTER_NOTE in note
+            or auto and note.startswith(_AUTO_NOTE))
+
+
+_JITTER_NOTE = "compared with the simulation interpolated to its own time"  # (in every jitter note)
+
+
+def _well_formed_times(obs: Observation) -> bool:
+    """Whether the time stamps are finite and increasing, at least 3 (what the checks refuse
+    otherwise, naming the cause)."""
+    t = np.asarray(obs.time, dtype=np.float64)
+    return t.ndim == 1 and len(t) >= 3 and bool(np.all(np.isfinite(t))) and bool(np.all(np.diff(t) > 0))
+
+
+def _jitter_note(obs: Observation, k: int) -> str | None:
+    """What an observation whose time stamps jitter is fitted by (None where they do not)."""
+    if not is_jittered(obs):
+        return None
+    step = obs.frame_dt
+    worst = float(np.max(np.abs(grid_offsets(obs.time, step))))
+    return (f"{obs.name or f'trajectory {k}'}: time stamps off the frame rate by up to {worst * 1e3:.3g} ms "
+            f"({worst / step:.0%} of the frame interval dt x substeps = {step:.6g} s): each frame is {_JITTER_NOTE}")
 
 
 def _missing_frames_note(obs: Observation, k: int) -> str | None:
@@ -839,6 +932,11 @@ class SysIdProblem:
         put("fit_tilt", bool(self.fit_tilt))
         put("substeps", int(self.substeps))
         put("start_prior", bool(self.start_prior))
+        # time stamps that jitter (no frame interval given): at the simulation's frame interval,
+        # each frame compared at its own time
+        put("observations", tuple(dataclasses.replace(o, frame_interval=scene.dt * self.substeps)
+                                  if o.frame_interval is None and _well_formed_times(o) and is_jittered(o) else o
+                                  for o in self.observations))
         if self.fit_tilt and not self.fit_ground:
             raise DanoError("fit_tilt needs fit_ground: the tilt is the ground plane's, fitted with its height")
         if not self.observations:
@@ -853,6 +951,7 @@ class SysIdProblem:
         for k, obs in enumerate(self.observations):
             _check_observation(obs, scene, k)
             missing.append(_missing_frames_note(obs, k))
+            missing.append(_jitter_note(obs, k))
             expected = obs.frame_dt / self.substeps
             if abs(expected - scene.dt) > 1e-9 * max(scene.dt, 1e-12) + 1e-12:
                 raise DanoError(
@@ -1164,8 +1263,16 @@ class SysIdProblem:
         obs_joint = np.stack([np.asarray(v, dtype=np.float64)[sl] for v in o.joints.values()]) \
             if o.joints else np.zeros((0, seg.frames))
         didx = [sc.dano_index(n) for n in self._tracked[seg.obs]]
-        return dict(qpos0=qpos, qvel0=qvel, ctrl=ctrl, qfrc=qfrc, obs_pose=obs_pose, obs_joint=obs_joint), \
+        data = dict(qpos0=qpos, qvel0=qvel, ctrl=ctrl, qfrc=qfrc, obs_pose=obs_pose, obs_joint=obs_joint)
+        if self._jittered:
+            data["shift"] = frame_shifts(t, o.frame_dt, self.substeps)
+        return data, \
             (tuple(sc.qpos_adr[i] for i in didx), tuple(sc.dof_adr[i] for i in didx), tuple(jadr), steps, settle)
+
+    @functools.cached_property
+    def _jittered(self) -> bool:
+        """Whether some observation's time stamps jitter (:func:`is_jittered`)."""
+        return any(is_jittered(o) for o in self.observations)
 
     def _groups(self) -> dict:
         """Segments batched by layout (tracked bodies, joints, settling): {layout: [(segment
@@ -1208,7 +1315,8 @@ class SysIdProblem:
                                                      for p in self.parameters),
             nuisance=tuple(int(x) for x in self._nuisance_offsets()), fit_axes=self.fit_axes,
             pos_axes=self._pos_axes(), rotation=self._rotation_weighted(), joints=self.weights.joints > 0,
-            substeps=self.substeps, fit_ground=self.fit_ground, fit_tilt=self.fit_tilt, shards=shards)
+            substeps=self.substeps, fit_ground=self.fit_ground, fit_tilt=self.fit_tilt, shards=shards,
+            jittered=self._jittered)
         data = {"batches": tuple(arrays), "wrot": tuple(wrot),
                 "wpos": jnp.sqrt(jnp.asarray(self.weights.position, dtype=jnp.float64))[np.asarray(layout.pos_axes,
                                                                                                    dtype=int)],
@@ -1410,10 +1518,13 @@ class SysIdProblem:
                 sim_scene = self._tilted_scene(R) if self.fit_tilt else self.scene
             block = jnp.asarray(theta)[offsets[sid] : offsets[sid + 1]].reshape(len(qadr), len(axes))
             qpos0, qvel0 = _with_offsets(qpos0, qvel0, block, qadr, dadr, axes)
-            ctrl, qfrc = (jnp.asarray(_pad(np.asarray(data[k]), k, 0, longest)) for k in ("ctrl", "qfrc"))
-            qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, longest, qfrc,
+            extra = self.substeps if self._jittered else 0  # (as padded_residuals rolls out)
+            ctrl, qfrc = (jnp.asarray(_pad(np.asarray(data[k]), k, 0, longest + extra)) for k in ("ctrl", "qfrc"))
+            qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, longest + extra, qfrc,
                                         overlaps=False, newton=FORWARD_ONLY)
-            qpos = jnp.asarray(qpos)[settle : settle + steps + 1 : self.substeps]
+            shift = jnp.asarray(data["shift"]) if self._jittered else None
+            qpos = _at_frames(jnp.asarray(qpos), settle, self.substeps, steps // self.substeps + 1, shift,
+                              tuple(a + 3 for a in qadr))
             if self.fit_ground:  # back in the observations' frame
                 for a in qadr:
                     back = _poses_from_table(qpos[:, a : a + 7], height, R)
