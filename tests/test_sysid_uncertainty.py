@@ -167,9 +167,10 @@ def test_jittered_time_stamps_are_compared_at_their_own_times(box):
 
 
 def test_missing_frames_refused_where_they_cannot_be(box):
-    """Frames shifted off the frame rate's grid, a gap too long for dropped frames, no three
-    consecutive frames, rest frames past the first gap and a frame interval longer than the
-    frames' are refused, each saying why."""
+    """Frames shifted off the frame rate's grid by more than jitter, a gap too long for
+    dropped frames, no three consecutive frames, rest frames past the first gap, a frame
+    interval longer than the frames' and time stamps that jitter around another frame rate
+    than the simulation's are refused, each saying why."""
     o = slide_problem(box, trajectories=2).observations[0]
     param = [FitParameter("sliding_friction", 0.3, 0, 1)]
     shifted = dataclasses.replace(o, time=o.time + np.r_[np.zeros(5), np.full(15, 0.004)])
@@ -178,6 +179,9 @@ def test_missing_frames_refused_where_they_cannot_be(box):
              (_without(o, [2, 4, 6, 8, 10, 12, 14, 16, 18]), "no 3 consecutive frames"),
              (dataclasses.replace(_without(o, [3]), rest_frames=4), "rest_frames = 4"),
              (dataclasses.replace(o, frame_interval=0.02), "frame_interval must be positive and at most"),
+             # time stamps that jitter around 20 ms frames for a simulation of 10 ms ones
+             (dataclasses.replace(o, time=o.time * 2 + np.r_[0.0, np.full(19, 0.001)]),
+              "jitter around a frame interval of about 0.02 s .*for 4 substeps, dt about 0.005 s"),
              # every other frame missing: the given frame interval keeps them missing, not a slower rate
              (dataclasses.replace(_without(o, range(1, 20, 2)), frame_interval=0.01), "no 3 consecutive frames")]
     for bad, message in cases:

@@ -249,7 +249,9 @@ class TrajectoryConfig:
     ``t,x,y,z,qw,qx,qy,qz`` (time [s], body position [m] and wxyz quaternion, world frame), a ``.npz`` with arrays
     ``time`` (T,), ``poses`` (T, 7) [, ``velocities`` (T, 6)], or a dano trajectory ``.npz``. Frames at one frame
     rate; frames may be missing (dropped rows, or CSV/``.npz`` rows whose pose is all empty or NaN: lost by a
-    tracker), each run of consecutive frames then rolled out from its own first frame."""
+    tracker), each run of consecutive frames then rolled out from its own first frame; time stamps may jitter by up
+    to a quarter of the frame interval (dt x substeps), each frame then compared with the simulation at its own
+    time."""
     object: str | None = None
     """Which ``[[scene.object]]`` the CSV or plain ``.npz`` tracks; left out for a dano trajectory: every object
     it holds."""

@@ -39,7 +39,9 @@ class Observation:
     time: (T,) strictly increasing frame times [s] at one frame rate, T >= 3: every interval a
     whole number of the smallest (frames may be missing, e.g. dropped by a camera; each run of
     consecutive frames is then rolled out from its own first frame, as windows are:
-    :meth:`runs`);
+    :meth:`runs`); time stamps that jitter (intervals not whole numbers of one) are taken at
+    the simulation's frame rate, dt x substeps, each frame within :data:`MAX_JITTER` of it
+    and compared with the rollout at its own time (:func:`frame_shifts`);
     poses: {DANO name: (T, 7)} observed centre-of-mass position [m] (scene/world frame)
     and wxyz orientation of each tracked DANO;
     joints: {joint name: (T,)} observed positions of other one-dof (slide or hinge) joints,
@@ -794,6 +796,22 @@ def _well_formed_times(obs: Observation) -> bool:
     return t.ndim == 1 and len(t) >= 3 and bool(np.all(np.isfinite(t))) and bool(np.all(np.diff(t) > 0))
 
 
+def _check_jittered_rate(obs: Observation, scene: Scene, substeps: int, k: int) -> None:
+    """Raises DanoError where time stamps that jitter are not at the simulation's frame rate
+    (their median interval more than :data:`MAX_JITTER` from dt x substeps), naming the dt
+    that would be."""
+    step = scene.dt * substeps
+    if not (_well_formed_times(obs) and is_jittered(obs) and abs(obs.frame_dt - step) <= 1e-9 * step):
+        return  # (another frame interval given: the checks say where it fails)
+    median = float(np.median(np.diff(np.asarray(obs.time, dtype=np.float64))))
+    if abs(median / step - 1) > MAX_JITTER:
+        raise DanoError(f"{obs.name or f'trajectory {k}'}: its time stamps jitter around a frame interval of about "
+                        f"{median:.6g} s (the median; {1 / median:.4g} frames/s), which does not match the scene's "
+                        f"time step {scene.dt:.6g} s x {substeps} substeps: set dt x substeps to the frame interval "
+                        f"(for {substeps} substeps, dt about {median / substeps:.6g} s; the camera's nominal rate, "
+                        "e.g. 1/30 s for 30 frames/s)")
+
+
 def _jitter_note(obs: Observation, k: int) -> str | None:
     """What an observation whose time stamps jitter is fitted by (None where they do not)."""
     if not is_jittered(obs):
@@ -949,6 +967,7 @@ class SysIdProblem:
             raise DanoError("no parameters to identify")
         missing = []
         for k, obs in enumerate(self.observations):
+            _check_jittered_rate(obs, scene, self.substeps, k)
             _check_observation(obs, scene, k)
             missing.append(_missing_frames_note(obs, k))
             missing.append(_jitter_note(obs, k))
