@@ -3,6 +3,7 @@ warnings that say why, and a bootstrap over trajectories that covers the truth."
 
 import dataclasses
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -164,6 +165,27 @@ def test_jittered_time_stamps_are_compared_at_their_own_times(box):
                                                                                               b.estimates)
     assert b.rms_residual < 2 * a.rms_residual + 1e-4 and c.rms_residual > 5 * b.rms_residual, (
         a.rms_residual, b.rms_residual, c.rms_residual)
+
+
+def test_states_at_jittered_frames_are_interpolated_between_steps():
+    """A rollout's states at frames that fall between its steps: positions linear in time, the
+    orientation's quaternion renormalised (a body turning at 2 rad/s about z, steps of 2.5 ms:
+    within the chord's error of the exact turn); frames on the grid are the steps themselves."""
+    from dano.sysid.problem import _at_frames, frame_shifts
+
+    h, substeps, w = 0.0025, 4, 2.0
+    steps = np.arange(41) * h
+    qpos = np.zeros((41, 7))
+    qpos[:, 0], qpos[:, 3], qpos[:, 6] = 1.5 * steps, np.cos(w * steps / 2), np.sin(w * steps / 2)
+    t = np.array([0.0, 0.0113, 0.0191, 0.0304, 0.0401])  # 10 ms frames, up to 1.3 ms off
+    shift = frame_shifts(t, substeps * h, substeps)
+    assert np.allclose(shift, [0, 0.52, -0.36, 0.16, 0.04])
+    out = np.asarray(_at_frames(jnp.asarray(qpos), 0, substeps, 5, jnp.asarray(shift), (3,)))
+    assert np.allclose(out[:, 0], 1.5 * t, atol=1e-12)
+    assert np.allclose(np.linalg.norm(out[:, 3:], axis=1), 1.0)
+    exact = np.c_[np.cos(w * t / 2), np.zeros((5, 2)), np.sin(w * t / 2)]
+    assert np.abs(out[:, 3:] - exact).max() < 1e-5  # (the chord: (w h)^2 / 32 at most)
+    assert np.array_equal(np.asarray(_at_frames(jnp.asarray(qpos), 2, substeps, 5)), qpos[2:19:4])
 
 
 def test_missing_frames_refused_where_they_cannot_be(box):
