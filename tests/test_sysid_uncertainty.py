@@ -188,6 +188,27 @@ def test_states_at_jittered_frames_are_interpolated_between_steps():
     assert np.array_equal(np.asarray(_at_frames(jnp.asarray(qpos), 2, substeps, 5)), qpos[2:19:4])
 
 
+def test_noise_of_jittered_frames_is_not_their_motion():
+    """The noise estimated from frames whose time stamps jitter (±2 ms around 10 ms frames, a
+    body moving at 1.5 m/s and turning at 1 rad/s, 1 mm of noise): divided differences at the
+    frames' own times find the 1 mm and no rotation noise; plain differences, as if the frames
+    were evenly spaced, count the motion between uneven frames as noise."""
+    from dano.sysid.uncertainty import noise_of_observations
+
+    rng = np.random.default_rng(0)
+    t = np.arange(200) * 0.01
+    t_jittered = t + np.r_[0.0, rng.uniform(-0.002, 0.002, 199)]
+    poses = np.zeros((200, 7))
+    poses[:, 0], poses[:, 1] = 1.5 * t_jittered, 0.3 * t_jittered
+    poses[:, 3], poses[:, 6] = np.cos(t_jittered / 2), np.sin(t_jittered / 2)
+    poses[:, :3] += rng.normal(0.0, 0.001, (200, 3))
+    jittered = noise_of_observations([Observation(time=t_jittered, poses={"box": poses}, frame_interval=0.01)])
+    as_even = noise_of_observations([Observation(time=t, poses={"box": poses})])
+    assert np.all((np.asarray(jittered["position_m"]) > 0.0007) & (np.asarray(jittered["position_m"]) < 0.0013))
+    assert jittered["rotation_deg"] < 1e-6 and as_even["rotation_deg"] > 0.01
+    assert as_even["position_m"][0] > 1.8 * jittered["position_m"][0]
+
+
 def test_missing_frames_refused_where_they_cannot_be(box):
     """Frames shifted off the frame rate's grid by more than jitter, a gap too long for
     dropped frames, no three consecutive frames, rest frames past the first gap, a frame

@@ -25,6 +25,7 @@ The reported interval is the hull of both (the more cautious).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import jax.numpy as jnp
@@ -34,7 +35,7 @@ from scipy.special import chdtri, stdtrit  # (the quantiles without importing sc
 
 from ..errors import DanoError
 from ..pose import quat_error
-from .problem import SysIdProblem
+from .problem import SysIdProblem, is_jittered
 
 #: trajectories from which the bootstrap over trajectories is part of the default interval
 BOOTSTRAP_MIN_TRAJECTORIES = 4
@@ -90,21 +91,28 @@ def noise_of_observations(observations) -> dict:
     of the angle [deg], reported as the rms rotation angle: √3 × the per-axis value, as
     :meth:`SysIdProblem.residual_noise` takes it) and of joint positions; the median over
     frames of all trajectories (robust to impacts and stops), within each run of consecutive
-    frames (:meth:`~dano.sysid.Observation.runs`). Returns {"position_m" (3,),
+    frames (:meth:`~dano.sysid.Observation.runs`); where time stamps jitter, divided
+    differences at the frames' own times, scaled to the frame interval (:func:`_differences`,
+    so that the motion between uneven frames does not count as noise). Returns {"position_m" (3,),
     "rotation_deg", "joints", "method"}; a level the observations are too short for (fewer
     than 5 third differences) or that they do not observe is None."""
     pos, rot, joints = [], [], []
     for o in observations:
+        jittered = is_jittered(o)
         for first, n in o.runs():  # (differences across missing frames would not be noise)
             if n < 4:
                 continue
+            t = np.asarray(o.time, dtype=np.float64)[first:first + n] if jittered else None
             for p in o.poses.values():
                 p = np.asarray(p, dtype=np.float64)[first:first + n]
-                pos.append(np.diff(p[:, :3], n=3, axis=0))
+                pos.append(_differences(p[:, :3], 3, t, o.frame_dt))
                 inc = quat_error(p[:-1, 3:], p[1:, 3:])
-                rot.append(np.diff(inc, n=2, axis=0))
+                if jittered:  # increments per frame interval, at the intervals' midpoints
+                    inc, t_inc = inc * (o.frame_dt / np.diff(t))[:, None], 0.5 * (t[1:] + t[:-1])
+                rot.append(_differences(inc, 2, t_inc if jittered else None, o.frame_dt))
             for v in o.joints.values():
-                joints.append(np.diff(np.asarray(v, dtype=np.float64)[first:first + n], n=3))
+                v = np.asarray(v, dtype=np.float64)[first:first + n]
+                joints.append(_differences(v[:, None], 3, t, o.frame_dt)[:, 0])
 
     def level(ds, cols):
         if not ds or sum(len(d) for d in ds) < 5:
@@ -120,6 +128,19 @@ def noise_of_observations(observations) -> dict:
             "joints": float(joint[0]) if np.isfinite(joint[0]) else None,
             "method": "third differences of the observed poses (positions, rotation increments, joints), median "
                       "absolute value / 0.6745 / sqrt(20), pooled over frames and trajectories"}
+
+
+def _differences(x: np.ndarray, order: int, t: np.ndarray | None, step: float) -> np.ndarray:
+    """The ``order``-th differences of x (n, k) along its rows; with times ``t`` (n,) [s] (time
+    stamps that jitter) the divided differences scaled to equal spacing ``step``: order! ·
+    step^order · x[t_i, ..., t_{i+order}], which are the plain differences where the times
+    are ``step`` apart."""
+    if t is None:
+        return np.diff(x, n=order, axis=0)
+    d = np.asarray(x, dtype=np.float64)
+    for k in range(1, order + 1):
+        d = np.diff(d, axis=0) / (t[k:] - t[:-k])[:, None]
+    return d * (math.factorial(order) * step**order)
 
 
 def observation_noise(problem: SysIdProblem) -> dict:
