@@ -156,7 +156,8 @@ MAX_MISSING_FRAMES = 1000
 MIN_RUN_FRAMES = 3
 #: how far a frame's time stamp may stray from its run's frame-rate grid, as a fraction of the
 #: frame interval (jitter: each such frame is compared with the simulation interpolated to its
-#: own time, :func:`frame_shifts`)
+#: own time, :func:`frame_shifts`); the most for which a dropped frame is still told apart from
+#: late ones: two consecutive frames are then 0.5 to 1.5 frame intervals apart, a gap more
 MAX_JITTER = 0.25
 
 
