@@ -221,7 +221,9 @@ def test_missing_frames_refused_where_they_cannot_be(box):
              (dataclasses.replace(o, time=o.time + np.r_[np.zeros(19), 100.0]), "more than 1000 frames missing"),
              (_without(o, [2, 4, 6, 8, 10, 12, 14, 16, 18]), "no 3 consecutive frames"),
              (dataclasses.replace(_without(o, [3]), rest_frames=4), "rest_frames = 4"),
-             (dataclasses.replace(o, frame_interval=0.02), "frame_interval must be positive and at most"),
+             (dataclasses.replace(o, frame_interval=0.02), "frames \\d+ and \\d+ \\(t = [0-9.]+ s\\) are 0.01 s apart, no more than half "
+              "the frame interval, 0.02 s"),
+             (dataclasses.replace(o, frame_interval=-0.01), "frame_interval must be positive, got -0.01"),
              # time stamps that jitter around 20 ms frames for a simulation of 10 ms ones
              (dataclasses.replace(o, time=o.time * 2 + np.r_[0.0, np.full(19, 0.001)]),
               "jitter around a frame interval of about 0.02 s .*for 4 substeps, dt about 0.005 s"),

@@ -247,11 +247,15 @@ def _check_observation_values(obs: Observation, scene: Scene, k: int) -> None:
         i = int(np.argmax(dt <= 0))
         raise DanoError(f"{tag}: timestamps must increase; frame {i + 1} (t = {t[i + 1]:.6g}) is not after frame {i}")
     step = dt.min() if obs.frame_interval is None else obs.frame_interval
-    # (an interval between two frames that jitter towards each other may be 1 - 2 x MAX_JITTER of it)
-    if not (np.isfinite(step) and 0 < step and dt.min() >= step * (1 - 2 * MAX_JITTER) - 1e-9
-            and np.round(dt.min() / step) >= 1):
-        raise DanoError(f"{tag}: frame_interval must be positive and at most the smallest interval between frames, "
-                        f"{dt.min():.6g} s, got {step!r}")
+    if not (np.isfinite(step) and 0 < step):
+        raise DanoError(f"{tag}: frame_interval must be positive, got {step!r}")
+    # two frames that jitter towards each other may come closer than a frame interval, but not
+    # to 1 - 2 x MAX_JITTER of it (half: then a frame interval longer than the frames' is given)
+    if dt.min() <= step * (1 - 2 * MAX_JITTER) + 1e-9:
+        i = int(np.argmin(dt))
+        raise DanoError(f"{tag}: frames {i} and {i + 1} (t = {t[i]:.6g} s) are {dt[i]:.6g} s apart, no more than half "
+                        f"the frame interval, {step:.6g} s (frame_interval, or dt x substeps where time stamps "
+                        "jitter): a repeated frame, or a frame interval longer than the frames'")
     whole = np.round(dt / step)
     if is_jittered(obs):  # each frame within MAX_JITTER of its run's grid
         off = np.abs(grid_offsets(t, step)) > MAX_JITTER * step
@@ -1237,7 +1241,7 @@ class SysIdProblem:
         t = np.asarray(o.time, dtype=np.float64)[sl]
         qpos = np.array(o.qpos0, dtype=np.float64) if (o.qpos0 is not None and seg.start == 0) else sc.qpos0
         qvel = np.zeros(sc.nv)
-        step = (t[1] - t[0]) / self.substeps  # differenced velocities are the integrator's: half a step early
+        step = sc.dt  # differenced velocities are the integrator's: half a step early (also where stamps jitter)
         if o.qvel0 is not None and seg.start == 0:
             qvel = np.array(o.qvel0, dtype=np.float64)
         for name, p in o.poses.items():
