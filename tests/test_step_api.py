@@ -1,6 +1,7 @@
 """The public step and its pytrees (issue 7, "What to build" 1 and 6)."""
 
 import dataclasses
+import importlib
 import re
 import subprocess
 import sys
@@ -17,8 +18,11 @@ from dano.asset import build
 from dano.contact import ContactParams
 from dano.fields import BoxField
 from dano.sim import DanoObject, Scene, SimParams, compose, make_data, rollout, rollout_arrays, step
+from dano.sim.dynamics import overlaps
+from dano.sim.rollout import _scan_steps_compiled
 
 SRC = Path(dano.__file__).parent
+rollout_module = importlib.import_module("dano.sim.rollout")  # (dano.sim.rollout is also the function)
 
 # A hinge arm whose actuator has activation dynamics (a first-order filter) beside a box
 # DANO resting on the ground: act, time and ctrl must carry through step and chunks.
@@ -96,7 +100,7 @@ def test_a_jitted_step_loop_compiles_once(box_scene):
     assert jstep._cache_size() == 1
 
 
-def test_rollout_in_chunks_continues_act_time_and_ctrl(box_scene):
+def test_rollout_in_chunks_continues_act_time_and_ctrl(box_scene, monkeypatch):
     scene, qpos, qvel = box_scene
     params = scene.default_params()
     data = make_data(scene, qpos, qvel, ctrl=[1.0])
@@ -110,14 +114,23 @@ def test_rollout_in_chunks_continues_act_time_and_ctrl(box_scene):
     # the loop carries the state fields only (CARRIED_FIELDS): the final Data holds the last state
     np.testing.assert_array_equal(np.asarray(whole.final_data.qpos), whole.qpos[-1])
     np.testing.assert_array_equal(np.asarray(whole.final_data.qvel), whole.qvel[-1])
-    # progress reporting runs in chunks too, each continuing from the last one's Data; 390
-    # steps do not divide into 20 equal chunks (19 of 20 steps, the compilation of `first`,
-    # and one of 10, that of `second`): no extra steps, the right final time; its first 30
-    # steps (across a chunk boundary) are the whole rollout's
+    # rollouts run in chunks (here of 16 steps: 390 steps are 24 chunks and one of 6, the
+    # loop's trip count an argument), each continuing from the last one's Data: no extra
+    # steps, the right final time and final overlap; its first 30 steps (across chunk
+    # boundaries) are the whole rollout's
+    monkeypatch.setattr(rollout_module, "CHUNK", 16)
     chunked = rollout(scene, data, None, params, 390, progress=lambda *a: None)
     np.testing.assert_allclose(chunked.qpos[:31], whole.qpos, atol=1e-12)
-    assert chunked.qpos.shape[0] == 391
+    np.testing.assert_allclose(chunked.psi[:31], whole.psi, atol=1e-12)
+    assert chunked.qpos.shape[0] == chunked.psi.shape[0] == 391
     assert float(chunked.final_data.time) == pytest.approx(390 * scene.dt)
+    np.testing.assert_allclose(chunked.psi[-1], np.asarray(overlaps(scene, params, chunked.final_data)), atol=1e-15)
+    # another duration runs the compiled program of the 390 steps: it does not compile again
+    counts = lambda: sum(_scan_steps_compiled.counts[k] for k in ("jit", "traced", "loaded"))  # noqa: E731
+    before = counts()
+    shorter = rollout(scene, data, None, params, 200)
+    assert counts() == before
+    np.testing.assert_allclose(shorter.qpos, chunked.qpos[:201], atol=1e-12)
 
 
 def test_rollout_ties_its_carry_without_changing_a_value(box_scene):

@@ -314,7 +314,8 @@ def bench_latency(repeats: int = 2) -> dict:
     ``dano demo``; with the shared data's meshes, a new object's first run with the cache a
     first object filled (:func:`new_problem_times`): Spot's identification after the bunny's
     (``sysid_new_object_toml``) and its simulation in a user's scene after the bunny's
-    (``simulate_new_object``)."""
+    (``simulate_new_object``); and the bunny drop for 3 s after the one for 2 s
+    (``simulate_new_duration``)."""
     repeats = max(1, repeats)
     out: dict = {
         "sysid_soap": command_times(["sysid", "soap", "--json", "-o", "{out}"], repeats),
@@ -323,6 +324,11 @@ def bench_latency(repeats: int = 2) -> dict:
         "simulate_bunny_drop_2s": command_times(["simulate", "bunny-drop", "--duration", "2", "--out",
                                                  "{out}/drop.npz"], repeats),
         "demo": command_times(["demo", "--out-dir", "{out}"], repeats),
+        # another duration of the same scene: the rollout's step count is an argument, not a shape
+        "simulate_new_duration": new_problem_times(["simulate", "bunny-drop", "--duration", "2", "--out",
+                                                    "{out}/drop.npz"],
+                                                   ["simulate", "bunny-drop", "--duration", "3", "--out",
+                                                    "{out}/drop.npz"]),
     }
     data_dir = _shared_data()
     meshes = None if data_dir is None else data_dir / "meshes"

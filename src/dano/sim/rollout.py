@@ -43,17 +43,30 @@ def carried(data) -> dict:
     return {n: getattr(data, n) for n in CARRIED_FIELDS if hasattr(data, n)}
 
 
-def _scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig, final_overlaps: bool):
+def _scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig, final_overlaps: bool,
+                active=None):
     state0 = tied(carried(data), params, controls, qfrc, data.qpos, data.qvel)
 
-    def body(state, inputs):
-        ctrl, f = inputs
+    def advance(state, ctrl, f):
         d = data.replace(**state)
         d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype), qfrc_applied=f.astype(d.qfrc_applied.dtype))
         d_next, info = step_with_info(scene, params, d, newton)
         return carried(d_next), (d_next.qpos, d_next.qvel, info.psi, info.newton_iterations)
 
-    last, (qpos, qvel, psi, iters) = jax.lax.scan(body, state0, (controls, qfrc))
+    if active is None:
+        last, (qpos, qvel, psi, iters) = jax.lax.scan(lambda s, x: advance(s, *x), state0, (controls, qfrc))
+    else:  # a loop of ``active`` steps (a value, not a shape) filling the first rows of the outputs
+        def one_step(k, carry):
+            state, outs = carry
+            state, (q, v, p, it) = advance(state, controls[k], qfrc[k])
+            new = (q, v, p.astype(q.dtype), it.astype(v.dtype))
+            return state, tuple(o.at[k].set(x) for o, x in zip(outs, new))
+
+        q0, v0 = state0["qpos"], state0["qvel"]
+        rows = controls.shape[0]
+        outs = (jnp.zeros((rows,) + q0.shape, q0.dtype), jnp.zeros((rows,) + v0.shape, v0.dtype),
+                jnp.zeros((rows, len(scene.pairs)), q0.dtype), jnp.zeros((rows,), v0.dtype))
+        last, (qpos, qvel, psi, iters) = jax.lax.fori_loop(0, active, one_step, (state0, outs))
     d_last = data.replace(**last)
     if final_overlaps:  # (each step reported ψ at its start)
         psi = jnp.concatenate([psi, overlaps(scene, params, d_last)[None]])
@@ -98,6 +111,19 @@ def rollout_arrays(scene: Scene, state0, controls, params: SimParams, steps: int
     ctrl, f = _inputs(scene, data, controls, qfrc, steps)
     _, qpos, qvel, psi, _ = scan_steps(scene, params, data, ctrl, f, newton, overlaps)
     return qpos, qvel, (psi if overlaps else None)
+
+
+#: :func:`rollout` runs in chunks of this many steps, the last one shorter: a loop whose trip
+#: count is an argument, filling the first rows of outputs of this length, so that one
+#: compiled program per scene structure serves every duration
+CHUNK = 10_000
+
+
+def _chunk(x: np.ndarray, start: int, active: int, size: int) -> jax.Array:
+    """Rows start … start + active of (T, k) ``x``, the last one repeated up to ``size`` rows
+    (the rows past ``active`` are not stepped)."""
+    part = x[start : start + active]
+    return jnp.asarray(np.concatenate([part, np.repeat(part[-1:], size - active, axis=0)]))
 
 
 def _as_array(x, shape, what, dtype):
@@ -150,9 +176,10 @@ def rollout(
     step number) if the state becomes non-finite, a speed exceeds ``max_speed`` [m/s or
     rad/s] or an overlap exceeds half the DANO's mass (bodies passed through each other).
     For gradients use :func:`rollout_arrays` (or :func:`~dano.sim.dynamics.step`) under JAX.
-    progress: optional ``progress(done, total, description)``; the rollout then runs
-    in up to 20 chunks, each continuing from the last one's Data (equal chunks share one
-    compilation; a shorter last chunk needs its own).
+    progress: optional ``progress(done, total, description)``, called after each chunk.
+    The rollout runs in chunks of up to :data:`CHUNK` steps, each continuing from the last
+    one's Data, their step count an argument of one compiled program: a new duration does
+    not compile again.
     """
     params = scene.default_params() if params is None else params
     check_params(scene, params)
@@ -174,20 +201,21 @@ def rollout(
         data = state0
     ctrl = None if controls is None else _as_array(controls, (steps, scene.nu), "controls", dt)
     f = None if qfrc is None else _as_array(qfrc, (steps, scene.nv), "qfrc", dt)
-    ctrl, f = _inputs(scene, data, ctrl, f, steps)
-    # with progress: chunks of equal size (one compilation) and a shorter last one if the
-    # steps do not divide (a second compilation); without: one chunk
-    size = steps if progress is None else -(-steps // min(20, steps))
-    bounds = [(start, min(start + size, steps)) for start in range(0, steps, size)]
+    ctrl, f = (np.asarray(x) for x in _inputs(scene, data, ctrl, f, steps))
+    size = CHUNK
+    starts = range(0, steps, size)
     parts, iters = [], []
     newton = resolve_linear_solver(newton, scene, steps)  # on the whole rollout, not a chunk
-    for k, (start, stop) in enumerate(bounds):
-        data, qpos, qvel, psi, it = scan_steps(scene, params, data, ctrl[start:stop], f[start:stop], newton)
-        arrs = [np.asarray(x) for x in (qpos, qvel, psi)]
+    for k, start in enumerate(starts):
+        active = min(size, steps - start)
+        data, qpos, qvel, psi, it = _scan_steps_compiled(scene, params, data, _chunk(ctrl, start, active, size),
+                                                         _chunk(f, start, active, size), newton, True, np.int32(active))
+        psi = np.asarray(psi)  # (size + 1, P): ψ at the start of each step taken, the last row the final state's
+        arrs = [np.asarray(qpos)[: active + 1], np.asarray(qvel)[: active + 1], np.concatenate([psi[:active], psi[-1:]])]
         parts.append(arrs if k == 0 else [x[1:] for x in arrs])
-        iters.append(np.asarray(it))
+        iters.append(np.asarray(it)[:active])
         if progress is not None:
-            progress(stop, steps, "simulating")
+            progress(start + active, steps, "simulating")
         if not (np.all(np.isfinite(arrs[0])) and np.all(np.isfinite(arrs[1]))):
             break  # diverged: the check below finds the step
     qpos, qvel, psi = (np.concatenate([p[i] for p in parts])[: steps + 1] for i in range(3))
@@ -205,7 +233,7 @@ def rollout(
         metadata={"scene": scene.name, "dt": scene.dt, "params": params_to_dict(scene, params),
                   "contact_models": {p.name: p.model.name for p in scene.pairs},
                   "newton_iterations": {"max": int(it.max()), "mean": float(it.mean())}},
-        final_data=data if len(parts) == len(bounds) else None,
+        final_data=data if len(parts) == len(starts) else None,
     )
 
 
