@@ -49,9 +49,14 @@ class ContactParams:
 
     def broadcast(self, num_pairs: int, dtype=None) -> "ContactParams":
         """Every field as a (P,) array of ``dtype`` (default: JAX's default float type)."""
-        dtype = dtype or jnp.zeros(()).dtype
-        return ContactParams(**{n: jnp.broadcast_to(jnp.asarray(getattr(self, n), dtype=dtype), (num_pairs,))
-                                for n in self.names()})
+        dtype = dtype or jax.dtypes.canonicalize_dtype(np.float64)
+        values = [getattr(self, n) for n in self.names()]
+        if any(isinstance(v, jax.core.Tracer) for v in values):
+            return ContactParams(**{n: jnp.broadcast_to(jnp.asarray(v, dtype=dtype), (num_pairs,))
+                                    for n, v in zip(self.names(), values)})
+        # concrete values: on the host (jnp would compile a small program per shape and dtype)
+        return ContactParams(**{n: jax.device_put(np.broadcast_to(np.asarray(v, dtype=np.dtype(dtype)), (num_pairs,)))
+                                for n, v in zip(self.names(), values)})
 
     def validate(self) -> "ContactParams":
         """Raises DanoError if a value is non-finite or negative (springs must be > 0)."""

@@ -81,6 +81,6 @@ class Samples:
         x, y, z = P[:, 0], P[:, 1], P[:, 2]
         WP = np.concatenate([P * W[:, None, :], W[:, None, :]], axis=1)
         WPP = np.stack([x * x, y * y, z * z, x * y, x * z, y * z], axis=1) * W[:, None, :]
-        f = jnp.asarray
+        f = jax.device_put  # (as jnp.asarray, without compiling a small program per shape)
         return Samples(f(P), f(Nn), f(W), f(WP), f(WPP), f(np.asarray(radius, dtype=np.float64)),
                        f(np.asarray(com, dtype=np.float64).reshape(-1, 3)), f(np.asarray(rho_ref, dtype=np.float64)))

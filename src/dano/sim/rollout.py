@@ -123,7 +123,7 @@ def _chunk(x: np.ndarray, start: int, active: int, size: int) -> jax.Array:
     """Rows start … start + active of (T, k) ``x``, the last one repeated up to ``size`` rows
     (the rows past ``active`` are not stepped)."""
     part = x[start : start + active]
-    return jnp.asarray(np.concatenate([part, np.repeat(part[-1:], size - active, axis=0)]))
+    return jax.device_put(np.concatenate([part, np.repeat(part[-1:], size - active, axis=0)]))
 
 
 def _as_array(x, shape, what, dtype):
@@ -132,7 +132,7 @@ def _as_array(x, shape, what, dtype):
         raise DanoError(f"{what} must have shape {shape}, got {tuple(arr.shape)}")
     if not np.all(np.isfinite(arr)):
         raise DanoError(f"{what} contains NaN or infinite values")
-    return jnp.asarray(arr, dtype=dtype)
+    return jax.device_put(arr.astype(np.dtype(dtype)))  # (jnp.asarray compiled a small program per shape)
 
 
 def check_params(scene: Scene, params: SimParams) -> None:
@@ -201,7 +201,8 @@ def rollout(
         data = state0
     ctrl = None if controls is None else _as_array(controls, (steps, scene.nu), "controls", dt)
     f = None if qfrc is None else _as_array(qfrc, (steps, scene.nv), "qfrc", dt)
-    ctrl, f = (np.asarray(x) for x in _inputs(scene, data, ctrl, f, steps))
+    ctrl = np.broadcast_to(np.asarray(data.ctrl), (steps, scene.nu)) if ctrl is None else np.asarray(ctrl)
+    f = np.broadcast_to(np.asarray(data.qfrc_applied), (steps, scene.nv)) if f is None else np.asarray(f)
     size = CHUNK
     starts = range(0, steps, size)
     parts, iters = [], []

@@ -260,7 +260,8 @@ class Scene:
             raise DanoError(f"unknown contact parameter(s) {sorted(unknown)}; known: {', '.join(ContactParams.names())}")
         cp = ContactParams(**contact_overrides).validate()
         return SimParams(cp.broadcast(len(self.pairs), self.dtype),
-                         jnp.asarray([a.alpha for a in self.assets], dtype=self.dtype).reshape(len(self.assets)))
+                         jax.device_put(np.asarray([a.alpha for a in self.assets], dtype=np.dtype(self.dtype)
+                                                   ).reshape(len(self.assets))))
 
     def set_param(self, params: SimParams, name: str, value, target: str | int | None = None) -> SimParams:
         """A copy of ``params`` with contact parameter ``name`` (or ``"alpha"``, or one of
@@ -634,8 +635,8 @@ def compose(
         name=name,
     )
     scene = Scene(model=_put_model(physics_model), samples=samples, fields=fields,
-                  base_mass=jnp.asarray(base_mass).reshape(len(objects)),
-                  base_inertia=jnp.asarray(base_inertia).reshape(len(objects), 3),
+                  base_mass=jax.device_put(np.asarray(base_mass).reshape(len(objects))),
+                  base_inertia=jax.device_put(np.asarray(base_inertia).reshape(len(objects), 3)),
                   groups=_pair_groups(pairs, fields), dt=float(dt),
                   has_constraints=_could_have_constraints(mj_model), info=info)
     return scene.astype(dtype) if dtype is not None else scene

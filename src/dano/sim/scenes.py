@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
@@ -71,7 +72,7 @@ def initial_state(scene: Scene, poses: dict, velocities: dict | None = None, sta
     for name, (v, w) in (velocities or {}).items():
         a = m.jnt_dofadr[free_joint(name)]
         qvel[a : a + 6] = np.r_[v, w]
-    return State(jnp.asarray(qpos), jnp.asarray(qvel))
+    return State(jax.device_put(qpos), jax.device_put(qvel))
 
 
 def resting_height(asset, quat=(1, 0, 0, 0)) -> float:
