@@ -1326,14 +1326,15 @@ class SysIdProblem:
             items = items + [items[-1]] * (sharding.padded_size(real, shards) - real)
             steps = max(st for _, _, st in items)
             frames = steps // self.substeps + 1
-            arrays.append({k: jnp.asarray(np.stack([_pad(d[k], k, frames, settle + steps) for _, d, _ in items]))
+            # (host arrays put on the device: jnp.asarray compiled a small program per shape)
+            arrays.append({k: jax.device_put(np.stack([_pad(d[k], k, frames, settle + steps) for _, d, _ in items]))
                            for k in items[0][1]})
             cols = self._columns(qadr, jadr)
             intervals = [st // self.substeps for _, _, st in items[:real]] + [0] * (len(items) - real)
             keep.append(offset + _valid_residuals(intervals, frames - 1, cols))
             offset += len(items) * (frames - 1) * sum(cols)
             batches.append(BatchLayout(tuple(i for i, _, _ in items), qadr, dadr, jadr, settle + steps, settle))
-            wrot.append(jnp.asarray([rot_w[self.scene.qpos_adr.index(a)] for a in qadr], dtype=jnp.float64))
+            wrot.append(jax.device_put(np.asarray([rot_w[self.scene.qpos_adr.index(a)] for a in qadr], dtype=np.float64)))
         layout = ResidualLayout(
             batches=tuple(batches), parameters=tuple((p.name, self.scene.target_index(p.name, p.target))
                                                      for p in self.parameters),
@@ -1342,9 +1343,9 @@ class SysIdProblem:
             substeps=self.substeps, fit_ground=self.fit_ground, fit_tilt=self.fit_tilt, shards=shards,
             jittered=self._jittered)
         data = {"batches": tuple(arrays), "wrot": tuple(wrot),
-                "wpos": jnp.sqrt(jnp.asarray(self.weights.position, dtype=jnp.float64))[np.asarray(layout.pos_axes,
-                                                                                                   dtype=int)],
-                "wjoint": jnp.asarray(np.sqrt(self.weights.joints), dtype=jnp.float64)}
+                "wpos": jax.device_put(np.sqrt(np.asarray(self.weights.position, dtype=np.float64))[
+                    np.asarray(layout.pos_axes, dtype=int)]),
+                "wjoint": jax.device_put(np.asarray(np.sqrt(self.weights.joints), dtype=np.float64))}
         return layout, data, np.concatenate(keep) if keep else np.zeros(0, dtype=np.int64)
 
     @property
@@ -1389,7 +1390,7 @@ class SysIdProblem:
     def _residuals_jacobian_frames(self, theta):
         layout, data, keep = self._split_segments()
         J, (r, states) = _run(_residuals_and_jacobian_jit, layout, self.scene, self.base_params, data,
-                              jnp.asarray(theta, dtype=jnp.float64))
+                              jax.device_put(np.asarray(theta, dtype=np.float64)))
         return (np.concatenate([r[keep], self._prior_residuals(theta)]),
                 np.concatenate([J[keep], self._prior_jacobian(J.shape[1])]), layout, states)
 
@@ -1416,7 +1417,8 @@ class SysIdProblem:
         own, worth it where residuals are evaluated many times without Jacobians
         (finite-difference solves)."""
         layout, data, keep = self._split_segments()
-        r = _run(_residuals_only_jit, layout, self.scene, self.base_params, data, jnp.asarray(theta, dtype=jnp.float64))
+        r = _run(_residuals_only_jit, layout, self.scene, self.base_params, data,
+                 jax.device_put(np.asarray(theta, dtype=np.float64)))
         return np.concatenate([r[keep], self._prior_residuals(theta)])
 
     def jacobian(self, theta) -> np.ndarray:
@@ -1435,7 +1437,7 @@ class SysIdProblem:
             chunk = thetas[start : start + size]
             padded = np.concatenate([chunk, np.repeat(chunk[-1:], size - len(chunk), axis=0)])
             r = _run(_batch_residuals_jit, self.layout, shards, self.scene, self.base_params, self.data,
-                     jnp.asarray(padded))
+                     jax.device_put(padded))
             out.append(np.concatenate([r[: len(chunk)][:, self.keep], self._prior_residuals(chunk)], axis=1))
         return np.concatenate(out) if out else np.zeros((0, self.num_residuals))
 
