@@ -114,18 +114,22 @@ def test_rollout_in_chunks_continues_act_time_and_ctrl(box_scene, monkeypatch):
     # the loop carries the state fields only (CARRIED_FIELDS): the final Data holds the last state
     np.testing.assert_array_equal(np.asarray(whole.final_data.qpos), whole.qpos[-1])
     np.testing.assert_array_equal(np.asarray(whole.final_data.qvel), whole.qvel[-1])
-    # rollouts run in chunks (here of 16 steps: 390 steps are 24 chunks and one of 6, the
-    # loop's trip count an argument), each continuing from the last one's Data: no extra
-    # steps, the right final time and final overlap; its first 30 steps (across chunk
-    # boundaries) are the whole rollout's
-    monkeypatch.setattr(rollout_module, "CHUNK", 16)
-    chunked = rollout(scene, data, None, params, 390, progress=lambda *a: None)
+    # rollouts run in chunks, each continuing from the last one's Data (here outputs of 32
+    # rows; with progress reported, 20 chunks of 20 steps, the last of 10, the loop's trip
+    # count an argument): no extra steps, the right final time and final overlap; its first
+    # 30 steps (across chunk boundaries) are the whole rollout's
+    monkeypatch.setattr(rollout_module, "CHUNK", 32)
+    monkeypatch.setattr(rollout_module, "PROGRESS_CHUNK", 1)
+    reported = []
+    chunked = rollout(scene, data, None, params, 390, progress=lambda *a: reported.append(a[:2]))
+    assert reported == [(min(20 * (k + 1), 390), 390) for k in range(20)]
     np.testing.assert_allclose(chunked.qpos[:31], whole.qpos, atol=1e-12)
     np.testing.assert_allclose(chunked.psi[:31], whole.psi, atol=1e-12)
     assert chunked.qpos.shape[0] == chunked.psi.shape[0] == 391
     assert float(chunked.final_data.time) == pytest.approx(390 * scene.dt)
     np.testing.assert_allclose(chunked.psi[-1], np.asarray(overlaps(scene, params, chunked.final_data)), atol=1e-15)
-    # another duration runs the compiled program of the 390 steps: it does not compile again
+    # another duration (without progress: chunks of 32 steps, the last of 8) runs the compiled
+    # program of the 390 steps: it does not compile again
     counts = lambda: sum(_scan_steps_compiled.counts[k] for k in ("jit", "traced", "loaded"))  # noqa: E731
     before = counts()
     shorter = rollout(scene, data, None, params, 200)

@@ -48,15 +48,16 @@ class ContactParams:
         return dataclasses.replace(self, **changes)
 
     def broadcast(self, num_pairs: int, dtype=None) -> "ContactParams":
-        """Every field as a (P,) array of ``dtype`` (default: JAX's default float type)."""
+        """Every field as a (P,) array of ``dtype`` (default: JAX's default float type). Raises
+        ValueError where a field's value does not broadcast to (P,)."""
         dtype = dtype or jax.dtypes.canonicalize_dtype(np.float64)
-        values = [getattr(self, n) for n in self.names()]
-        if any(isinstance(v, jax.core.Tracer) for v in values):
+        values = {n: getattr(self, n) for n in self.names()}
+        if any(isinstance(v, jax.core.Tracer) for v in values.values()):
             return ContactParams(**{n: jnp.broadcast_to(jnp.asarray(v, dtype=dtype), (num_pairs,))
-                                    for n, v in zip(self.names(), values)})
-        # concrete values: on the host (jnp would compile a small program per shape and dtype)
-        return ContactParams(**{n: jax.device_put(np.broadcast_to(np.asarray(v, dtype=np.dtype(dtype)), (num_pairs,)))
-                                for n, v in zip(self.names(), values)})
+                                    for n, v in values.items()})
+        # concrete values on the host (jnp.asarray would compile a small program per shape and dtype)
+        host = [np.broadcast_to(np.asarray(v, dtype=np.dtype(dtype)), (num_pairs,)) for v in values.values()]
+        return ContactParams(**dict(zip(values, jax.device_put(host))))
 
     def validate(self) -> "ContactParams":
         """Raises DanoError if a value is non-finite or negative (springs must be > 0)."""

@@ -113,17 +113,20 @@ def rollout_arrays(scene: Scene, state0, controls, params: SimParams, steps: int
     return qpos, qvel, (psi if overlaps else None)
 
 
-#: :func:`rollout` runs in chunks of this many steps, the last one shorter: a loop whose trip
-#: count is an argument, filling the first rows of outputs of this length, so that one
-#: compiled program per scene structure serves every duration
+#: :func:`rollout` runs in chunks of at most this many steps: a loop whose trip count is an
+#: argument, filling the first rows of outputs of this length, so that one compiled program per
+#: scene structure serves every duration
 CHUNK = 10_000
+#: with progress reported, chunks of a twentieth of the run, but at least this many steps (the
+#: same program: only the trip count differs)
+PROGRESS_CHUNK = 1000
 
 
-def _chunk(x: np.ndarray, start: int, active: int, size: int) -> jax.Array:
-    """Rows start … start + active of (T, k) ``x``, the last one repeated up to ``size`` rows
-    (the rows past ``active`` are not stepped)."""
+def _chunk(x: np.ndarray, start: int, active: int) -> jax.Array:
+    """Rows start … start + active of (T, k) ``x``, the last one repeated up to :data:`CHUNK`
+    rows (the rows past ``active`` are not stepped)."""
     part = x[start : start + active]
-    return jax.device_put(np.concatenate([part, np.repeat(part[-1:], size - active, axis=0)]))
+    return jax.device_put(np.concatenate([part, np.repeat(part[-1:], CHUNK - active, axis=0)]))
 
 
 def _as_array(x, shape, what, dtype):
@@ -177,9 +180,9 @@ def rollout(
     rad/s] or an overlap exceeds half the DANO's mass (bodies passed through each other).
     For gradients use :func:`rollout_arrays` (or :func:`~dano.sim.dynamics.step`) under JAX.
     progress: optional ``progress(done, total, description)``, called after each chunk.
-    The rollout runs in chunks of up to :data:`CHUNK` steps, each continuing from the last
-    one's Data, their step count an argument of one compiled program: a new duration does
-    not compile again.
+    The rollout runs in chunks of up to :data:`CHUNK` steps (with progress, a twentieth of
+    the run, at least :data:`PROGRESS_CHUNK`), each continuing from the last one's Data, their
+    step count an argument of one compiled program: a new duration does not compile again.
     """
     params = scene.default_params() if params is None else params
     check_params(scene, params)
@@ -203,15 +206,15 @@ def rollout(
     f = None if qfrc is None else _as_array(qfrc, (steps, scene.nv), "qfrc", dt)
     ctrl = np.broadcast_to(np.asarray(data.ctrl), (steps, scene.nu)) if ctrl is None else np.asarray(ctrl)
     f = np.broadcast_to(np.asarray(data.qfrc_applied), (steps, scene.nv)) if f is None else np.asarray(f)
-    size = CHUNK
+    size = CHUNK if progress is None else min(CHUNK, max(PROGRESS_CHUNK, -(-steps // 20)))
     starts = range(0, steps, size)
     parts, iters = [], []
     newton = resolve_linear_solver(newton, scene, steps)  # on the whole rollout, not a chunk
     for k, start in enumerate(starts):
         active = min(size, steps - start)
-        data, qpos, qvel, psi, it = _scan_steps_compiled(scene, params, data, _chunk(ctrl, start, active, size),
-                                                         _chunk(f, start, active, size), newton, True, np.int32(active))
-        psi = np.asarray(psi)  # (size + 1, P): ψ at the start of each step taken, the last row the final state's
+        data, qpos, qvel, psi, it = _scan_steps_compiled(scene, params, data, _chunk(ctrl, start, active),
+                                                         _chunk(f, start, active), newton, True, np.int32(active))
+        psi = np.asarray(psi)  # (CHUNK + 1, P): ψ at each step's start, the last row the final state's
         arrs = [np.asarray(qpos)[: active + 1], np.asarray(qvel)[: active + 1], np.concatenate([psi[:active], psi[-1:]])]
         parts.append(arrs if k == 0 else [x[1:] for x in arrs])
         iters.append(np.asarray(it)[:active])

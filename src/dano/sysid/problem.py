@@ -1334,7 +1334,8 @@ class SysIdProblem:
             keep.append(offset + _valid_residuals(intervals, frames - 1, cols))
             offset += len(items) * (frames - 1) * sum(cols)
             batches.append(BatchLayout(tuple(i for i, _, _ in items), qadr, dadr, jadr, settle + steps, settle))
-            wrot.append(jax.device_put(np.asarray([rot_w[self.scene.qpos_adr.index(a)] for a in qadr], dtype=np.float64)))
+            wrot.append(jax.device_put(np.asarray([rot_w[self.scene.qpos_adr.index(a)] for a in qadr],
+                                                  dtype=np.float64)))
         layout = ResidualLayout(
             batches=tuple(batches), parameters=tuple((p.name, self.scene.target_index(p.name, p.target))
                                                      for p in self.parameters),
