@@ -24,11 +24,14 @@ given), each point skipped when it could not finish within ``--budget`` seconds 
   defaults with that dano first on PYTHONPATH, between two runs of this one (the same machine,
   the same call: a fair comparison; each point records its ``env``, and this dano's points
   their ``dano_path``);
+* ``table``: the scaling table, dano's defaults beside plain MJX on the bunny's hull, float32
+  and float64, at each B of ``--table-batches`` (16,384, 65,536 and 262,144; the largest with
+  one timed run instead of two), the four points of a B one after another in this call;
 * ``dump``: XLA's optimised program of dano's B = 16,384 float32 rollout
   (``--xla_dump_to``, as text) into ``OUT/hlo_dump.tar.gz``: how many kernels a Newton
   iteration launches, to be counted offline.
 
-Usage: ``python scripts/gpu_session.py OUT_DIR [--budget SECONDS] [--stages launches,stalls,far,dump]
+Usage: ``python scripts/gpu_session.py OUT_DIR [--budget SECONDS] [--stages launches,stalls,far,table,dump]
 [--baseline DIR]``.
 """
 
@@ -115,6 +118,7 @@ def main() -> None:
     ap.add_argument("--stall-batch", type=int, default=131072)
     ap.add_argument("--far-batch", type=int, default=65536)
     ap.add_argument("--attempts", type=int, default=3)
+    ap.add_argument("--table-batches", default="16384,65536,262144")
     ap.add_argument("--baseline", type=Path, default=None, help="an earlier dano's checkout (its src/) to time beside")
     args = ap.parse_args()
     if args.baseline is not None and not (args.baseline / "src" / "dano" / "__init__.py").is_file():
@@ -157,6 +161,15 @@ def main() -> None:
                 s.point(f"dano_f32_{bb}", 75, **f32, batch=bb)
             for bb in (b, sb):
                 s.point(f"dano_f64_{bb}", 75, engine="dano", dtype="float64", batch=bb)
+        elif stage == "table":  # dano beside plain MJX, both dtypes, B after B
+            batches = [int(x) for x in args.table_batches.split(",")]
+            for bb in batches:
+                reps = 1 if bb == max(batches) else 2
+                for dtype in ("float32", "float64"):
+                    for engine in ("dano", "mjx"):
+                        limit = 60 + bb * 200 * 3 / 2e6  # compile + 3 runs at 2M env-steps/s or more
+                        s.point(f"table_{engine}_{dtype}_{bb}", limit, engine=engine, dtype=dtype, batch=bb,
+                                repeats=reps)
         elif stage == "dump":  # XLA's optimised program of the B = 16,384 rollout, to count its kernels offline
             where = Path("/tmp/dano_xla_dump")
             shutil.rmtree(where, ignore_errors=True)
@@ -167,7 +180,7 @@ def main() -> None:
                     tar.add(p, arcname=p.name)
             print(f"dumped {len(kept)} files of the rollout's program", flush=True)
         else:
-            raise SystemExit(f"--stages: unknown stage {stage!r} (launches, stalls, far, dump)")
+            raise SystemExit(f"--stages: unknown stage {stage!r} (launches, stalls, far, table, dump)")
     print(f"done at {s.elapsed():.0f} s", flush=True)
 
 
