@@ -7,6 +7,8 @@ import io
 import json
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from rich.console import Console
@@ -232,23 +234,35 @@ def test_noisy_starts_have_their_velocities_fitted_by_default(box):
 
 def test_problems_of_one_structure_share_one_compilation():
     """Two data sets of the same lengths (different values, another initial guess): the second
-    problem's residual and Jacobian reuse the first's compilation. (The structure of
+    problem's residual and Jacobian reuse the first's compilation; so does a third of 3 shorter
+    slides (segment counts and frame intervals are padded to buckets: 3 and 4 slides run as 4,
+    17 and 19 intervals as 20), while 23 intervals (bucket 24) compile anew. (The structure of
     interval_coverage's problems: its scene, 4 slides of 20 frames, 2 substeps, initial
-    positions fitted; in a run of the whole file the first problem loads that program.)"""
+    positions fitted; in a run of the whole file the first problem loads that program.) The
+    Jacobian, assembled from each segment's own columns, equals forward mode over all of θ."""
     asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
                   name="box")
     scene = compose([DanoObject("box", asset, (0, 0, 0.05))], dt=0.005)
-    make = lambda seed: SysIdProblem(scene, analytic_slides(seed, 0.05, 4, noise=0.001),  # noqa: E731
-                                     [FitParameter("sliding_friction", 0.2 + seed / 10, 0.0, 2.0)],
-                                     weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=2, fit_position="xy")
-    first, second = make(0), make(1)
+    make = lambda seed, n=4, frames=20: SysIdProblem(  # noqa: E731
+        scene, analytic_slides(seed, 0.05, n, frames=frames, noise=0.001),
+        [FitParameter("sliding_friction", 0.2 + seed / 10, 0.0, 2.0)],
+        weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=2, fit_position="xy")
+    first, second, third = make(0), make(1), make(2, n=3, frames=18)
     first.residuals_and_jacobian(first.initial())
     counts, compiled = dict(_residuals_and_jacobian_jit.counts), _residuals_and_jacobian_jit._cache_size()
     r, J = second.residuals_and_jacobian(second.initial())
+    r3, J3 = third.residuals_and_jacobian(third.initial() + 0.01)
     assert dict(_residuals_and_jacobian_jit.counts) == counts  # nothing traced, loaded or compiled again
     assert _residuals_and_jacobian_jit._cache_size() == compiled
     assert r.shape == (second.num_residuals,) and J.shape == (second.num_residuals, 1 + 4 * 2)  # μ, 4 × (x, y)
+    assert J3.shape == (third.num_residuals, 1 + 3 * 2) and third.layout.batches[0].count == 4
     assert np.all(np.isfinite(J)) and np.any(J != 0)
+    whole = np.asarray(jax.jacfwd(third.residual_function())(jnp.asarray(third.initial() + 0.01)))
+    np.testing.assert_allclose(J3, whole, rtol=0, atol=1e-12 * np.abs(whole).max())
+    np.testing.assert_allclose(r3, third.residual_function()(jnp.asarray(third.initial() + 0.01)), rtol=0, atol=1e-14)
+    make(3, frames=24).residuals_and_jacobian(first.initial())  # another bucket: traced (or loaded) anew
+    programs = lambda c: c.get("traced", 0) + c.get("loaded", 0)  # noqa: E731
+    assert programs(_residuals_and_jacobian_jit.counts) == programs(counts) + 1
 
 
 def test_bad_interval_options_are_refused(box, tmp_path, capsys):

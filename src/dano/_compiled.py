@@ -67,6 +67,18 @@ COMPILE_SECONDS = [0.0]
 #: how many programs were traced (and exported) and how many were loaded from disk
 COUNTS = collections.Counter()
 
+def shape_bucket(n: int, bits: int = 3) -> int:
+    """``n`` rounded up to a shape that many sizes share, so that one compiled program serves
+    them all (padded rows or steps are computed and dropped): ``n`` kept to its ``bits``
+    leading binary digits, rounded up. bits = 3: ``n`` itself up to 8, then 9 → 10, 100 → 112,
+    200 → 224 (at most 25 % more, 9 % on average); bits = 1: the next power of two (3 → 4,
+    5 → 8). Raises ValueError for n < 0 or bits < 1."""
+    if n < 0 or bits < 1:
+        raise ValueError(f"shape_bucket: needs n >= 0 and bits >= 1, got n={n}, bits={bits}")
+    step = 1 << max(0, n.bit_length() - bits)
+    return -(-n // step) * step
+
+
 #: dataclass field metadata of host-side facts that no traced program may read: left out of
 #: the key, and a placeholder raising :class:`TracedHostOnlyError` in an exported trace
 HOST_ONLY = {"cache_key": False, "traced": False}

@@ -313,7 +313,8 @@ def bench_latency(repeats: int = 2) -> dict:
     skipped), ``dano trajopt push-sphere``, ``dano simulate bunny-drop --duration 2`` and
     ``dano demo``; with the shared data's meshes, a new object's first run with the cache a
     first object filled (:func:`new_problem_times`): Spot's identification after the bunny's
-    (``sysid_new_object_toml``) and its simulation in a user's scene after the bunny's
+    (``sysid_new_object_toml``), the bunny's with a fourth slide after its three
+    (``sysid_more_slides_toml``) and its simulation in a user's scene after the bunny's
     (``simulate_new_object``); and the bunny drop for 3 s after the one for 2 s
     (``simulate_new_duration``)."""
     repeats = max(1, repeats)
@@ -340,6 +341,11 @@ def bench_latency(repeats: int = 2) -> dict:
         made = mujoco_c_slides(Path(tmp) / "toy", mesh=str(meshes / "bunny_lowpoly.obj"))
         out["sysid_own_toml"] = command_times(["sysid", str(made["toml"]), "--json", "-o", "{out}"], repeats)
         out["sysid_own_toml"]["problem"] = "3 MuJoCo C slides of bunny_lowpoly.obj at 0.2 m, 0.7 kg (friction 0.5)"
+        # the same object with a fourth slide: segment counts are padded to buckets (3 and 4 run as 4)
+        more = mujoco_c_slides(Path(tmp) / "more", mesh=str(meshes / "bunny_lowpoly.obj"), slides=4, seed=2)
+        out["sysid_more_slides_toml"] = new_problem_times(["sysid", str(made["toml"]), "--json", "-o", "{out}"],
+                                                          ["sysid", str(more["toml"]), "--json", "-o", "{out}"])
+        out["sysid_more_slides_toml"]["problem"] = "4 MuJoCo C slides of the same toy after its 3"
         # a second object of its own: Spot, the same kind of problem (other mesh, size, mass, friction)
         spot = mujoco_c_slides(Path(tmp) / "spot", mesh=str(meshes / "spot.obj"), friction=0.3, seed=1)
         out["sysid_new_object_toml"] = new_problem_times(["sysid", str(made["toml"]), "--json", "-o", "{out}"],

@@ -21,7 +21,7 @@ import mujoco
 import numpy as np
 
 from .. import _compiled, sharding
-from .._compiled import cached_jit
+from .._compiled import cached_jit, shape_bucket
 from ..contact.params import ContactParams
 from ..errors import DanoError
 from ..pose import (quat_error, quat_inverse, quat_mean, quat_multiply, rotate, rotvec_to_quat, slope_weights,
@@ -580,10 +580,12 @@ class StartPriorRows(NamedTuple):
 @dataclass(frozen=True)
 class BatchLayout:
     """Static structure of one batch of segments that share a layout (vmapped together):
-    segment indices, the tracked DANOs' qpos/qvel addresses, observed joints' qpos
-    addresses, simulated steps (settling included) and settling steps."""
+    the number of segments (padded: :func:`~dano._compiled.shape_bucket`, then a multiple
+    of the devices), the tracked DANOs' qpos/qvel addresses, observed joints' qpos
+    addresses, simulated steps (settling included; the longest segment's frame intervals
+    padded by :func:`~dano._compiled.shape_bucket`) and settling steps."""
 
-    segments: tuple[int, ...]
+    count: int
     qadr: tuple[int, ...]
     dadr: tuple[int, ...]
     jadr: tuple[int, ...]
@@ -591,16 +593,29 @@ class BatchLayout:
     settle: int
 
 
+class _Structure(NamedTuple):
+    """A problem's residual as its compiled functions take it (:meth:`SysIdProblem._build_structure`)."""
+
+    layout: "ResidualLayout"
+    data: dict
+    keep: np.ndarray  # (m,) int: the real entries of padded_residuals' output
+    members: tuple[tuple[int, ...], ...]  # per batch, the indices of its real segments
+    global_index: np.ndarray  # (P + G,) int: θ's global entries (parameters, then the ground's)
+    block_index: tuple[np.ndarray, ...]  # per batch (count, block) int: each segment's nuisance entries in θ
+
+
 @dataclass(frozen=True)
 class ResidualLayout:
     """The static (hashable) structure of a problem's residual: what its compiled functions
     are keyed on. Problems of the same layout and scene, whatever their observed values,
     weights and parameter values, share one compilation (e.g. a bootstrap's resamples,
-    continuation stages, data sets of the same lengths)."""
+    continuation stages, and data sets whose segment counts and lengths fall in the same
+    buckets: :func:`~dano._compiled.shape_bucket`). It holds no segment index or θ length:
+    the compiled functions take θ's global entries and each batch's nuisance blocks apart
+    (:func:`padded_residuals`)."""
 
     batches: tuple[BatchLayout, ...]
     parameters: tuple[tuple[str, int | None], ...]  # (name, index of its DANO or pair; None: every one)
-    nuisance: tuple[int, ...]
     fit_axes: tuple[int, ...]
     pos_axes: tuple[int, ...]
     rotation: bool
@@ -640,36 +655,43 @@ def _with_parameters(scene: Scene, base_params: SimParams, parameters, theta) ->
     return base_params
 
 
-def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParams, data: dict, theta,
-                     with_frames: bool = False):
-    """The identification residual at θ (n,), a pure JAX function of its arguments: every
-    batch's segments rolled out (vmapped) for the batch's longest segment, each segment's
-    residuals frame by frame, padded frames included (their entries are meaningless:
+def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParams, data: dict, theta_g, blocks,
+                     with_frames: bool = False, jacobian: bool = False):
+    """The identification residual, a pure JAX function of its arguments: every batch's
+    segments rolled out (vmapped) for the batch's padded length, each segment's residuals
+    frame by frame, padded frames and segments included (their entries are meaningless:
     :attr:`SysIdProblem.keep` selects the real ones). ``data``: :attr:`SysIdProblem.data`.
-    With ``layout.shards`` > 1 each batch's segments are split over that many devices
-    (``shard_map``; every device rolls out its own segments, the residuals are gathered).
-    with_frames (static): also return the simulated qpos at every frame, per batch (segments,
-    frames, nq), padded frames included, the tracked DANOs' poses in the observations' frame
-    (the fitted trajectories the residual compares, :meth:`SysIdProblem.fitted`)."""
-    params = _with_parameters(scene, base_params, layout.parameters, theta)
-    sim_scene = scene
-    if layout.fit_ground:
-        height, R = _table(theta, layout.fit_tilt)
-        if layout.fit_tilt:
-            sim_scene = _tilted_scene(scene, R)
+
+    theta_g: (P + G,) θ's global entries: the identified parameters, then the ground's (G = 0,
+    1 or 3; :meth:`SysIdProblem.split_theta`). blocks: per batch (count, tracked DANOs,
+    len(fit_axes)), each segment's nuisance offsets. Returns the residual (m_padded,), batches
+    and segments in order. jacobian (static): also each segment's Jacobian with respect to
+    its own local parameters (θ_g, then its block raveled), per batch (count, rows, P + G +
+    block): a segment depends on no other's block, so forward mode pushes P + G + block
+    tangents through each rollout instead of all of θ's. with_frames (static): also the
+    simulated qpos at every frame, per batch (count, frames, nq), the tracked DANOs' poses in
+    the observations' frame (the fitted trajectories the residual compares,
+    :meth:`SysIdProblem.fitted`). Returns residual, then the Jacobians, then the frames, as
+    a tuple when either is asked for. With ``layout.shards`` > 1 each batch's segments are
+    split over that many devices (``shard_map``; the residuals are gathered)."""
     pos_axes = jnp.asarray(layout.pos_axes, dtype=jnp.int32)
     wpos, wjoint, axes, substeps = data["wpos"], data["wjoint"], layout.fit_axes, layout.substeps
+    n_global = theta_g.shape[0]
     mesh = _layout_mesh(layout)
-    out, fitted = [], []
+    out, jacobians, fitted = [], [], []
     for b, batch in enumerate(layout.batches):
         qadr, dadr, jadr, settle = batch.qadr, batch.dadr, batch.jadr, batch.settle
         wrot = data["wrot"][b]
-        # nuisance offsets of the initial states of this batch's segments
-        blocks = jnp.stack([theta[layout.nuisance[s] : layout.nuisance[s + 1]].reshape(len(qadr), len(axes))
-                            for s in batch.segments])
 
-        def one(qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, block, shift=None):
+        def residual(local, qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, shift):
+            """One segment's residual (and frames) from its local parameters (θ_g, its block)."""
+            th, block = local[:n_global], local[n_global:].reshape(len(qadr), len(axes))
+            params = _with_parameters(scene, base_params, layout.parameters, th)
+            sim_scene = scene
             if layout.fit_ground:  # observations in the frame of the table (at z = height, tilted by R)
+                height, R = _table(th, layout.fit_tilt)
+                if layout.fit_tilt:
+                    sim_scene = _tilted_scene(scene, R)
                 qpos0, qvel0 = _to_table(qpos0, qvel0, qadr, dadr, height, R)
                 obs_pose = jax.vmap(lambda p: _poses_to_table(p, height, R))(obs_pose)
             qpos0, qvel0 = _with_offsets(qpos0, qvel0, block, qadr, dadr, axes)
@@ -693,22 +715,36 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
             if layout.joints:
                 for k, a in enumerate(jadr):
                     res.append(wjoint * (frames[:, a] - obs_joint[k, 1:]))
-            if not with_frames:
-                return jnp.concatenate(res)
             if layout.fit_ground:  # back in the observations' frame
                 for a in qadr:
                     states = states.at[:, a : a + 7].set(_poses_from_table(states[:, a : a + 7], height, R))
             return jnp.concatenate(res), states
 
+        def one(block, qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, shift=None):
+            local = jnp.concatenate([theta_g, block.ravel()])
+            args = (qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, shift)
+            if jacobian:
+                J, (r, states) = jax.jacfwd(lambda x: (lambda rs: (rs[0], rs))(residual(x, *args)),
+                                            has_aux=True)(local)
+                return (r, J, states) if with_frames else (r, J)
+            r, states = residual(local, *args)
+            return (r, states) if with_frames else r
+
         d = data["batches"][b]
-        args = [d["qpos0"], d["qvel0"], d["ctrl"], d["qfrc"], d["obs_pose"], d["obs_joint"], blocks]
+        args = [blocks[b], d["qpos0"], d["qvel0"], d["ctrl"], d["qfrc"], d["obs_pose"], d["obs_joint"]]
         args += [d["shift"]] if layout.jittered else []
         r = sharding.split_rows(one, mesh, (0,) * len(args))(*args)
-        if with_frames:
-            r, states = r
-            fitted.append(states)
+        if jacobian or with_frames:
+            r, *rest = r
+            if jacobian:
+                jacobians.append(rest.pop(0))
+            if with_frames:
+                fitted.append(rest.pop(0))
         out.append(r.ravel())
-    return (jnp.concatenate(out), tuple(fitted)) if with_frames else jnp.concatenate(out)
+    res = jnp.concatenate(out)
+    if not (jacobian or with_frames):
+        return res
+    return (res,) + ((tuple(jacobians),) if jacobian else ()) + ((tuple(fitted),) if with_frames else ())
 
 
 def _run(fn, *args) -> np.ndarray:
@@ -724,32 +760,33 @@ COMPILE_SECONDS = _compiled.COMPILE_SECONDS
 
 # compiled once per layout, scene structure and shapes, and traced once per structure across
 # processes when the compilation cache is on (dano._compiled)
-def _residuals_and_jacobian(layout, scene, base_params, data, theta):
-    """(forward-mode Jacobian, (residual, fitted frames per batch)) of :func:`padded_residuals`:
-    one trace, the primal computed once with the tangents (tracing the rollout is most of a
-    compilation's time); the frames give the fitted trajectories without a rollout program
-    of their own."""
-
-    def r(th):
-        res, states = padded_residuals(layout, scene, base_params, data, th, with_frames=True)
-        return res, (res, states)
-
-    return jax.jacfwd(r, has_aux=True)(theta)
+def _residuals_and_jacobian(layout, scene, base_params, data, theta_g, blocks):
+    """(residual, per-segment forward-mode Jacobians per batch, fitted frames per batch) of
+    :func:`padded_residuals`: one trace, the primal computed once with the tangents (tracing
+    the rollout is most of a compilation's time); the frames give the fitted trajectories
+    without a rollout program of their own."""
+    return padded_residuals(layout, scene, base_params, data, theta_g, blocks, with_frames=True, jacobian=True)
 
 
 _residuals_and_jacobian_jit = cached_jit(_residuals_and_jacobian, static_argnums=(0,), mesh=_layout_mesh)
 _residuals_only_jit = cached_jit(padded_residuals, static_argnums=(0,), mesh=_layout_mesh)  # finite differences
 
 
+#: leading binary digits kept of a batch's segment count (1: the next power of two: 3 and 4
+#: trajectories, 5 to 8, ... share a compilation) and of its longest segment's frame intervals
+#: (3: within 25 %, e.g. 97 to 112 intervals): :func:`~dano._compiled.shape_bucket`
+SEGMENT_BITS, INTERVAL_BITS = 1, 3
+
 #: parameter vectors per vmapped batch (:meth:`SysIdProblem.batch_residuals`): one compiled shape
 #: (rounded up to a multiple of the devices in use when they split the batch)
 BATCH = 16
 
 
-def _batch_residuals(layout, shards, scene, base_params, data, thetas):
-    """Residuals (K, padded m) at K parameter vectors, the vectors split over ``shards`` devices."""
-    one = lambda th: padded_residuals(layout, scene, base_params, data, th)  # noqa: E731
-    return sharding.split_rows(one, sharding.mesh_of_size(shards), (0,))(thetas)
+def _batch_residuals(layout, shards, scene, base_params, data, thetas_g, blocks):
+    """Residuals (K, padded m) at K parameter vectors (their global entries (K, P + G) and
+    nuisance blocks, per batch (K, count, ...)), the vectors split over ``shards`` devices."""
+    one = lambda th, bl: padded_residuals(layout, scene, base_params, data, th, bl)  # noqa: E731
+    return sharding.split_rows(one, sharding.mesh_of_size(shards), (0, 0))(thetas_g, blocks)
 
 
 _batch_residuals_jit = cached_jit(_batch_residuals, static_argnums=(0, 1),
@@ -1308,23 +1345,28 @@ class SysIdProblem:
         return groups
 
     @functools.cached_property
-    def _structure(self):
-        """(layout, data, keep): the residual's static structure, its arrays and the indices of
-        the real (not padded) entries of :func:`padded_residuals`' output. Segments of the same
-        layout are batched whatever their lengths: shorter ones are padded to the longest (extra
-        steps simulated, their frames dropped by ``keep``)."""
+    def _structure(self) -> "_Structure":
+        """The residual's static structure, its arrays, the indices of the real (not padded)
+        entries of :func:`padded_residuals`' output, and where each batch's segments and
+        nuisance blocks come from. Segments of the same layout are batched whatever their
+        lengths: shorter ones are padded to the longest (extra steps simulated, their frames
+        dropped by ``keep``)."""
         return self._build_structure(1)
 
-    def _build_structure(self, shards: int):
-        """:attr:`_structure` with each batch's segments split over ``shards`` devices: a batch
-        whose segment count does not divide is padded with copies of its last segment (their
-        residuals are dropped by ``keep``)."""
-        batches, arrays, wrot, keep, offset = [], [], [], [], 0
+    def _build_structure(self, shards: int) -> "_Structure":
+        """:attr:`_structure` with each batch's segments split over ``shards`` devices. Each
+        batch's segment count and frame intervals are padded to :func:`~dano._compiled.shape_bucket`
+        (so that data sets of other counts and lengths in the same buckets share the compiled
+        functions), the count then to a multiple of ``shards``: padded segments are copies of
+        the batch's last one, padded frames repeat the last frame (their residuals are
+        dropped by ``keep``)."""
+        batches, arrays, wrot, keep, members, block_index, offset = [], [], [], [], [], [], 0
         rot_w = self.rotation_weights()
+        nuisance = self._nuisance_offsets()
         for (qadr, dadr, jadr, settle), items in self._groups().items():
             real = len(items)
-            items = items + [items[-1]] * (sharding.padded_size(real, shards) - real)
-            steps = max(st for _, _, st in items)
+            items = items + [items[-1]] * (sharding.padded_size(shape_bucket(real, SEGMENT_BITS), shards) - real)
+            steps = shape_bucket(max(st for _, _, st in items) // self.substeps, INTERVAL_BITS) * self.substeps
             frames = steps // self.substeps + 1
             # (host arrays put on the device: jnp.asarray compiled a small program per shape)
             arrays.append({k: jax.device_put(np.stack([_pad(d[k], k, frames, settle + steps) for _, d, _ in items]))
@@ -1333,49 +1375,63 @@ class SysIdProblem:
             intervals = [st // self.substeps for _, _, st in items[:real]] + [0] * (len(items) - real)
             keep.append(offset + _valid_residuals(intervals, frames - 1, cols))
             offset += len(items) * (frames - 1) * sum(cols)
-            batches.append(BatchLayout(tuple(i for i, _, _ in items), qadr, dadr, jadr, settle + steps, settle))
+            batches.append(BatchLayout(len(items), qadr, dadr, jadr, settle + steps, settle))
+            members.append(tuple(i for i, _, _ in items[:real]))
+            block_index.append(np.stack([np.arange(nuisance[i], nuisance[i + 1]) for i, _, _ in items]))
             wrot.append(jax.device_put(np.asarray([rot_w[self.scene.qpos_adr.index(a)] for a in qadr],
                                                   dtype=np.float64)))
         layout = ResidualLayout(
             batches=tuple(batches), parameters=tuple((p.name, self.scene.target_index(p.name, p.target))
                                                      for p in self.parameters),
-            nuisance=tuple(int(x) for x in self._nuisance_offsets()), fit_axes=self.fit_axes,
-            pos_axes=self._pos_axes(), rotation=self._rotation_weighted(), joints=self.weights.joints > 0,
-            substeps=self.substeps, fit_ground=self.fit_ground, fit_tilt=self.fit_tilt, shards=shards,
-            jittered=self._jittered)
+            fit_axes=self.fit_axes, pos_axes=self._pos_axes(), rotation=self._rotation_weighted(),
+            joints=self.weights.joints > 0, substeps=self.substeps, fit_ground=self.fit_ground,
+            fit_tilt=self.fit_tilt, shards=shards, jittered=self._jittered)
         data = {"batches": tuple(arrays), "wrot": tuple(wrot),
                 "wpos": jax.device_put(np.sqrt(np.asarray(self.weights.position, dtype=np.float64))[
                     np.asarray(layout.pos_axes, dtype=int)]),
                 "wjoint": jax.device_put(np.asarray(np.sqrt(self.weights.joints), dtype=np.float64))}
-        return layout, data, np.concatenate(keep) if keep else np.zeros(0, dtype=np.int64)
+        n = self.num_parameters
+        global_index = np.r_[np.arange(len(self.parameters)), np.arange(n - len(self.ground_labels), n)]
+        return _Structure(layout, data, np.concatenate(keep) if keep else np.zeros(0, dtype=np.int64),
+                          tuple(members), global_index.astype(np.int64), tuple(block_index))
 
     @property
     def layout(self) -> ResidualLayout:
         """The residual's static structure (what its compilation is keyed on)."""
-        return self._structure[0]
+        return self._structure.layout
 
     @property
     def data(self) -> dict:
         """The residual's arrays (a pytree): per batch the stacked initial states (qpos0,
         qvel0), controls, forces and observed poses/joints, and the weights' square roots."""
-        return self._structure[1]
+        return self._structure.data
 
     @property
     def keep(self) -> np.ndarray:
         """(m,) int: the entries of :func:`padded_residuals`' output that are residuals."""
-        return self._structure[2]
+        return self._structure.keep
+
+    def split_theta(self, theta):
+        """θ (..., n) as :func:`padded_residuals` takes it: its global entries (..., P + G) (the
+        identified parameters, then the ground's) and per batch of :attr:`layout` the segments'
+        nuisance blocks (..., count, tracked DANOs, len(fit_axes)) (padded segments repeat their
+        batch's last block). NumPy or JAX arrays (the same kind back)."""
+        st = self._structure
+        xp = np if isinstance(theta, np.ndarray) else jnp
+        blocks = tuple(theta[..., idx].reshape(theta.shape[:-1] + (b.count, len(b.qadr), len(self.fit_axes)))
+                       for idx, b in zip(st.block_index, st.layout.batches))
+        return xp.take(theta, st.global_index, axis=-1), blocks
 
     @functools.cached_property
     def _split(self) -> dict:
-        """Structures for segments split over devices, built on first use: {shards: (layout,
-        data, keep)}."""
+        """Structures for segments split over devices, built on first use: {shards: _Structure}."""
         return {}
 
-    def _split_segments(self):
-        """(layout, data, keep) for the devices in use (:mod:`dano.sharding`): the segments of
-        each batch split over as many devices as the largest batch can use; one device: the
-        plain :attr:`_structure`."""
-        shards = sharding.shards_for(max(len(b.segments) for b in self.layout.batches))
+    def _split_segments(self) -> "_Structure":
+        """The structure for the devices in use (:mod:`dano.sharding`): the segments of each
+        batch split over as many devices as the largest batch can use; one device: the plain
+        :attr:`_structure`."""
+        shards = sharding.shards_for(max(len(m) for m in self._structure.members))
         if shards == 1:
             return self._structure
         if shards not in self._split:
@@ -1389,11 +1445,22 @@ class SysIdProblem:
         return self._residuals_jacobian_frames(theta)[:2]
 
     def _residuals_jacobian_frames(self, theta):
-        layout, data, keep = self._split_segments()
-        J, (r, states) = _run(_residuals_and_jacobian_jit, layout, self.scene, self.base_params, data,
-                              jax.device_put(np.asarray(theta, dtype=np.float64)))
-        return (np.concatenate([r[keep], self._prior_residuals(theta)]),
-                np.concatenate([J[keep], self._prior_jacobian(J.shape[1])]), layout, states)
+        st = self._split_segments()
+        theta = np.asarray(theta, dtype=np.float64)
+        theta_g, blocks = self.split_theta(theta)
+        r, locals_, states = _run(_residuals_and_jacobian_jit, st.layout, self.scene, self.base_params, st.data,
+                                  *jax.device_put((theta_g, blocks)))
+        J = np.zeros((len(r), len(theta)))
+        row = 0
+        for b, (Jb, idx) in enumerate(zip(locals_, st.block_index)):  # each segment's local columns into θ's
+            count, rows = Jb.shape[:2]
+            Jfull = J[row : row + count * rows].reshape(count, rows, len(theta))
+            Jfull[:, :, st.global_index] = Jb[:, :, : len(theta_g)]
+            Jfull[np.arange(count)[:, None, None], np.arange(rows)[None, :, None], idx[:, None, :]] = \
+                Jb[:, :, len(theta_g) :]
+            row += count * rows
+        return (np.concatenate([r[st.keep], self._prior_residuals(theta)]),
+                np.concatenate([J[st.keep], self._prior_jacobian(len(theta))]), st, states)
 
     def fitted(self, theta) -> list[np.ndarray]:
         """Fitted qpos (frames, nq) of every segment at θ (n,), as :meth:`simulate` gives them
@@ -1401,11 +1468,8 @@ class SysIdProblem:
         frame, also when the ground is fitted), from the residual's own rollouts: the
         Jacobian's compiled program, so no rollout program of its own to compile; the same
         steps, batched as the residual batches them (equal to :meth:`simulate` to rounding)."""
-        *_, layout, states = self._residuals_jacobian_frames(theta)
-        where = {}
-        for b, batch in enumerate(layout.batches):
-            for i, sid in enumerate(batch.segments):
-                where.setdefault(sid, (b, i))  # (a batch padded for devices repeats its last segment)
+        *_, st, states = self._residuals_jacobian_frames(theta)
+        where = {sid: (b, i) for b, m in enumerate(st.members) for i, sid in enumerate(m)}
         return [np.array(states[where[sid][0]][where[sid][1], : seg.frames]) for sid, seg in enumerate(self.segments)]
 
     def residuals(self, theta) -> np.ndarray:
@@ -1417,10 +1481,11 @@ class SysIdProblem:
         """(m,) residual vector at θ (n,) without the Jacobian's tangents: a compilation of its
         own, worth it where residuals are evaluated many times without Jacobians
         (finite-difference solves)."""
-        layout, data, keep = self._split_segments()
-        r = _run(_residuals_only_jit, layout, self.scene, self.base_params, data,
-                 jax.device_put(np.asarray(theta, dtype=np.float64)))
-        return np.concatenate([r[keep], self._prior_residuals(theta)])
+        st = self._split_segments()
+        theta = np.asarray(theta, dtype=np.float64)
+        r = _run(_residuals_only_jit, st.layout, self.scene, self.base_params, st.data,
+                 *jax.device_put(self.split_theta(theta)))
+        return np.concatenate([r[st.keep], self._prior_residuals(theta)])
 
     def jacobian(self, theta) -> np.ndarray:
         """(m, n) forward-mode Jacobian of the residual at θ (see :meth:`residuals_and_jacobian`)."""
@@ -1438,7 +1503,7 @@ class SysIdProblem:
             chunk = thetas[start : start + size]
             padded = np.concatenate([chunk, np.repeat(chunk[-1:], size - len(chunk), axis=0)])
             r = _run(_batch_residuals_jit, self.layout, shards, self.scene, self.base_params, self.data,
-                     jax.device_put(padded))
+                     *jax.device_put(self.split_theta(padded)))
             out.append(np.concatenate([r[: len(chunk)][:, self.keep], self._prior_residuals(chunk)], axis=1))
         return np.concatenate(out) if out else np.zeros((0, self.num_residuals))
 
@@ -1522,11 +1587,12 @@ class SysIdProblem:
         batch, then segment, then block (per tracked DANO its position axes with non-zero weight
         [m·√w] and its rotation vector [rad·√w], then each joint), each block frame by frame
         (:meth:`_column_kinds`), then the start prior's rows (:attr:`start_prior_rows`)."""
-        layout, data, keep = self._structure
+        layout, data = self.layout, self.data
         scene, base, keep = self.scene, self.base_params, jnp.asarray(self.keep)
         index, weight = jnp.asarray(self.start_prior_rows.index), jnp.asarray(self.start_prior_rows.weight)
-        return lambda theta: jnp.concatenate([padded_residuals(layout, scene, base, data, theta)[keep],
-                                              theta[index] * weight])
+        return lambda theta: jnp.concatenate([
+            padded_residuals(layout, scene, base, data, *self.split_theta(jnp.asarray(theta)))[keep],
+            theta[index] * weight])
 
     def simulate(self, theta) -> list[np.ndarray]:
         """Fitted qpos (frames, nq) of every segment at θ (for plots and reports)."""
