@@ -602,6 +602,7 @@ class _Structure(NamedTuple):
     members: tuple[tuple[int, ...], ...]  # per batch, the indices of its real segments
     global_index: np.ndarray  # (P + G,) int: θ's global entries (parameters, then the ground's)
     block_index: tuple[np.ndarray, ...]  # per batch (count, block) int: each segment's nuisance entries in θ
+    segment_rows: tuple[int, ...]  # per batch, the residual entries of each of its segments (padded frames)
 
 
 @dataclass(frozen=True)
@@ -656,42 +657,35 @@ def _with_parameters(scene: Scene, base_params: SimParams, parameters, theta) ->
 
 
 def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParams, data: dict, theta_g, blocks,
-                     with_frames: bool = False, jacobian: bool = False):
+                     with_frames: bool = False):
     """The identification residual, a pure JAX function of its arguments: every batch's
     segments rolled out (vmapped) for the batch's padded length, each segment's residuals
     frame by frame, padded frames and segments included (their entries are meaningless:
     :attr:`SysIdProblem.keep` selects the real ones). ``data``: :attr:`SysIdProblem.data`.
-
     theta_g: (P + G,) θ's global entries: the identified parameters, then the ground's (G = 0,
-    1 or 3; :meth:`SysIdProblem.split_theta`). blocks: per batch (count, tracked DANOs,
-    len(fit_axes)), each segment's nuisance offsets. Returns the residual (m_padded,), batches
-    and segments in order. jacobian (static): also each segment's Jacobian with respect to
-    its own local parameters (θ_g, then its block raveled), per batch (count, rows, P + G +
-    block): a segment depends on no other's block, so forward mode pushes P + G + block
-    tangents through each rollout instead of all of θ's. with_frames (static): also the
-    simulated qpos at every frame, per batch (count, frames, nq), the tracked DANOs' poses in
-    the observations' frame (the fitted trajectories the residual compares,
-    :meth:`SysIdProblem.fitted`). Returns residual, then the Jacobians, then the frames, as
-    a tuple when either is asked for. With ``layout.shards`` > 1 each batch's segments are
-    split over that many devices (``shard_map``; the residuals are gathered)."""
+    1 or 3); blocks: per batch (count, tracked DANOs, len(fit_axes)), each segment's nuisance
+    offsets (:meth:`SysIdProblem.split_theta`). Returns the residual (m_padded,), batches and
+    segments in order. With ``layout.shards`` > 1 each batch's segments are split over that
+    many devices (``shard_map``; every device rolls out its own segments, the residuals are
+    gathered). with_frames (static): also return the simulated qpos at every frame, per batch
+    (count, frames, nq), padded frames included, the tracked DANOs' poses in the observations'
+    frame (the fitted trajectories the residual compares, :meth:`SysIdProblem.fitted`)."""
+    params = _with_parameters(scene, base_params, layout.parameters, theta_g)
+    sim_scene = scene
+    if layout.fit_ground:
+        height, R = _table(theta_g, layout.fit_tilt)
+        if layout.fit_tilt:
+            sim_scene = _tilted_scene(scene, R)
     pos_axes = jnp.asarray(layout.pos_axes, dtype=jnp.int32)
     wpos, wjoint, axes, substeps = data["wpos"], data["wjoint"], layout.fit_axes, layout.substeps
-    n_global = theta_g.shape[0]
     mesh = _layout_mesh(layout)
-    out, jacobians, fitted = [], [], []
+    out, fitted = [], []
     for b, batch in enumerate(layout.batches):
         qadr, dadr, jadr, settle = batch.qadr, batch.dadr, batch.jadr, batch.settle
         wrot = data["wrot"][b]
 
-        def residual(local, qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, shift):
-            """One segment's residual (and frames) from its local parameters (θ_g, its block)."""
-            th, block = local[:n_global], local[n_global:].reshape(len(qadr), len(axes))
-            params = _with_parameters(scene, base_params, layout.parameters, th)
-            sim_scene = scene
+        def one(block, qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, shift=None):
             if layout.fit_ground:  # observations in the frame of the table (at z = height, tilted by R)
-                height, R = _table(th, layout.fit_tilt)
-                if layout.fit_tilt:
-                    sim_scene = _tilted_scene(scene, R)
                 qpos0, qvel0 = _to_table(qpos0, qvel0, qadr, dadr, height, R)
                 obs_pose = jax.vmap(lambda p: _poses_to_table(p, height, R))(obs_pose)
             qpos0, qvel0 = _with_offsets(qpos0, qvel0, block, qadr, dadr, axes)
@@ -715,36 +709,22 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
             if layout.joints:
                 for k, a in enumerate(jadr):
                     res.append(wjoint * (frames[:, a] - obs_joint[k, 1:]))
+            if not with_frames:
+                return jnp.concatenate(res)
             if layout.fit_ground:  # back in the observations' frame
                 for a in qadr:
                     states = states.at[:, a : a + 7].set(_poses_from_table(states[:, a : a + 7], height, R))
             return jnp.concatenate(res), states
 
-        def one(block, qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, shift=None):
-            local = jnp.concatenate([theta_g, block.ravel()])
-            args = (qpos0, qvel0, ctrl, qfrc, obs_pose, obs_joint, shift)
-            if jacobian:
-                J, (r, states) = jax.jacfwd(lambda x: (lambda rs: (rs[0], rs))(residual(x, *args)),
-                                            has_aux=True)(local)
-                return (r, J, states) if with_frames else (r, J)
-            r, states = residual(local, *args)
-            return (r, states) if with_frames else r
-
         d = data["batches"][b]
         args = [blocks[b], d["qpos0"], d["qvel0"], d["ctrl"], d["qfrc"], d["obs_pose"], d["obs_joint"]]
         args += [d["shift"]] if layout.jittered else []
         r = sharding.split_rows(one, mesh, (0,) * len(args))(*args)
-        if jacobian or with_frames:
-            r, *rest = r
-            if jacobian:
-                jacobians.append(rest.pop(0))
-            if with_frames:
-                fitted.append(rest.pop(0))
+        if with_frames:
+            r, states = r
+            fitted.append(states)
         out.append(r.ravel())
-    res = jnp.concatenate(out)
-    if not (jacobian or with_frames):
-        return res
-    return (res,) + ((tuple(jacobians),) if jacobian else ()) + ((tuple(fitted),) if with_frames else ())
+    return (jnp.concatenate(out), tuple(fitted)) if with_frames else jnp.concatenate(out)
 
 
 def _run(fn, *args) -> np.ndarray:
@@ -761,11 +741,26 @@ COMPILE_SECONDS = _compiled.COMPILE_SECONDS
 # compiled once per layout, scene structure and shapes, and traced once per structure across
 # processes when the compilation cache is on (dano._compiled)
 def _residuals_and_jacobian(layout, scene, base_params, data, theta_g, blocks):
-    """(residual, per-segment forward-mode Jacobians per batch, fitted frames per batch) of
-    :func:`padded_residuals`: one trace, the primal computed once with the tangents (tracing
-    the rollout is most of a compilation's time); the frames give the fitted trajectories
-    without a rollout program of their own."""
-    return padded_residuals(layout, scene, base_params, data, theta_g, blocks, with_frames=True, jacobian=True)
+    """(forward-mode Jacobian (m_padded, P + G + Σ block sizes), (residual, fitted frames per
+    batch)) of :func:`padded_residuals`, with respect to θ's global entries and one offset δ_b
+    per batch added to every segment's block of that batch. A segment's residuals depend on no
+    other segment's block, so its rows of the δ_b columns are its derivatives with respect to
+    its own block (:meth:`SysIdProblem._residuals_jacobian_frames` puts them in θ's columns):
+    the rollouts carry P + G + Σ block tangents, not all of θ's, whatever the segment count.
+    One trace, the primal computed once with the tangents (tracing the rollout is most of a
+    compilation's time); the frames give the fitted trajectories without a rollout program of
+    their own."""
+    sizes = [int(np.prod(b.shape[1:])) for b in blocks]
+    starts = np.cumsum([theta_g.shape[0]] + sizes)
+
+    def r(x):
+        shifted = tuple(b + x[s : s + n].reshape(b.shape[1:]) for b, s, n in zip(blocks, starts, sizes))
+        res, states = padded_residuals(layout, scene, base_params, data, x[: theta_g.shape[0]], shifted,
+                                       with_frames=True)
+        return res, (res, states)
+
+    local = jnp.concatenate([theta_g, jnp.zeros(sum(sizes), theta_g.dtype)])
+    return jax.jacfwd(r, has_aux=True)(local)
 
 
 _residuals_and_jacobian_jit = cached_jit(_residuals_and_jacobian, static_argnums=(0,), mesh=_layout_mesh)
@@ -1360,7 +1355,7 @@ class SysIdProblem:
         functions), the count then to a multiple of ``shards``: padded segments are copies of
         the batch's last one, padded frames repeat the last frame (their residuals are
         dropped by ``keep``)."""
-        batches, arrays, wrot, keep, members, block_index, offset = [], [], [], [], [], [], 0
+        batches, arrays, wrot, keep, members, block_index, segment_rows, offset = [], [], [], [], [], [], [], 0
         rot_w = self.rotation_weights()
         nuisance = self._nuisance_offsets()
         for (qadr, dadr, jadr, settle), items in self._groups().items():
@@ -1375,6 +1370,7 @@ class SysIdProblem:
             intervals = [st // self.substeps for _, _, st in items[:real]] + [0] * (len(items) - real)
             keep.append(offset + _valid_residuals(intervals, frames - 1, cols))
             offset += len(items) * (frames - 1) * sum(cols)
+            segment_rows.append((frames - 1) * sum(cols))
             batches.append(BatchLayout(len(items), qadr, dadr, jadr, settle + steps, settle))
             members.append(tuple(i for i, _, _ in items[:real]))
             block_index.append(np.stack([np.arange(nuisance[i], nuisance[i + 1]) for i, _, _ in items]))
@@ -1393,7 +1389,7 @@ class SysIdProblem:
         n = self.num_parameters
         global_index = np.r_[np.arange(len(self.parameters)), np.arange(n - len(self.ground_labels), n)]
         return _Structure(layout, data, np.concatenate(keep) if keep else np.zeros(0, dtype=np.int64),
-                          tuple(members), global_index.astype(np.int64), tuple(block_index))
+                          tuple(members), global_index.astype(np.int64), tuple(block_index), tuple(segment_rows))
 
     @property
     def layout(self) -> ResidualLayout:
@@ -1448,17 +1444,19 @@ class SysIdProblem:
         st = self._split_segments()
         theta = np.asarray(theta, dtype=np.float64)
         theta_g, blocks = self.split_theta(theta)
-        r, locals_, states = _run(_residuals_and_jacobian_jit, st.layout, self.scene, self.base_params, st.data,
-                                  *jax.device_put((theta_g, blocks)))
+        Jl, (r, states) = _run(_residuals_and_jacobian_jit, st.layout, self.scene, self.base_params, st.data,
+                               *jax.device_put((theta_g, blocks)))
+        # each segment's rows: the global columns as they are, its batch's δ columns into its block's
         J = np.zeros((len(r), len(theta)))
-        row = 0
-        for b, (Jb, idx) in enumerate(zip(locals_, st.block_index)):  # each segment's local columns into θ's
-            count, rows = Jb.shape[:2]
-            Jfull = J[row : row + count * rows].reshape(count, rows, len(theta))
-            Jfull[:, :, st.global_index] = Jb[:, :, : len(theta_g)]
-            Jfull[np.arange(count)[:, None, None], np.arange(rows)[None, :, None], idx[:, None, :]] = \
-                Jb[:, :, len(theta_g) :]
-            row += count * rows
+        row, col = 0, len(theta_g)
+        for idx, rows in zip(st.block_index, st.segment_rows):
+            count, size = idx.shape
+            Jb = J[row : row + count * rows].reshape(count, rows, len(theta))  # (views of J)
+            Lb = Jl[row : row + count * rows].reshape(count, rows, -1)
+            Jb[:, :, st.global_index] = Lb[:, :, : len(theta_g)]
+            Jb[np.arange(count)[:, None, None], np.arange(rows)[None, :, None], idx[:, None, :]] = \
+                Lb[:, :, col : col + size]
+            row, col = row + count * rows, col + size
         return (np.concatenate([r[st.keep], self._prior_residuals(theta)]),
                 np.concatenate([J[st.keep], self._prior_jacobian(len(theta))]), st, states)
 
