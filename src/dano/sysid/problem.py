@@ -1407,12 +1407,13 @@ class SysIdProblem:
         """(m,) int: the entries of :func:`padded_residuals`' output that are residuals."""
         return self._structure.keep
 
-    def split_theta(self, theta):
+    def split_theta(self, theta, structure: _Structure | None = None):
         """θ (..., n) as :func:`padded_residuals` takes it: its global entries (..., P + G) (the
-        identified parameters, then the ground's) and per batch of :attr:`layout` the segments'
-        nuisance blocks (..., count, tracked DANOs, len(fit_axes)) (padded segments repeat their
-        batch's last block). NumPy or JAX arrays (the same kind back)."""
-        st = self._structure
+        identified parameters, then the ground's) and per batch of :attr:`layout` (or of
+        ``structure``'s, e.g. segments split over devices) the segments' nuisance blocks (...,
+        count, tracked DANOs, len(fit_axes)) (padded segments repeat their batch's last block).
+        NumPy or JAX arrays (the same kind back)."""
+        st = self._structure if structure is None else structure
         xp = np if isinstance(theta, np.ndarray) else jnp
         blocks = tuple(theta[..., idx].reshape(theta.shape[:-1] + (b.count, len(b.qadr), len(self.fit_axes)))
                        for idx, b in zip(st.block_index, st.layout.batches))
@@ -1443,7 +1444,7 @@ class SysIdProblem:
     def _residuals_jacobian_frames(self, theta):
         st = self._split_segments()
         theta = np.asarray(theta, dtype=np.float64)
-        theta_g, blocks = self.split_theta(theta)
+        theta_g, blocks = self.split_theta(theta, st)
         Jl, (r, states) = _run(_residuals_and_jacobian_jit, st.layout, self.scene, self.base_params, st.data,
                                *jax.device_put((theta_g, blocks)))
         # each segment's rows: the global columns as they are, its batch's δ columns into its block's
@@ -1482,7 +1483,7 @@ class SysIdProblem:
         st = self._split_segments()
         theta = np.asarray(theta, dtype=np.float64)
         r = _run(_residuals_only_jit, st.layout, self.scene, self.base_params, st.data,
-                 *jax.device_put(self.split_theta(theta)))
+                 *jax.device_put(self.split_theta(theta, st)))
         return np.concatenate([r[st.keep], self._prior_residuals(theta)])
 
     def jacobian(self, theta) -> np.ndarray:
