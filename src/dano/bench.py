@@ -228,6 +228,8 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
       ``repeats`` solves;
     * ``bunny_pushes``: α and friction from 10 noisy pushes (one solve each way; the slow one);
     * ``compile_by_lengths``: compile time for 20 trajectories of 20 lengths vs one length;
+    * ``jacobian_by_segments``: one residual and Jacobian of 16 and 64 slides with fitted start
+      velocities (n = 97 and 385);
     * ``contactnets_cube`` (with ``cube_data``, the ContactNets .npz): the whole example's wall
       and compile time on ``cube_tosses`` tosses, and its local solve with AD vs FD Jacobians.
     """
@@ -250,6 +252,7 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
             "friction_rel_error": est["bunny/ground:sliding_friction"] / PUSH_TRUTH["sliding_friction"] - 1}
     out["bunny_pushes_ratio_fd_over_ad"] = out["bunny_pushes_fd"]["wall_s"] / out["bunny_pushes_ad"]["wall_s"]
     out["compile_by_lengths"] = _compile_by_lengths()
+    out["jacobian_by_segments"] = _jacobian_by_segments()
     out["soap_command"] = command_times(["sysid", "soap", "--json", "--out-dir", "{out}"],
                                         repeats=max(repeats - 1, 1))
     if cube_data:
@@ -363,14 +366,37 @@ def bench_latency(repeats: int = 2) -> dict:
     return out
 
 
+def _box_slides_scene(dt: float):
+    """The analytic slides' box (0.1 × 0.1 × 0.05 m, 1 kg, 400 samples) on the ground, time step ``dt``."""
+    asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
+                  name="box")
+    return compose([DanoObject("box", asset, (0, 0, 0.05))], dt=dt)
+
+
+def _jacobian_by_segments(counts: tuple[int, ...] = (16, 64), repeats: int = 5) -> dict:
+    """One residual and Jacobian of box slides (20 frames, 2 substeps) with each slide's start
+    velocity fitted (6 nuisance entries a slide: n = 1 + 6 × slides), per slide count: the
+    first call (trace, compile, run) and the median of ``repeats`` more. Forward mode carries
+    θ's global entries and one offset per batch, not all n (docs/sysid.md, "Jacobians")."""
+    enable_float64()
+    scene = _box_slides_scene(0.005)
+    out: dict = {}
+    for count in counts:
+        problem = SysIdProblem(scene, analytic_slides(0, 0.05, count, frames=20, noise=0.001),
+                               [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], weights=Weights((1.0, 1.0, 1.0), 1.0),
+                               substeps=2, fit_velocity="xyz", fit_angular_velocity="xyz")
+        theta = problem.initial() + 0.001
+        r = _time(lambda: problem.residuals_and_jacobian(theta), repeats)
+        out[f"slides_{count}"] = {"n": problem.num_parameters, "m": problem.num_residuals, **r}
+    return out
+
+
 def _compile_by_lengths(count: int = 20) -> dict:
     """Compile time of an identification's residual and Jacobian for ``count`` trajectories of
     ``count`` different lengths (11, 12, … frames) against one trajectory of the longest
     length: the lengths are padded into one batch, so the first should not cost much more."""
     enable_float64()
-    asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
-                  name="box")
-    scene = compose([DanoObject("box", asset, (0, 0, 0.05))], dt=0.0025)
+    scene = _box_slides_scene(0.0025)
     longest = 10 + count
     slides = analytic_slides(0, 0.05, count, frames=longest)
     out: dict = {"trajectories": count, "frames": [11, longest]}
