@@ -580,10 +580,10 @@ class StartPriorRows(NamedTuple):
 @dataclass(frozen=True)
 class BatchLayout:
     """Static structure of one batch of segments that share a layout (vmapped together):
-    the number of segments (padded: :func:`~dano._compiled.shape_bucket`, then a multiple
-    of the devices), the tracked DANOs' qpos/qvel addresses, observed joints' qpos
-    addresses, simulated steps (settling included; the longest segment's frame intervals
-    padded by :func:`~dano._compiled.shape_bucket`) and settling steps."""
+    the number of segments (padded: :func:`segment_bucket`, then to a multiple of the
+    devices), the tracked DANOs' qpos/qvel addresses, observed joints' qpos addresses,
+    simulated steps (settling included; the longest segment's frame intervals padded:
+    :data:`INTERVAL_BITS`) and settling steps."""
 
     count: int
     qadr: tuple[int, ...]
@@ -611,7 +611,7 @@ class ResidualLayout:
     are keyed on. Problems of the same layout and scene, whatever their observed values,
     weights and parameter values, share one compilation (e.g. a bootstrap's resamples,
     continuation stages, and data sets whose segment counts and lengths fall in the same
-    buckets: :func:`~dano._compiled.shape_bucket`). It holds no segment index or θ length:
+    buckets: :func:`segment_bucket`, :data:`INTERVAL_BITS`). It holds no segment index or θ length:
     the compiled functions take θ's global entries and each batch's nuisance blocks apart
     (:func:`padded_residuals`)."""
 
@@ -767,10 +767,16 @@ _residuals_and_jacobian_jit = cached_jit(_residuals_and_jacobian, static_argnums
 _residuals_only_jit = cached_jit(padded_residuals, static_argnums=(0,), mesh=_layout_mesh)  # finite differences
 
 
-#: leading binary digits kept of a batch's segment count (1: the next power of two: 3 and 4
-#: trajectories, 5 to 8, ... share a compilation) and of its longest segment's frame intervals
-#: (3: within 25 %, e.g. 97 to 112 intervals): :func:`~dano._compiled.shape_bucket`
-SEGMENT_BITS, INTERVAL_BITS = 1, 3
+#: leading binary digits kept of a batch's longest segment's frame intervals (within 25 %,
+#: e.g. 97 to 112 intervals run as 112): :func:`~dano._compiled.shape_bucket`
+INTERVAL_BITS = 3
+
+
+def segment_bucket(count: int) -> int:
+    """A batch's segment count padded to a shared shape: 1, 2, 4, 6, 8, 12, 16, 24, 32, …
+    (two leading binary digits, 3 run as 4, so that a fourth trajectory added to three
+    reuses their compilation): at most 1.5× the segments simulated, 1.2× for 5."""
+    return 4 if count == 3 else shape_bucket(count, 2)
 
 #: parameter vectors per vmapped batch (:meth:`SysIdProblem.batch_residuals`): one compiled shape
 #: (rounded up to a multiple of the devices in use when they split the batch)
@@ -1350,9 +1356,9 @@ class SysIdProblem:
 
     def _build_structure(self, shards: int) -> "_Structure":
         """:attr:`_structure` with each batch's segments split over ``shards`` devices. Each
-        batch's segment count and frame intervals are padded to :func:`~dano._compiled.shape_bucket`
-        (so that data sets of other counts and lengths in the same buckets share the compiled
-        functions), the count then to a multiple of ``shards``: padded segments are copies of
+        batch's segment count and frame intervals are padded to buckets (:func:`segment_bucket`,
+        :data:`INTERVAL_BITS`), so that data sets of other counts and lengths in the same
+        buckets share the compiled functions, the count then to a multiple of ``shards``: padded segments are copies of
         the batch's last one, padded frames repeat the last frame (their residuals are
         dropped by ``keep``)."""
         batches, arrays, wrot, keep, members, block_index, segment_rows, offset = [], [], [], [], [], [], [], 0
@@ -1360,7 +1366,7 @@ class SysIdProblem:
         nuisance = self._nuisance_offsets()
         for (qadr, dadr, jadr, settle), items in self._groups().items():
             real = len(items)
-            items = items + [items[-1]] * (sharding.padded_size(shape_bucket(real, SEGMENT_BITS), shards) - real)
+            items = items + [items[-1]] * (sharding.padded_size(segment_bucket(real), shards) - real)
             steps = shape_bucket(max(st for _, _, st in items) // self.substeps, INTERVAL_BITS) * self.substeps
             frames = steps // self.substeps + 1
             # (host arrays put on the device: jnp.asarray compiled a small program per shape)
