@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from dano import _compiled
-from dano._compiled import cached_jit
+from dano._compiled import cached_jit, shape_bucket
 
 # A box DANO sliding on the ground in a fresh process: prints the program counts and the
 # final state. argv: cache folder, time step, steps.
@@ -294,3 +294,18 @@ def test_objects_of_the_same_structure_share_their_programs(tmp_path, monkeypatc
     alone = final(ball, "ball")
     assert np.isfinite(alone).all() and abs(alone[2] - 0.03) < 0.01  # (resting on the ground)
     np.testing.assert_array_equal(shared, alone)
+
+
+def test_shape_buckets_bound_the_padding():
+    """Sizes share a bucket within the bound each bucket promises: three leading binary digits
+    (at most 25 % more), and the identification's segment counts 1, 2, 4, 6, 8, 12, … (at most
+    1.5×, 3 run as 4); a negative size is refused."""
+    from dano.sysid.problem import segment_bucket
+
+    assert [shape_bucket(n) for n in (0, 1, 8, 9, 19, 20, 97, 112, 113)] == [0, 1, 8, 10, 20, 20, 112, 112, 128]
+    assert [shape_bucket(n, 1) for n in (3, 5, 64, 65)] == [4, 8, 64, 128]
+    assert all(n <= shape_bucket(n) <= 1.25 * n for n in range(1, 5000))
+    assert [segment_bucket(n) for n in range(1, 14)] == [1, 2, 4, 4, 6, 6, 8, 8, 12, 12, 12, 12, 16]
+    assert all(n <= segment_bucket(n) <= 1.5 * n for n in range(1, 5000))
+    with pytest.raises(ValueError, match="n >= 0"):
+        shape_bucket(-1)

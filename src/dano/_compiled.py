@@ -67,6 +67,7 @@ COMPILE_SECONDS = [0.0]
 #: how many programs were traced (and exported) and how many were loaded from disk
 COUNTS = collections.Counter()
 
+
 def shape_bucket(n: int, bits: int = 3) -> int:
     """``n`` rounded up to a shape that many sizes share, so that one compiled program serves
     them all (padded rows or steps are computed and dropped): ``n`` kept to its ``bits``
