@@ -93,9 +93,11 @@ def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: Ne
     return _scan_steps_compiled(scene, params, data, controls, qfrc, newton, final_overlaps)
 
 
-def _inputs(scene: Scene, data, controls, qfrc, steps: int):
-    ctrl = jnp.broadcast_to(data.ctrl, (steps, scene.nu)) if controls is None else controls
-    f = jnp.broadcast_to(data.qfrc_applied, (steps, scene.nv)) if qfrc is None else qfrc
+def _inputs(scene: Scene, data, controls, qfrc, steps: int, xp=jnp):
+    """(controls (T, nu), qfrc (T, nv)): those given, or the data's ctrl and qfrc_applied held
+    for ``steps`` steps; ``xp``: jnp inside traced code, np for host-side arrays."""
+    ctrl = xp.broadcast_to(xp.asarray(data.ctrl), (steps, scene.nu)) if controls is None else controls
+    f = xp.broadcast_to(xp.asarray(data.qfrc_applied), (steps, scene.nv)) if qfrc is None else qfrc
     return ctrl, f
 
 
@@ -204,8 +206,7 @@ def rollout(
         data = state0
     ctrl = None if controls is None else _as_array(controls, (steps, scene.nu), "controls", dt)
     f = None if qfrc is None else _as_array(qfrc, (steps, scene.nv), "qfrc", dt)
-    ctrl = np.broadcast_to(np.asarray(data.ctrl), (steps, scene.nu)) if ctrl is None else np.asarray(ctrl)
-    f = np.broadcast_to(np.asarray(data.qfrc_applied), (steps, scene.nv)) if f is None else np.asarray(f)
+    ctrl, f = (np.asarray(x) for x in _inputs(scene, data, ctrl, f, steps, np))
     size = CHUNK if progress is None else min(CHUNK, max(PROGRESS_CHUNK, -(-steps // 20)))
     starts = range(0, steps, size)
     parts, iters = [], []
