@@ -265,6 +265,44 @@ def test_problems_of_one_structure_share_one_compilation():
     assert programs(_residuals_and_jacobian_jit.counts) == programs(counts) + 1
 
 
+def test_compressed_least_squares_is_the_same_problem():
+    """The residual compressed segment by segment (a thin QR per segment's block:
+    JacobianBlocks.compressed) keeps the cost, JᵀJ and Jᵀr, also with per-row scales, and a
+    local solve on it takes the solver's own steps on the whole residual (the same evaluations
+    and estimate). Three slides of 20, 18 and 15 frames (padded to 4 segments of 19 intervals),
+    start positions and velocities fitted from finite differences, so every segment has
+    start prior rows; the blocks' Jacobian equals forward mode over all of θ."""
+    from dano.sysid.solve import solve_least_squares
+    from dano.sysid.uncertainty import least_squares_functions
+
+    asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
+                  name="box")
+    scene = compose([DanoObject("box", asset, (0, 0, 0.05))], dt=0.005)
+    obs = [dataclasses.replace(o, qvel0=None, time=o.time[:f], poses={"box": o.poses["box"][:f]})
+           for o, f in zip(analytic_slides(5, 0.05, 3, frames=20, noise=0.001), (20, 18, 15))]
+    problem = SysIdProblem(scene, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)],
+                           weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=2, fit_position="xy", fit_velocity="xy")
+    assert len(problem.start_prior_rows.index) == 12 and problem.layout.batches[0].count == 4
+    theta = problem.initial() + 0.01
+    blocks = problem.jacobian_blocks(theta)
+    r, J = blocks.residuals, blocks.dense()
+    whole = np.asarray(jax.jacfwd(problem.residual_function())(jnp.asarray(theta)))
+    np.testing.assert_allclose(J, whole, rtol=0, atol=1e-12 * np.abs(whole).max())
+    scale = np.random.default_rng(0).uniform(0.5, 2.0, len(r))
+    rs, Js = r * scale, J * scale[:, None]
+    rc, Jc = blocks.compressed(rs, scale)
+    assert Jc.shape == (4 * 5 + 1, 13) and len(r) == 2 * (19 + 17 + 14) + 12  # 4 segments × (μ + 4 offsets)
+    assert abs(np.linalg.norm(rc) - np.linalg.norm(rs)) <= 1e-12 * np.linalg.norm(rs)
+    np.testing.assert_allclose(Jc.T @ Jc, Js.T @ Js, rtol=0, atol=1e-12 * np.abs(Js.T @ Js).max())
+    np.testing.assert_allclose(Jc.T @ rc, Js.T @ rs, rtol=0, atol=1e-12 * np.abs(Js.T @ rs).max())
+    lo, hi = problem.bounds()
+    fits = [solve_least_squares(f.fun, problem.initial(), lo, hi, jacobian=f.jac)
+            for f in (least_squares_functions(problem, compress=c) for c in (False, True))]
+    assert fits[0].nfev == fits[1].nfev and fits[0].converged and fits[1].converged
+    np.testing.assert_allclose(fits[1].x, fits[0].x, rtol=0, atol=1e-9)
+    assert abs(fits[1].cost - fits[0].cost) <= 1e-10 * fits[0].cost
+
+
 def test_bad_interval_options_are_refused(box, tmp_path, capsys):
     from dano.errors import DanoError
 

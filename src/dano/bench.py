@@ -43,6 +43,8 @@ from .sim.implicit import iteration_limit, resolve_linear_solver
 from .sim.scene import cast_floats
 from .sim.scenes import load_scene
 from .sysid import FitParameter, SysIdProblem, Weights, identify
+from .sysid.solve import solve_least_squares
+from .sysid.uncertainty import least_squares_functions
 from .trajopt.ilqr import Multipliers, _compiled
 
 
@@ -230,6 +232,8 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
     * ``compile_by_lengths``: compile time for 20 trajectories of 20 lengths vs one length;
     * ``jacobian_by_segments``: one residual and Jacobian of 16 and 64 slides with fitted start
       velocities (n = 97 and 385);
+    * ``local_solve_by_segments``: 30 evaluations of the local solver on those 64 slides, on the
+      whole residual and compressed segment by segment, side by side;
     * ``contactnets_cube`` (with ``cube_data``, the ContactNets .npz): the whole example's wall
       and compile time on ``cube_tosses`` tosses, and its local solve with AD vs FD Jacobians.
     """
@@ -253,6 +257,7 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
     out["bunny_pushes_ratio_fd_over_ad"] = out["bunny_pushes_fd"]["wall_s"] / out["bunny_pushes_ad"]["wall_s"]
     out["compile_by_lengths"] = _compile_by_lengths()
     out["jacobian_by_segments"] = _jacobian_by_segments()
+    out["local_solve_by_segments"] = _local_solve_by_segments()
     out["soap_command"] = command_times(["sysid", "soap", "--json", "--out-dir", "{out}"],
                                         repeats=max(repeats - 1, 1))
     if cube_data:
@@ -378,16 +383,42 @@ def _jacobian_by_segments(counts: tuple[int, ...] = (16, 64), repeats: int = 5) 
     velocity fitted (6 nuisance entries a slide: n = 1 + 6 × slides), per slide count: the
     first call (trace, compile, run) and the median of ``repeats`` more. Forward mode carries
     θ's global entries and one offset per batch, not all n (docs/sysid.md, "Jacobians")."""
-    enable_float64()
-    scene = _box_slides_scene(0.005)
     out: dict = {}
     for count in counts:
-        problem = SysIdProblem(scene, analytic_slides(0, 0.05, count, frames=20, noise=0.001),
-                               [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], weights=Weights((1.0, 1.0, 1.0), 1.0),
-                               substeps=2, fit_velocity="xyz", fit_angular_velocity="xyz")
+        problem = _slides_with_start_velocities(count)
         theta = problem.initial() + 0.001
         r = _time(lambda: problem.residuals_and_jacobian(theta), repeats)
         out[f"slides_{count}"] = {"n": problem.num_parameters, "m": problem.num_residuals, **r}
+    return out
+
+
+def _slides_with_start_velocities(count: int) -> SysIdProblem:
+    """Box slides (20 frames, 2 substeps, 1 mm noise) with each slide's start velocity fitted
+    (6 nuisance entries a slide: n = 1 + 6 × ``count``)."""
+    enable_float64()
+    return SysIdProblem(_box_slides_scene(0.005), analytic_slides(0, 0.05, count, frames=20, noise=0.001),
+                        [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], weights=Weights((1.0, 1.0, 1.0), 1.0),
+                        substeps=2, fit_velocity="xyz", fit_angular_velocity="xyz")
+
+
+def _local_solve_by_segments(count: int = 64, evaluations: int = 30) -> dict:
+    """The local solver (:func:`~dano.sysid.solve.solve_least_squares`, ``evaluations``
+    residual evaluations from the initial guess) on ``count`` box slides with fitted start
+    velocities, on the residual as it is and compressed segment by segment
+    (:meth:`~dano.sysid.problem.JacobianBlocks.compressed`), side by side after one
+    compiling call: wall times, costs and how far the estimates are apart."""
+    problem = _slides_with_start_velocities(count)
+    x0, (lo, hi) = problem.initial(), problem.bounds()
+    problem.residuals_and_jacobian(x0)
+    out: dict = {"n": problem.num_parameters, "m": problem.num_residuals, "evaluations": evaluations}
+    fits = {}
+    for key, compress in (("whole", False), ("compressed", True)):
+        f = least_squares_functions(problem, compress=compress)
+        fits[key] = fit = solve_least_squares(f.fun, x0, lo, hi, jacobian=f.jac, max_iterations=evaluations)
+        out[key] = {"wall_s": fit.wall_time_s, "cost": fit.cost, "nfev": fit.nfev,
+                    "rows_seen": len(f.fun(fit.x))}
+    out["ratio_whole_over_compressed"] = out["whole"]["wall_s"] / out["compressed"]["wall_s"]
+    out["max_abs_estimate_difference"] = float(np.max(np.abs(fits["whole"].x - fits["compressed"].x)))
     return out
 
 

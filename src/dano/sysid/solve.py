@@ -19,6 +19,7 @@ identifiability of each parameter are reported, with warnings.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -430,15 +431,18 @@ def _local_solve(problem: SysIdProblem, x0: np.ndarray, *, jacobian: str, max_it
     if ftol is None:
         ftol = statistical_ftol(problem.num_residuals, problem.num_parameters)
 
-    f, jac, raw = unc.least_squares_functions(problem, jacobian=jacobian == "ad")
+    f = unc.least_squares_functions(problem, jacobian=jacobian == "ad")
     t0 = time.perf_counter()
-    r0 = raw(x0)  # remembered: the solver's first evaluation reuses it
+    r0 = f.raw(x0)  # remembered: the solver's first evaluation reuses it
     compile_time = time.perf_counter() - t0
     if not np.all(np.isfinite(r0)):
         raise DanoError("the simulation gives non-finite residuals at the initial guess; check the scene and data")
 
-    fit = solve_least_squares(f, x0, lo, hi, jacobian=jac, max_iterations=max_iterations, xtol=xtol, ftol=ftol,
+    fit = solve_least_squares(f.fun, x0, lo, hi, jacobian=f.jac, max_iterations=max_iterations, xtol=xtol, ftol=ftol,
                               gtol=gtol, initial_cost=0.5 * float(r0 @ r0))
+    if f.compress:  # the residual's own rows, for the standard errors and the checks after the solve
+        r, J = f.full(fit.x)
+        fit = dataclasses.replace(fit, residuals=r, jacobian=J)
     m = len(fit.residuals)
     se, notes = _standard_errors(problem, fit, max_iterations)
     return SysIdResult(

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
@@ -58,29 +59,65 @@ def bounded_residuals(r) -> np.ndarray:
     return np.clip(finite(r, RESIDUAL_CAP), -RESIDUAL_CAP, RESIDUAL_CAP)
 
 
-def least_squares_functions(problem: SysIdProblem, scale: np.ndarray | None = None, jacobian: bool = True):
-    """(fun, jac, raw) for :func:`scipy.optimize.least_squares`: the residual
-    (:func:`bounded_residuals`, which keeps the solver away from diverging rollouts), its Jacobian
-    (non-finite entries 0), optionally scaled per residual, and the unscaled residual as
-    computed (non-finite entries kept, to check a start); residual and Jacobian come from one
-    compiled evaluation, the last one remembered (the solver asks for the Jacobian where it just
-    evaluated). ``jacobian=False``: residuals only (for SciPy's finite differences; ``jac`` is
-    then None)."""
+#: from this many parameters (θ's entries, nuisance included) the local solvers see the residual
+#: compressed block by block (:meth:`~dano.sysid.problem.JacobianBlocks.compressed`): the same
+#: iterates, a trust-region SVD of K·n² instead of m·n²; below it the rows as they are
+COMPRESS_MIN_PARAMETERS = 32
+
+
+class LeastSquaresFunctions(NamedTuple):
+    """What :func:`scipy.optimize.least_squares` takes, and the residual behind it.
+
+    fun: x (n,) -> the residual the solver sees (bounded: :func:`bounded_residuals`, scaled
+    per row), compressed (``compress``) to (K + 1,); jac: x -> its Jacobian, (m, n) or (K + 1,
+    n) (non-finite entries 0), or None (SciPy's finite differences); raw: x -> (m,) the
+    residual as computed (non-finite entries kept, to check a start); full: x -> ((m,), (m,
+    n)) the solver's residual and Jacobian uncompressed (for standard errors and profiles
+    after a compressed solve); compress: whether fun and jac are compressed."""
+
+    fun: Callable
+    jac: Callable | None
+    raw: Callable
+    full: Callable
+    compress: bool
+
+
+def least_squares_functions(problem: SysIdProblem, scale: np.ndarray | None = None, jacobian: bool = True,
+                            compress: bool | None = None) -> LeastSquaresFunctions:
+    """The residual and its Jacobian for :func:`scipy.optimize.least_squares`
+    (:class:`LeastSquaresFunctions`), optionally scaled per residual (``scale`` (m,)); residual
+    and Jacobian come from one compiled evaluation, the last one remembered (the solver asks
+    for the Jacobian where it just evaluated). ``jacobian=False``: residuals only (for
+    SciPy's finite differences). ``compress`` None: from :data:`COMPRESS_MIN_PARAMETERS`
+    parameters on, with the Jacobian."""
+    compress = jacobian and (problem.num_parameters >= COMPRESS_MIN_PARAMETERS if compress is None else compress)
+    sc = 1.0 if scale is None else np.asarray(scale, dtype=np.float64)
     last: dict = {}
 
     def both(x):
         x = np.asarray(x, dtype=np.float64)
         if "x" not in last or not np.array_equal(last["x"], x):
             if jacobian:
-                raw, J = problem.residuals_and_jacobian(x)
-                J = finite(J, 0.0) * (1.0 if scale is None else scale[:, None])
+                blocks = problem.jacobian_blocks(x)
+                raw, r = blocks.residuals, bounded_residuals(blocks.residuals) * sc
+                fun, J = blocks.compressed(r, scale) if compress else (r, finite(blocks.dense(), 0.0) *
+                                                                         (sc if scale is None else sc[:, None]))
             else:
-                raw, J = problem.residuals_only(x), None
-            r = bounded_residuals(raw) * (1.0 if scale is None else scale)
-            last.update(x=x.copy(), r=r, J=J, raw=raw)
+                raw = problem.residuals_only(x)
+                blocks, r, J = None, bounded_residuals(raw) * sc, None
+                fun = r
+            last.clear()
+            last.update(x=x.copy(), fun=fun, J=J, raw=raw, r=r, blocks=blocks)
         return last
 
-    return (lambda x: both(x)["r"]), ((lambda x: both(x)["J"]) if jacobian else None), (lambda x: both(x)["raw"])
+    def full(x):
+        got = both(x)
+        if not compress:
+            return got["r"], got["J"]
+        return got["r"], finite(got["blocks"].dense(), 0.0) * (sc if scale is None else sc[:, None])
+
+    return LeastSquaresFunctions(lambda x: both(x)["fun"], (lambda x: both(x)["J"]) if jacobian else None,
+                                 lambda x: both(x)["raw"], full, compress)
 
 
 # ------------------------------------------------------------------ noise from the observations
@@ -329,7 +366,8 @@ def bootstrap(problem: SysIdProblem, estimates: np.ndarray, *, samples: int = 10
     out, failed, unconverged = [], 0, 0
     for _ in range(samples):
         scale = np.sqrt(np.bincount(rng.integers(0, n_obs, n_obs), minlength=n_obs).astype(np.float64))[owner]
-        fun, jac, _ = least_squares_functions(problem, scale)
+        f = least_squares_functions(problem, scale)
+        fun, jac = f.fun, f.jac
         sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_iterations)
         if sol.status == 0 and np.all(np.isfinite(sol.x)):  # at the evaluation limit: once more from there
             sol = least_squares(fun, np.clip(sol.x, lo, hi), jac=jac, bounds=(lo, hi), method="trf", x_scale="jac",
