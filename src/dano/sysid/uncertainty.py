@@ -94,14 +94,17 @@ def least_squares_functions(problem: SysIdProblem, scale: np.ndarray | None = No
     sc = 1.0 if scale is None else np.asarray(scale, dtype=np.float64)
     last: dict = {}
 
+    def dense(blocks):  # the (m, n) Jacobian the solver's rows have
+        J = finite(blocks.dense(), 0.0)
+        return J if scale is None else J * sc[:, None]
+
     def both(x):
         x = np.asarray(x, dtype=np.float64)
         if "x" not in last or not np.array_equal(last["x"], x):
             if jacobian:
                 blocks = problem.jacobian_blocks(x)
                 raw, r = blocks.residuals, bounded_residuals(blocks.residuals) * sc
-                fun, J = blocks.compressed(r, scale) if compress else (r, finite(blocks.dense(), 0.0) *
-                                                                         (sc if scale is None else sc[:, None]))
+                fun, J = blocks.compressed(r, scale) if compress else (r, dense(blocks))
             else:
                 raw = problem.residuals_only(x)
                 blocks, r, J = None, bounded_residuals(raw) * sc, None
@@ -112,9 +115,7 @@ def least_squares_functions(problem: SysIdProblem, scale: np.ndarray | None = No
 
     def full(x):
         got = both(x)
-        if not compress:
-            return got["r"], got["J"]
-        return got["r"], finite(got["blocks"].dense(), 0.0) * (sc if scale is None else sc[:, None])
+        return got["r"], (dense(got["blocks"]) if compress else got["J"])
 
     return LeastSquaresFunctions(lambda x: both(x)["fun"], (lambda x: both(x)["J"]) if jacobian else None,
                                  lambda x: both(x)["raw"], full, compress)
