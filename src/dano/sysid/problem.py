@@ -614,7 +614,9 @@ class JacobianBlocks:
         and what Q_s does not span, ‖r_s − Q_s Q_sᵀ r_s‖, is pooled in the last entry (whose
         Jacobian row is 0: r's part orthogonal to J's columns has no first-order change).
         A trust-region solver's SVD then costs K·n² instead of m·n² (m/K ≈ R/k: 16× for box
-        slides of 20 frames with start velocities fitted) with the same iterates to rounding.
+        slides of 20 frames with start velocities fitted), with the same iterates to rounding
+        except where J's numerical rank is borderline (SciPy's rank test, eps·rows·s_max,
+        counts rows: :data:`~dano.sysid.uncertainty.COMPRESS_MIN_PARAMETERS`).
 
         residuals: (m,) the vector to factor against (e.g. the bounded and scaled residual a
         solver sees); scale: (m,) per-row factors applied to J's rows (None: 1); non-finite
