@@ -269,9 +269,10 @@ def test_compressed_least_squares_is_the_same_problem():
     """The residual compressed segment by segment (a thin QR per segment's block:
     JacobianBlocks.compressed) keeps the cost, JᵀJ and Jᵀr, also with per-row scales, and a
     local solve on it takes the solver's own steps on the whole residual (the same evaluations
-    and estimate). Three slides of 20, 18 and 15 frames (padded to 4 segments of 19 intervals),
-    start positions and velocities fitted from finite differences, so every segment has
-    start prior rows; the blocks' Jacobian equals forward mode over all of θ."""
+    and estimate); a θ of the wrong length and non-finite residuals are refused. Three
+    slides of 20, 18 and 15 frames (padded to 4 segments of 19 intervals), start positions
+    and velocities fitted from finite differences, so every segment has start prior rows;
+    the blocks' Jacobian equals forward mode over all of θ."""
     from dano.sysid.solve import solve_least_squares
     from dano.sysid.uncertainty import least_squares_functions
 
@@ -301,6 +302,12 @@ def test_compressed_least_squares_is_the_same_problem():
     assert fits[0].nfev == fits[1].nfev and fits[0].converged and fits[1].converged
     np.testing.assert_allclose(fits[1].x, fits[0].x, rtol=0, atol=1e-9)
     assert abs(fits[1].cost - fits[0].cost) <= 1e-10 * fits[0].cost
+    from dano.errors import DanoError
+
+    with pytest.raises(DanoError, match="theta must have 13 entries"):
+        problem.jacobian_blocks(theta[:5])
+    with pytest.raises(ValueError, match="non-finite"):
+        blocks.compressed(np.where(np.arange(len(r)) == 3, np.nan, rs))
 
 
 def test_bad_interval_options_are_refused(box, tmp_path, capsys):

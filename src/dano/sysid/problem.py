@@ -614,15 +614,21 @@ class JacobianBlocks:
         and what Q_s does not span, ‖r_s − Q_s Q_sᵀ r_s‖, is pooled in the last entry (whose
         Jacobian row is 0: r's part orthogonal to J's columns has no first-order change).
         A trust-region solver's SVD then costs K·n² instead of m·n² (m/K ≈ R/k: 16× for box
-        slides of 20 frames with start velocities fitted), with the same iterates to rounding
-        except where J's numerical rank is borderline (SciPy's rank test, eps·rows·s_max,
-        counts rows: :data:`~dano.sysid.uncertainty.COMPRESS_MIN_PARAMETERS`).
+        slides of 20 frames with start velocities fitted), with the same iterates up to a
+        rounding difference, which a jagged cost grows
+        (:data:`~dano.sysid.uncertainty.COMPRESS_MIN_PARAMETERS`).
 
         residuals: (m,) the vector to factor against (e.g. the bounded and scaled residual a
         solver sees); scale: (m,) per-row factors applied to J's rows (None: 1); non-finite
-        Jacobian entries count as 0."""
+        Jacobian entries count as 0. Raises ValueError if residuals or scale are not (m,) and
+        finite."""
+        m = len(self.residuals)
         r = np.asarray(residuals, dtype=np.float64)
-        s = np.ones(len(r)) if scale is None else np.asarray(scale, dtype=np.float64)
+        s = np.ones(m) if scale is None else np.asarray(scale, dtype=np.float64)
+        for name, a in (("residuals", r), ("scale", s)):
+            if a.shape != (m,) or not np.all(np.isfinite(a)):
+                raise ValueError(f"JacobianBlocks.compressed: {name} must be {m} finite values, got shape {a.shape}"
+                                 + ("" if a.shape != (m,) else " with non-finite entries"))
         out_r, out_J, perp = [], [], 0.0
         for rows, cols, vals in zip(self.rows, self.columns, self.values):
             real = rows >= 0
@@ -844,6 +850,7 @@ def segment_bucket(count: int) -> int:
     (two leading binary digits, 3 run as 4, so that a fourth trajectory added to three
     reuses their compilation): at most 1.5× the segments simulated, 1.2× for 5."""
     return 4 if count == 3 else shape_bucket(count, 2)
+
 
 #: parameter vectors per vmapped batch (:meth:`SysIdProblem.batch_residuals`): one compiled shape
 #: (rounded up to a multiple of the devices in use when they split the batch)
@@ -1418,9 +1425,9 @@ class SysIdProblem:
         """:attr:`_structure` with each batch's segments split over ``shards`` devices. Each
         batch's segment count and frame intervals are padded to buckets (:func:`segment_bucket`,
         :data:`INTERVAL_BITS`), so that data sets of other counts and lengths in the same
-        buckets share the compiled functions, the count then to a multiple of ``shards``: padded segments are copies of
-        the batch's last one, padded frames repeat the last frame (their residuals are
-        dropped by ``keep``)."""
+        buckets share the compiled functions, the count then to a multiple of ``shards``:
+        padded segments are copies of the batch's last one, padded frames repeat the last
+        frame (their residuals are dropped by ``keep``)."""
         batches, arrays, wrot, keep, members, block_index, segment_rows, offset = [], [], [], [], [], [], [], 0
         rot_w = self.rotation_weights()
         nuisance = self._nuisance_offsets()
@@ -1499,7 +1506,12 @@ class SysIdProblem:
         identified parameters, then the ground's) and per batch of :attr:`layout` (or of
         ``structure``'s, e.g. segments split over devices) the segments' nuisance blocks (...,
         count, tracked DANOs, len(fit_axes)) (padded segments repeat their batch's last block).
-        NumPy or JAX arrays (the same kind back)."""
+        NumPy or JAX arrays (the same kind back). Raises DanoError if θ's last axis is not n
+        (:attr:`num_parameters`, in the order of :attr:`labels`)."""
+        if theta.shape[-1:] != (self.num_parameters,):
+            raise DanoError(f"theta must have {self.num_parameters} entries (SysIdProblem.labels: "
+                            f"{', '.join(self.labels[:3])}{', ...' if self.num_parameters > 3 else ''}), "
+                            f"got shape {tuple(theta.shape)}")
         st = self._structure if structure is None else structure
         xp = np if isinstance(theta, np.ndarray) else jnp
         blocks = tuple(theta[..., idx].reshape(theta.shape[:-1] + (b.count, len(b.qadr), len(self.fit_axes)))
