@@ -335,3 +335,37 @@ def test_bad_interval_options_are_refused(box, tmp_path, capsys):
         err = capsys.readouterr().err
         assert message in err and "Traceback" not in err
         assert not (tmp_path / f"out_{key}").exists()
+
+
+def test_a_segment_left_far_off_is_rescanned_and_refitted():
+    """segment_restarts: four analytic Coulomb slides (closed form, not dano's), start
+    velocities fitted; one slide's block is put 1.5 m/s off on each axis and held there (a
+    solve of one evaluation), as a local minimum of its own would hold it. It is found as the
+    one outlier (over 10x the median segment's cost), a candidate lowers its own cost, and the
+    fit continued from there reaches the whole solve's answer; a converged fit is returned
+    as it is, with no segment scan."""
+    from dano.sysid.solve import _local_solve, segment_restarts
+
+    asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
+                  name="box")
+    scene = compose([DanoObject("box", asset, (0, 0, 0.05))], dt=0.005)
+    obs = [dataclasses.replace(o, qvel0=None) for o in analytic_slides(7, 0.05, 4, frames=20, noise=0.001)]
+    problem = SysIdProblem(scene, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)],
+                           weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=2, fit_velocity="xy")
+    local = dict(jacobian="ad", max_iterations=100, xtol=1e-8, ftol=None, gtol=1e-8)
+    good = _local_solve(problem, problem.initial(), **local)
+    assert good.success
+    assert segment_restarts(problem, good, **local) is good and good.segment_scan is None
+    entries = problem.segment_entries()
+    assert [len(b) for _, b in entries] == [2] * 4 and sum(len(r) for r, _ in entries) == problem.num_residuals
+    theta = good.estimates.copy()
+    theta[entries[2][1]] += 1.5
+    held = _local_solve(problem, theta, **{**local, "max_iterations": 1})
+    assert held.final_cost > 10 * good.final_cost
+    out = segment_restarts(problem, held, **local)
+    first = out.segment_scan["rounds"][0]
+    assert first["segments"] == [2] and first["moved"] == [2]
+    assert first["costs"][0] > 10 * first["median_cost"]
+    assert abs(out.final_cost - good.final_cost) <= 1e-6 * good.final_cost
+    np.testing.assert_allclose(out.estimates, good.estimates, rtol=0, atol=1e-5)
+    assert out.nfev > held.nfev and "were re-scanned" in out.notes[-1]

@@ -1485,6 +1485,19 @@ class SysIdProblem:
             offset += count * per
         return tuple(rows), tuple(c.astype(np.int64) for c in cols)
 
+    def segment_entries(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per segment (:attr:`segments`' order): (rows (R_s,) int, the residual entries that
+        depend on its nuisance block: its frames' and its start prior's; block (b_s,) int, θ's
+        entries of that block). The cost is separable in the blocks: with the global entries
+        held, a segment's block changes its own rows only."""
+        st = self._structure
+        g = len(st.global_index)
+        out = [None] * len(self.segments)
+        for members, rows, cols in zip(st.members, st.block_rows, st.block_columns):
+            for i, sid in enumerate(members):
+                out[sid] = (rows[i][rows[i] >= 0], cols[i][g:])
+        return out
+
     @property
     def layout(self) -> ResidualLayout:
         """The residual's static structure (what its compilation is keyed on)."""
