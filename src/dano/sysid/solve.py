@@ -216,7 +216,9 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     start per basin the scan resolves: :func:`_basin_starts`; scan points moved off the
     bounds by 2 % of the box), and the lowest final cost wins.
     The result's ``scan`` holds the points, their costs, the starts and the cost profile along
-    each parameter.
+    each parameter. A segment that the answer fits far worse than the median segment has its
+    nuisance block re-scanned and the solve continued (:func:`segment_restarts`; the
+    result's ``segment_scan``).
 
     profile_points: the verification and interval (:mod:`dano.sysid.uncertainty`): a profile
     through the estimate along each global parameter of this many points (default 32 for one
@@ -681,9 +683,10 @@ def segment_restarts(problem: SysIdProblem, best: SysIdResult, *, level: float =
     With the global parameters held, the cost is separable: each segment's nuisance block
     (its start offsets) moves its own rows only (:meth:`SysIdProblem.segment_entries`). A
     solve of many segments can leave one block in a local minimum of its own (an impact's
-    jagged cost: on 40 noisy MuJoCo C slides of a bunny, one slide at 30× the others' cost
-    held the whole fit at 4× the cost of a minimum nearby), which the verification's profiles
-    (the nuisance re-optimised by chord steps) need not leave. A segment costing more than
+    jagged cost: on 40 noisy slides of a bunny made by plain MuJoCo C, two data sets, one
+    slide at 160–200× the median slide's cost held the whole fit at 3.2–4.4× the cost it
+    reaches once that slide is moved), which the verification's profiles (the nuisance
+    re-optimised by chord steps) need not leave (docs/sysid.md). A segment costing more than
     :data:`SEGMENT_OUTLIER` times the median segment's, by more than χ²(level)·σ² (σ² the
     residual variance), is re-scanned: :data:`SEGMENT_CANDIDATES` values of its block, its
     initial value, its value in each earlier round's fit (where the continued solve pushed
