@@ -671,7 +671,8 @@ def _continued(best: SysIdResult, new: SysIdResult) -> SysIdResult:
 #: a segment whose cost exceeds this multiple of the median segment's is re-scanned
 #: (:func:`segment_restarts`)
 SEGMENT_OUTLIER = 10.0
-#: candidates per re-scanned segment (its start, then scrambled Sobol points)
+#: candidates per re-scanned segment (its initial block, its block in earlier rounds' fits, then
+#: scrambled Sobol points)
 SEGMENT_CANDIDATES = 32
 #: rounds of re-scan and local solve at most
 SEGMENT_ROUNDS = 2
@@ -693,10 +694,10 @@ def segment_restarts(problem: SysIdProblem, best: SysIdResult, *, level: float =
     another segment into a minimum of its own) and scrambled Sobol points within ± twice the
     spread (standard deviation over the segments) of each of its entries around the fitted
     value, every such segment's candidates evaluated at once (K vectors of θ through the
-    vmapped residual). Each
-    takes its lowest candidate where that lowers its own cost by more than χ²(level)·σ²; the
-    local solver (``local``: :func:`_local_solve`'s options) continues from there and its
-    answer is kept when it costs less, for at most :data:`SEGMENT_ROUNDS` rounds.
+    vmapped residual). Each takes its lowest candidate where that lowers its own cost by more
+    than χ²(level)·σ²; the local solver (``local``: :func:`_local_solve`'s options) continues
+    from there and its answer is kept when it costs less, for at most :data:`SEGMENT_ROUNDS`
+    rounds.
 
     Returns ``best`` or the continued result; its ``segment_scan`` records each round
     (segments re-scanned, their costs and the median's, those moved, the cost before and
@@ -758,14 +759,16 @@ def segment_restarts(problem: SysIdProblem, best: SysIdResult, *, level: float =
     best.segment_scan = {"rounds": rounds, "candidates": SEGMENT_CANDIDATES,
                          "wall_time_s": _minus_compiling(t0, started)}
     best.wall_time_s += best.segment_scan["wall_time_s"]
-    first, last = rounds[0], rounds[-1]
-    after = last.get("cost_after", last["cost_before"])
-    best.notes.append(
-        f"{len(first['segments'])} segment(s) fitted at over {SEGMENT_OUTLIER:g}x the median segment's cost "
-        f"({_segment_names(problem, first['segments'])}) were re-scanned: "
-        + (f"the fit continued from their lowest candidates, cost {first['cost_before']:.6g} -> "
-           f"{best.final_cost:.6g}" if best.final_cost < first["cost_before"] else
-           f"no candidate lowered the cost (last tried: {after:.6g}); the fit is kept"))
+    first = rounds[0]
+    if best.final_cost < first["cost_before"]:
+        outcome = (f"the fit continued from their lowest candidates, cost {first['cost_before']:.6g} -> "
+                   f"{best.final_cost:.6g}")
+    elif first["moved"]:
+        outcome = f"the fit continued from their lowest candidates cost {first['cost_after']:.6g}; the fit is kept"
+    else:
+        outcome = "no candidate lowered a segment's cost; the fit is kept"
+    best.notes.append(f"{len(first['segments'])} segment(s) fitted at over {SEGMENT_OUTLIER:g}x the median segment's "
+                      f"cost ({_segment_names(problem, first['segments'])}) were re-scanned: {outcome}")
     return best
 
 
