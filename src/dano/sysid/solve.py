@@ -764,7 +764,7 @@ def segment_restarts(problem: SysIdProblem, best: SysIdResult, *, level: float =
         outcome = (f"the fit continued from their lowest candidates, cost {first['cost_before']:.6g} -> "
                    f"{best.final_cost:.6g}")
     elif first["moved"]:
-        outcome = f"the fit continued from their lowest candidates cost {first['cost_after']:.6g}; the fit is kept"
+        outcome = f"the fit continued from their lowest candidates reached {first['cost_after']:.6g}, no lower; kept"
     else:
         outcome = "no candidate lowered a segment's cost; the fit is kept"
     best.notes.append(f"{len(first['segments'])} segment(s) fitted at over {SEGMENT_OUTLIER:g}x the median segment's "
