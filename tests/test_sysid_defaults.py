@@ -344,6 +344,7 @@ def test_a_segment_left_far_off_is_rescanned_and_refitted():
     one outlier (over 10x the median segment's cost), a candidate lowers its own cost, and the
     fit continued from there reaches the whole solve's answer; a converged fit is returned
     as it is, with no segment scan."""
+    from dano.errors import DanoError
     from dano.sysid.solve import _local_solve, segment_restarts
 
     asset = build(BoxField((0.1, 0.1, 0.05), edge_width=0.002), mass=1.0, num_samples=400, mesh_resolution=16,
@@ -369,3 +370,5 @@ def test_a_segment_left_far_off_is_rescanned_and_refitted():
     assert abs(out.final_cost - good.final_cost) <= 1e-6 * good.final_cost
     np.testing.assert_allclose(out.estimates, good.estimates, rtol=0, atol=1e-5)
     assert out.nfev > held.nfev and "were re-scanned" in out.notes[-1]
+    with pytest.raises(DanoError, match="level"):
+        segment_restarts(problem, held, level=1.5)

@@ -678,7 +678,9 @@ SEGMENT_CANDIDATES = 32
 SEGMENT_ROUNDS = 2
 
 
-def segment_restarts(problem: SysIdProblem, best: SysIdResult, *, level: float = 0.95, **local) -> SysIdResult:
+def segment_restarts(problem: SysIdProblem, best: SysIdResult, *, level: float = 0.95, jacobian: str = "ad",
+                     max_iterations: int | None = None, xtol: float = 1e-8, ftol: float | None = None,
+                     gtol: float = 1e-8) -> SysIdResult:
     """Restarts of the segments that a local solve left fitted far worse than the others.
 
     With the global parameters held, the cost is separable: each segment's nuisance block
@@ -695,15 +697,23 @@ def segment_restarts(problem: SysIdProblem, best: SysIdResult, *, level: float =
     spread (standard deviation over the segments) of each of its entries around the fitted
     value, every such segment's candidates evaluated at once (K vectors of θ through the
     vmapped residual). Each takes its lowest candidate where that lowers its own cost by more
-    than χ²(level)·σ²; the local solver (``local``: :func:`_local_solve`'s options) continues
-    from there and its answer is kept when it costs less, for at most :data:`SEGMENT_ROUNDS`
-    rounds.
+    than χ²(level)·σ²; the local solver continues from there and its answer is kept when it
+    costs less, for at most :data:`SEGMENT_ROUNDS` rounds. jacobian, max_iterations, xtol,
+    ftol, gtol: the local solver's, as :func:`identify` takes them (max_iterations None:
+    max(50, 10 × the parameters)).
+
+    best: a local solve's result on ``problem`` (its ``estimates`` (n,) and ``final_cost``).
+    Raises DanoError if ``level`` is not in (0, 1).
 
     Returns ``best`` or the continued result; its ``segment_scan`` records each round
     (segments re-scanned, their costs and the median's, those moved, the cost before and
     after, wall time) and a note says what changed; ``segment_scan`` stays None where no
     segment is an outlier, and with fewer than three segments or no nuisance blocks.
     """
+    if not 0 < level < 1:
+        raise DanoError(f"level must lie in (0, 1), got {level}")
+    local = dict(jacobian=jacobian, max_iterations=max_iterations or max(50, 10 * problem.num_parameters),
+                 xtol=xtol, ftol=ftol, gtol=gtol)
     entries = problem.segment_entries()
     if len(entries) < 3 or not any(len(b) for _, b in entries):
         return best
@@ -727,11 +737,11 @@ def segment_restarts(problem: SysIdProblem, best: SysIdResult, *, level: float =
         width = max(len(entries[s][1]) for s in outliers)
         unit = qmc.Sobol(d=width, scramble=True, seed=0).random_base2(int(np.log2(SEGMENT_CANDIDATES)))
         thetas = np.repeat(theta[None], SEGMENT_CANDIDATES, axis=0)
-        h = len(earlier)
+        h, tried = len(earlier), np.stack(earlier)
         for s in outliers:
             b = entries[s][1]
             scale = 2 * np.array([spread[k] for k in kinds[b]])
-            thetas[:h, b] = np.stack(earlier)[:, b]
+            thetas[:h, b] = tried[:, b]
             thetas[h:, b] = theta[b] + (2 * unit[h:, : len(b)] - 1) * scale
         with np.errstate(over="ignore", invalid="ignore"):  # (a diverging candidate: inf)
             R = problem.batch_residuals(thetas)
