@@ -100,6 +100,41 @@ def test_sharded_vmap_on_one_device_is_vmap():
         sharding.sharded_vmap(f, None)(x, y, w)
 
 
+def test_rows_mapped_in_chunks_equal_the_vmap():
+    def f(x, y, w):
+        return jnp.sin(x * w) + y.sum(), x * 2
+
+    x, y, w = jnp.linspace(0, 1, 7), jnp.arange(21.0).reshape(7, 3), jnp.asarray(0.7)
+    ref = jax.vmap(f, in_axes=(0, 0, None))(x, y, w)
+    for size in (None, 1, 3, 7):  # 3: two chunks and a remainder of one
+        got = jax.jit(sharding.map_rows(f, (0, 0, None), size))(x, y, w)
+        assert all(np.array_equal(a, b) for a, b in zip(got, ref)), size
+
+
+def test_batched_residuals_in_chunks_are_each_vectors_own(monkeypatch):
+    """On a CPU the batch's vectors run a chunk at a time (sysid.problem.batch_chunk): the
+    residuals of 5 vectors (padded to a batch of 16) one at a time and 3 at a time (a
+    remainder) are those of each vector alone, in the order given."""
+    from dano.experiments.sysid_examples import analytic_slides
+    from dano.sysid import problem as sysid_problem
+
+    dano.enable_float64()
+    problem = slide_problem(box_scene(), analytic_slides(0, 0.05, 3, frames=12))
+    thetas = np.array([[0.2], [0.3], [0.45], [0.6], [0.9]])
+    got = {}
+    monkeypatch.setattr(sysid_problem, "CPU_ROLLOUTS_PER_CHUNK", 10**9)
+    assert sysid_problem.batch_chunk(problem.layout, sysid_problem.BATCH) is None  # one vmap
+    for per_chunk in (4, 12):  # 4 padded segments: 1 vector a chunk, 3
+        monkeypatch.setattr(sysid_problem, "CPU_ROLLOUTS_PER_CHUNK", per_chunk)
+        expected = {4: 1, 12: 3}[per_chunk] if jax.default_backend() == "cpu" else None
+        assert sysid_problem.batch_chunk(problem.layout, sysid_problem.BATCH) == expected
+        got[per_chunk] = problem.batch_residuals(thetas)
+    alone = np.stack([problem.residuals(t) for t in thetas])
+    for per_chunk, r in got.items():
+        np.testing.assert_allclose(r, alone, rtol=0, atol=1e-12, err_msg=str(per_chunk))
+    assert np.ptp(np.sum(alone**2, axis=1)) > 1e-3  # the vectors give different residuals: order would show
+
+
 def test_distributed_settings_are_checked(monkeypatch):
     for env, value, message in (("DANO_NUM_PROCESSES", "two", r"\$DANO_NUM_PROCESSES must be an integer"),
                                 ("DANO_PROCESS_ID", "2", r"process_id \(\$DANO_PROCESS_ID\) must be 0 to 1, got 2"),

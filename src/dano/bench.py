@@ -234,6 +234,8 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
       velocities (n = 97 and 385);
     * ``local_solve_by_segments``: 30 evaluations of the local solver on those 64 slides, on the
       whole residual and compressed segment by segment, side by side;
+    * ``batch_by_segments``: the residuals at 32 parameter vectors (the profiles' and scans'
+      batched evaluation) of 1, 4, 16 and 64 slides, as dano runs them and as one vmap, alternately;
     * ``contactnets_cube`` (with ``cube_data``, the ContactNets .npz): the whole example's wall
       and compile time on ``cube_tosses`` tosses, and its local solve with AD vs FD Jacobians.
     """
@@ -258,6 +260,7 @@ def bench_sysid(repeats: int = 3, cube_data: str | None = None, cube_tosses: int
     out["compile_by_lengths"] = _compile_by_lengths()
     out["jacobian_by_segments"] = _jacobian_by_segments()
     out["local_solve_by_segments"] = _local_solve_by_segments()
+    out["batch_by_segments"] = _batch_by_segments()
     out["soap_command"] = command_times(["sysid", "soap", "--json", "--out-dir", "{out}"],
                                         repeats=max(repeats - 1, 1))
     if cube_data:
@@ -419,6 +422,42 @@ def _local_solve_by_segments(count: int = 64, evaluations: int = 30) -> dict:
                     "rows_seen": len(f.fun(fit.x))}
     out["ratio_whole_over_compressed"] = out["whole"]["wall_s"] / out["compressed"]["wall_s"]
     out["max_abs_estimate_difference"] = float(np.max(np.abs(fits["whole"].x - fits["compressed"].x)))
+    return out
+
+
+def _batch_by_segments(counts: tuple[int, ...] = (1, 4, 16, 64), vectors: int = 32, repeats: int = 3) -> dict:
+    """:meth:`~dano.sysid.problem.SysIdProblem.batch_residuals` at ``vectors`` parameter vectors
+    of box slides with fitted start velocities, per slide count: as dano runs it (on a CPU,
+    :func:`~dano.sysid.problem.batch_chunk` vectors at a time) and with every batch one vmap,
+    alternately after a compiling call of each: medians of ``repeats`` [s], their ratio and
+    the largest difference of the residuals."""
+    from .sysid import problem as sysid_problem
+
+    out: dict = {}
+    for count in counts:
+        problem = _slides_with_start_velocities(count)
+        rng = np.random.default_rng(0)
+        thetas = problem.initial() + rng.normal(0.0, 0.01, (vectors, problem.num_parameters))
+        thetas[:, 0] = np.linspace(0.1, 0.9, vectors)
+        runs: dict = {"chunked": [], "vmap": []}
+        results = {}
+        default = sysid_problem.CPU_ROLLOUTS_PER_CHUNK
+        try:
+            for k in range(repeats + 1):
+                for key, per_chunk in (("chunked", default), ("vmap", 10**9)):
+                    sysid_problem.CPU_ROLLOUTS_PER_CHUNK = per_chunk
+                    t0 = time.perf_counter()
+                    results[key] = problem.batch_residuals(thetas)
+                    if k:
+                        runs[key].append(time.perf_counter() - t0)
+        finally:
+            sysid_problem.CPU_ROLLOUTS_PER_CHUNK = default
+        chunk = sysid_problem.batch_chunk(problem.layout, sysid_problem.BATCH)
+        out[f"slides_{count}"] = {
+            "n": problem.num_parameters, "vectors_per_chunk": chunk,
+            "chunked_median_s": statistics.median(runs["chunked"]), "vmap_median_s": statistics.median(runs["vmap"]),
+            "ratio_vmap_over_chunked": statistics.median(runs["vmap"]) / statistics.median(runs["chunked"]),
+            "max_abs_difference": float(np.max(np.abs(results["chunked"] - results["vmap"])))}
     return out
 
 

@@ -143,12 +143,33 @@ def rows(mesh: Mesh) -> NamedSharding:
     return NamedSharding(mesh, PartitionSpec(AXIS))
 
 
-def split_rows(fn: Callable, mesh: Mesh | None, in_axes) -> Callable:
+def map_rows(fn: Callable, in_axes, batch_size: int | None = None) -> Callable:
+    """``jax.vmap(fn, in_axes)`` (in_axes: 0 or None per positional argument), or, with
+    ``batch_size``, the same rows evaluated ``batch_size`` at a time by ``jax.lax.map``
+    (a loop over vmapped chunks; one at a time: a plain loop; the values are the same): on a
+    CPU a vmap of many rollouts can be slower than the loop
+    (:func:`dano.sysid.problem.batch_chunk` has measurements)."""
+    if batch_size is None:
+        return jax.vmap(fn, in_axes=in_axes)
+
+    def mapped(*args):
+        rows = tuple(a for a, ax in zip(args, in_axes) if ax == 0)
+
+        def one(row):
+            it = iter(row)
+            return fn(*(next(it) if ax == 0 else a for a, ax in zip(args, in_axes)))
+        # (one at a time: a plain loop, not chunks of one, whose vmapped loops keep their selects)
+        return jax.lax.map(one, rows, batch_size=None if batch_size == 1 else batch_size)
+    return mapped
+
+
+def split_rows(fn: Callable, mesh: Mesh | None, in_axes, batch_size: int | None = None) -> Callable:
     """``jax.vmap(fn, in_axes)`` with the rows (arguments whose axis is 0) split over
     ``mesh``'s devices by ``jax.shard_map`` (arguments with axis None are whole on every
     device); the result's rows are split likewise. For use inside a jitted function: the
-    number of rows must be a multiple of the mesh's size (:func:`pad_rows`). None: vmap only."""
-    mapped = jax.vmap(fn, in_axes=in_axes)
+    number of rows must be a multiple of the mesh's size (:func:`pad_rows`). None: vmap only.
+    batch_size: each device's rows evaluated that many at a time (:func:`map_rows`)."""
+    mapped = map_rows(fn, in_axes, batch_size)
     if mesh is None or mesh.size == 1:
         return mapped
     specs = tuple(PartitionSpec(AXIS) if a == 0 else PartitionSpec() for a in in_axes)

@@ -856,16 +856,43 @@ def segment_bucket(count: int) -> int:
 #: (rounded up to a multiple of the devices in use when they split the batch)
 BATCH = 16
 
+#: on a CPU, the most segment rollouts (parameter vectors × a batch's padded segments) that
+#: :meth:`SysIdProblem.batch_residuals` runs as one vmapped chunk (:func:`batch_chunk`)
+CPU_ROLLOUTS_PER_CHUNK = 16
 
-def _batch_residuals(layout, shards, scene, base_params, data, thetas_g, blocks):
+
+def batch_chunk(layout: "ResidualLayout", rows: int) -> int | None:
+    """Parameter vectors per vmapped chunk of a batch of ``rows`` vectors (per device), or
+    None for all of them at once (one vmap). On a GPU: None. On a CPU: enough vectors for
+    :data:`CPU_ROLLOUTS_PER_CHUNK` segment rollouts of the layout's largest batch (at least
+    one; one: a plain loop over the vectors), the chunks run one after the other
+    (:func:`dano.sharding.map_rows`). A vmap over the vectors on top of the segments' own
+    vmap made each vector's rollouts slower on a CPU than alone: measured on the 2-core VM
+    (16 vectors, one XLA thread, float64), the bunny pushes (12 padded segments) 8.3–9.1 s
+    one vector at a time against 13.6–15.5 s vmapped (one vector alone: 0.52–0.66 s); 40
+    MuJoCo C slides of a mesh object (48) 1.2–1.6 s against 2.3–2.4 s; the soap (1 segment)
+    keeps its vmap (0.06 s against 0.13 s a vector at a time); three slides (4) and five
+    cube tosses (6) ran about as fast either way. Short, uniform rollouts lose a little: on
+    32 vectors of the benchmark's box slides (20 frames, ``dano bench --suite sysid``:
+    ``batch_by_segments``) the vmap was 1.21× and 1.07× faster with 4 and 16 slides (one XLA
+    thread; 1.30× and 1.17× with XLA's threads), hundredths of a second, and 1.28× slower
+    with 64 (1.08×)."""
+    if jax.default_backend() != "cpu":
+        return None
+    chunk = max(1, CPU_ROLLOUTS_PER_CHUNK // max(b.count for b in layout.batches))
+    return None if chunk >= rows else chunk
+
+
+def _batch_residuals(layout, shards, chunk, scene, base_params, data, thetas_g, blocks):
     """Residuals (K, padded m) at K parameter vectors (their global entries (K, P + G) and
-    nuisance blocks, per batch (K, count, ...)), the vectors split over ``shards`` devices."""
+    nuisance blocks, per batch (K, count, ...)), the vectors split over ``shards`` devices
+    and each device's evaluated ``chunk`` at a time (None: all at once; :func:`batch_chunk`)."""
     one = lambda th, bl: padded_residuals(layout, scene, base_params, data, th, bl)  # noqa: E731
-    return sharding.split_rows(one, sharding.mesh_of_size(shards), (0, 0))(thetas_g, blocks)
+    return sharding.split_rows(one, sharding.mesh_of_size(shards), (0, 0), chunk)(thetas_g, blocks)
 
 
-_batch_residuals_jit = cached_jit(_batch_residuals, static_argnums=(0, 1),
-                                  mesh=lambda layout, shards: sharding.mesh_of_size(shards))
+_batch_residuals_jit = cached_jit(_batch_residuals, static_argnums=(0, 1, 2),
+                                  mesh=lambda layout, shards, chunk: sharding.mesh_of_size(shards))
 
 
 #: contact parameters held at a neutral value when ``sliding_friction`` is identified and they
@@ -1615,7 +1642,8 @@ class SysIdProblem:
     def batch_residuals(self, thetas) -> np.ndarray:
         """(K, m) residual vectors at K parameter vectors (K, n), vmapped in batches of
         :data:`BATCH` (the last one padded: compiled once per structure); each batch's vectors
-        are split over the devices in use (:mod:`dano.sharding`)."""
+        are split over the devices in use (:mod:`dano.sharding`) and, on a CPU, run a chunk at a
+        time (:func:`batch_chunk`). Each vector's residuals are what it gives alone."""
         thetas = np.asarray(thetas, dtype=np.float64)
         shards = sharding.shards_for(BATCH)
         size = sharding.padded_size(BATCH, shards)
@@ -1623,7 +1651,8 @@ class SysIdProblem:
         for start in range(0, len(thetas), size):
             chunk = thetas[start : start + size]
             padded = np.concatenate([chunk, np.repeat(chunk[-1:], size - len(chunk), axis=0)])
-            r = _run(_batch_residuals_jit, self.layout, shards, self.scene, self.base_params, self.data,
+            r = _run(_batch_residuals_jit, self.layout, shards, batch_chunk(self.layout, size // shards),
+                     self.scene, self.base_params, self.data,
                      *jax.device_put(self.split_theta(padded)))
             out.append(np.concatenate([r[: len(chunk)][:, self.keep], self._prior_residuals(chunk)], axis=1))
         return np.concatenate(out) if out else np.zeros((0, self.num_residuals))
