@@ -106,21 +106,28 @@ def test_grasp_panda_cli_lifts_and_holds_the_bunny(shared, monkeypatch, tmp_path
 def test_stiff_finger_contact_stays_bounded_at_10_ms(shared, monkeypatch):
     """Stiff pads (impact spring 1e6) on light, joint-limited fingers at h = 10 ms: with one
     constraint pass (MuJoCo's solver sees only the contact force at the step's start velocity)
-    the fingers are driven through their limits and the state blows up; the step's default
-    second pass keeps every run bounded, the fingers within 1 cm of their 0–4 cm range and
-    the object held. The firm grip (50 N) lifts it within 2 cm of the 0.1 m target with under
-    5 mm of slip; the 20 N grip is marginal at 10 ms, its slip set by rounding: it lifted above
-    8 cm on the VMs of earlier sessions and 7.55 cm with 10.4 mm of slip on an AVX-512 EPYC VM
-    on 2026-11-26, the same code (7ccca4e), so for it the test asks only that it holds."""
+    the fingers are driven through their limits, in a run whose state blows up (|qvel| > 1e3:
+    ``diverged``) or by more than 1 cm out of their range (on a VM without AVX-512 on
+    2026-11-27 no run diverged, but the fingers reached −0.33 m and 0.21 m and the 50 N run
+    dropped the object); the step's default second pass keeps every run bounded, the fingers
+    within 1 cm of their 0–4 cm range and the object held. The firm grip (50 N) lifts it
+    within 2 cm of the 0.1 m target with under 5 mm of slip; the 20 N grip is marginal at
+    10 ms, its slip set by rounding: it lifted above 8 cm on the VMs of earlier sessions and
+    7.55 cm with 10.4 mm of slip on an AVX-512 EPYC VM on 2026-11-26, the same code
+    (7ccca4e), so for it the test asks only that it holds."""
     from dano.sim import NewtonOptions
 
     monkeypatch.setenv("MENAGERIE_ROOT", str(shared / "menagerie"))
     task = build(GraspPandaConfig(dt=0.01, compare_models=False))
     one, _ = simulate(task, [20.0, 50.0], NewtonOptions(constraint_passes=1))
     two, _ = simulate(task, [20.0, 50.0])
-    assert any(r.diverged for r in one)
+
+    def fingers_in_range(run):
+        fingers = run.states[:, 7:9]
+        return bool(fingers.min() > -0.01 and fingers.max() < 0.05)
+
+    assert any(r.diverged or not fingers_in_range(r) for r in one)
     for r in two:
         assert not r.diverged and r.lift_height > 0.05, r  # held, not dropped
-        fingers = r.states[:, 7:9]
-        assert fingers.min() > -0.01 and fingers.max() < 0.05
+        assert fingers_in_range(r)
     assert two[1].lift_height > 0.08 and two[1].slip_mm < 5.0, two[1]
