@@ -237,6 +237,7 @@ def test_sim_benchmark_keys_and_interleaved_ratios(monkeypatch):
     # 20 steps are too few for the unrolled solve (NewtonConfig.linear_solver="auto")
     assert r["bunny_drop"]["linear_solver"] == r["bunny_drop_lapack"]["linear_solver"] == "lapack"
     assert r["ratio_lapack_over_default_time"] > 0
+    assert r["sphere_hits_bunny"]["steps_per_s"] > 0 and r["ratio_sphere_hits_over_drop_time"] > 0
     assert r["panda_push_bunny"].startswith("skipped")
     assert r["jacfwd_200"]["parameters"] == ["sliding_friction", "alpha"]
 

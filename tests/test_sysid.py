@@ -340,7 +340,12 @@ def test_frames_a_tracker_flagged_poor_are_left_out(tmp_path, box_setup):
     (lambda o: dataclasses.replace(o, time=o.time[::-1].copy()), "timestamps must increase"),
     (lambda o: dataclasses.replace(o, time=np.r_[o.time[:10], o.time[10:] + 0.003]), "jitter by up to 25% of the frame interval, 0.01 s\\): frame 10 \\(t = 0.103 s\\) is farther from its place"),
     (lambda o: dataclasses.replace(o, units="cm"), "poses are in 'cm'"),
-    (lambda o: dataclasses.replace(o, time=o.time * 2), "does not match the scene's time step"),
+    # frames at 50/s on the 2.5 ms step: the substeps that fit are named; at 1/0.013 s none do
+    (lambda o: dataclasses.replace(o, time=o.time * 2), "does not match the scene's time step 0.0025 s x 4 substeps: "
+     r"set substeps = 8 \(the frame interval over the time step; TOML \[options\]\), or the scene's time step to "
+     "0.005 s"),
+    (lambda o: dataclasses.replace(o, time=o.time * 1.3), "substeps: for 4 substeps the scene's time step must be "
+     "0.00325 s"),
     (lambda o: dataclasses.replace(o, poses={"ball": o.poses["box"]}), "no DANO named 'ball'"),
     # millimetres given to the Python API (the TOML route refused them already)
     (lambda o: dataclasses.replace(o, poses={"box": np.c_[1000 * o.poses["box"][:, :3], o.poses["box"][:, 3:]]}),

@@ -250,6 +250,9 @@ def test_push_sphere_cli_reaches_both_goals(tmp_path, capsys, monkeypatch, push_
     # the constraint tolerance 1e-3): unconstrained, it dipped to 0.105, half through the ground
     assert rep["pusher_below_floor"] < 1e-3, rep
     assert abs(rep["bunny_goal"][1] - rep["plain_push_bunny_final"][1] - 1.0) < 1e-12
+    assert rep["plain_push_object_final"] == rep["plain_push_bunny_final"] and rep["object_goal"] == rep["bunny_goal"]
+    # the sphere's largest force, in newtons and in its weights (push-sphere's sphere: 10 kg)
+    assert rep["pusher_max_force_n"] == pytest.approx(rep["pusher_max_force"] * 10.0 * 9.81, rel=1e-12), rep
     sol = np.load(out / "solution.npz")
     assert sol["controls"].shape == (60, 6) and sol["states"].shape == (61, 26)
     assert sol["qpos"][:, 2].min() > 0.25 - 1e-3  # (the sphere's free joint comes first)

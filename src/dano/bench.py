@@ -149,6 +149,10 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     * these four are timed round after round (``repeats`` rounds, each round one run of each),
       so that a change in the machine's load falls on all alike; the two ratios are medians
       over the rounds of the ratio within each round;
+    * ``sphere_hits_bunny``: the scene of that name (a 10 kg ball rolls into the bunny): a
+      DANO against a MuJoCo primitive geom (:mod:`dano.contact.primitive`) besides the
+      ground, ``steps`` steps as ``bunny_drop``, timed on its own after the four above
+      (``ratio_sphere_hits_over_drop_time``: its time over ``bunny_drop``'s median);
     * ``panda_push_bunny``: the Panda + bunny scene (needs ``$MENAGERIE_ROOT``); a collapse
       of its steps/s would show the CPU fusion-emitter slowdown coming back;
     * ``jacfwd_200``: forward-mode Jacobian of a 200-step bunny rollout w.r.t. 2 parameters
@@ -200,6 +204,11 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     out["bunny_drop_lapack"]["linear_solver"] = "lapack"
     out["ratio_lapack_over_default_time"] = statistics.median(
         a / b for a, b in zip(rounds["bunny_drop_lapack"], rounds["bunny_drop"]))
+
+    hits = load_scene("sphere-hits-bunny")
+    out["sphere_hits_bunny"] = _steps_per_second(
+        lambda: rollout_arrays(hits.scene, hits.state0, None, hits.params, steps), steps, repeats)
+    out["ratio_sphere_hits_over_drop_time"] = out["sphere_hits_bunny"]["median_s"] / out["bunny_drop"]["median_s"]
 
     if os.environ.get("MENAGERIE_ROOT"):
         ps = load_scene("panda-push-bunny")

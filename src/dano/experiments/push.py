@@ -570,12 +570,14 @@ def limit_report(task: PushTask, X, U) -> dict:
     tolerance), ``joint_limit_violation`` the largest excursion beyond a joint limit
     [rad] (0 if none; arm tasks only), ``pusher_below_floor`` how far the floating sphere's
     centre dips below its floor (its radius) [m] (0 if not; sphere tasks only) and
-    ``pusher_max_force`` its largest force in its weights (sphere tasks only)."""
+    ``pusher_max_force`` its largest force in its weights [-] and ``pusher_max_force_n`` the
+    same in newtons (sphere tasks only)."""
     out = {}
     if task.problem.u_upper is not None:
         out["max_control_ratio"] = float(np.max(np.abs(np.asarray(U)) / np.asarray(task.problem.u_upper)))
     if task.pusher_floor is not None:  # how far the floating pusher's centre dips below its floor [m]
-        out["pusher_max_force"] = float(np.max(np.linalg.norm(np.asarray(U)[:, :3], axis=1)) / task.u_ref[0])
+        force = float(np.max(np.linalg.norm(np.asarray(U)[:, :3], axis=1)))  # [N]
+        out["pusher_max_force"], out["pusher_max_force_n"] = force / float(task.u_ref[0]), force
         out["pusher_below_floor"] = float(max(0.0, task.pusher_floor - np.min(pusher_positions(task, np.asarray(X))[:, 2])))
     elif task.problem.inequality is not None:
         m = task.scene.mj_model

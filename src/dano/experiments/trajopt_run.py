@@ -70,7 +70,7 @@ def report(task, solution, model_error=None) -> dict:
     object, whatever it is), ``pusher_final_error`` [m] (null for a pusher without a goal),
     ``max_constraint_violation``, ``iterations``, ``converged``, ``status``, ``cost``,
     ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final`` (where the plain push
-    leaves the bunny), goals, ``object_final_speed`` [m/s] (the pushed object's x–y speed
+    leaves the bunny; also ``plain_push_object_final``: the pushed object, whatever it is), goals, ``object_final_speed`` [m/s] (the pushed object's x–y speed
     at the last step: above 0 it slides on past where it is), ``replay_final_gap`` [qpos units: m
     for positions] (the largest qpos difference at the last step between the plan's states and the scene's own
     rollout of its controls, :func:`replay`; null where that rollout diverges: above 1e-6, or
@@ -93,6 +93,7 @@ def report(task, solution, model_error=None) -> dict:
         "object_final_error": eb, "object_goal": task.bunny_goal.tolist(),  # the same, for any object
         "pusher_goal": None if task.pusher_goal is None else task.pusher_goal.tolist(),
         "plain_push_bunny_final": task.X_plain[-1, task.bunny_qpos].tolist(),
+        "plain_push_object_final": task.X_plain[-1, task.bunny_qpos].tolist(),  # the same, for any object
         "object_final_speed": float(np.linalg.norm(X[-1, v0:v0 + 2])),
         "replay_final_gap": None if again is None else gap,
         "horizon": task.problem.horizon, "dt": task.scene.dt,

@@ -45,8 +45,9 @@ class ExportConfig:
     """body/link name (default the asset's)."""
     params: Path | None = None
     """identified contact parameters to carry: a `dano sysid` result.json (or a JSON table of names to
-    values); MJCF collision geoms get friction = sliding, torsional, rolling friction, and a comment says what
-    MuJoCo cannot carry (spring, damper, drags)."""
+    values); MJCF collision geoms get friction = sliding, torsional, rolling friction and priority 1 (their
+    friction wins over a floor's), and a comment says what MuJoCo cannot carry (spring, damper, drags) and that
+    condim 3 leaves the torsional and rolling coefficients unused."""
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False
     """print a JSON summary (path, collision, pieces, mass, inertia) to stdout."""
 

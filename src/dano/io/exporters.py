@@ -268,8 +268,15 @@ def read_contact_params(path: str | Path) -> dict[str, float]:
     return params
 
 
-def friction_note(contact: dict[str, float]) -> tuple[str, str]:
-    """(MuJoCo's geom friction "slide torsion roll", the XML comment on what was carried)."""
+def friction_note(contact: dict[str, float], mjcf: bool = True) -> tuple[str, str]:
+    """(MuJoCo's geom friction "slide torsion roll", the XML comment on what was carried).
+
+    Where a friction coefficient is carried, the MJCF's collision geoms also get
+    ``priority="1"``: MuJoCo otherwise gives a contact the larger friction of its two geoms,
+    and a floor with MuJoCo's default friction (1) would override the identified value. Their
+    condim stays MuJoCo's 3, so MuJoCo uses the torsional and rolling coefficients only where
+    a user raises it to 4 or 6; the comment says so (``mjcf`` False: a URDF's comment, which
+    leaves both to whoever loads it)."""
     values = [contact.get(k, d) for k, d in zip(FRICTION_KEYS, MUJOCO_DEFAULT_FRICTION)]
     carried = [k for k in FRICTION_KEYS if k in contact]
     left = sorted(set(contact) - set(FRICTION_KEYS))
@@ -277,10 +284,22 @@ def friction_note(contact: dict[str, float]) -> tuple[str, str]:
     # only the friction coefficients cross over)
     note = (f" dano: friction = {', '.join(carried) or 'none'} identified by dano"
             f"{'' if len(carried) == 3 else ' (the rest: MuJoCo defaults)'}. "
+            + (PRIORITY_NOTE if carried and mjcf else "")
             + (f"Not carried: {', '.join(left)}. " if left else "")
             + "dano's contact spring, damper and drags act on the density overlap psi, which MuJoCo's soft "
               "contact does not have: solref/solimp keep MuJoCo's defaults. ")
     return _nums(values), note
+
+
+#: what the export's comment says of priority and condim where friction is carried
+PRIORITY_NOTE = (
+    "priority=1 on the collision geoms: their friction (and condim) is the one MuJoCo uses in their contacts; "
+    "without it MuJoCo takes the larger friction of the two geoms, and a floor's default 1 would win. "
+    "condim stays MuJoCo's 3 (sliding friction only): MuJoCo uses the torsional coefficient only at condim 4 "
+    "and the rolling one at 6. With condim 3 a face resting on the floor resists spinning through the sliding "
+    "friction of its several contact points; dano's centroid contact model stands in for that with "
+    "torsional_friction, so a value identified with it need not carry over; set condim=\"4\" (or \"6\") on "
+    "these geoms to apply it. ")
 
 
 def _mjcf(asset, name: str, meshes: dict, free: bool, contact: dict | None = None) -> ET.ElementTree:
@@ -304,6 +323,8 @@ def _mjcf(asset, name: str, meshes: dict, free: bool, contact: dict | None = Non
             attrs.update(group="3", rgba=_nums(COLLISION_RGBA))
             if contact:
                 attrs["friction"] = friction_note(contact)[0]
+                if any(k in contact for k in FRICTION_KEYS):  # (PRIORITY_NOTE)
+                    attrs["priority"] = "1"
         ET.SubElement(body, "geom", attrs)
     if contact:
         body.insert(0, ET.Comment(friction_note(contact)[1]))
@@ -313,8 +334,10 @@ def _mjcf(asset, name: str, meshes: dict, free: bool, contact: dict | None = Non
 def _urdf(asset, name: str, meshdir: str, files: dict, contact: dict | None = None) -> ET.ElementTree:
     root = ET.Element("robot", name=name)
     if contact:  # URDF has no friction element; MuJoCo's URDF reader takes geom defaults from none
-        root.append(ET.Comment(friction_note(contact)[1] + f"URDF cannot state friction: set geom friction "
-                               f"{friction_note(contact)[0]!r} on this link's collision geoms when loading it. "))
+        friction, note = friction_note(contact, mjcf=False)
+        root.append(ET.Comment(note + f"URDF cannot state friction: set geom friction {friction!r} and priority 1 "
+                               "on this link's collision geoms when loading it (MuJoCo otherwise gives a contact the "
+                               "larger friction of its two geoms). "))
     # MuJoCo's URDF reader: keep visuals, keep the jointless root body (do not fuse it into
     # the world), use the stated inertia as given, resolve mesh paths relative to this file
     mj = ET.SubElement(root, "mujoco")
@@ -361,7 +384,8 @@ def export(asset, path: str | Path, *, meshes: BodyMeshes | None = None, collisi
     body a free joint (a URDF root link has no joint; add one when loading, e.g.
     ``spec.body(name).add_freejoint()``). contact: identified contact parameters
     (:func:`dano.io.read_contact_params` of a ``result.json``): MJCF collision geoms get ``friction`` = sliding, torsional,
-    rolling friction (MuJoCo's defaults for any not given), and a comment says what is not
+    rolling friction (MuJoCo's defaults for any not given) and ``priority="1"``
+    (:func:`friction_note`), and a comment says what is not
     carried (the spring, damper and drags); URDF gets the comment only (it has no friction
     element). MuJoCo compiles the result from a temporary
     location before it is published.

@@ -1009,6 +1009,19 @@ def _given_drag_notes(params: SimParams, parameters: Sequence[FitParameter]) -> 
     return tuple(notes)
 
 
+def _time_step_fix(frame_dt: float, dt: float, substeps: int) -> str:
+    """What makes a frame interval ``frame_dt`` [s] and a time step ``dt`` [s] agree: the
+    substeps (an identification TOML's ``[options] substeps``) where ``frame_dt`` is a whole
+    multiple of ``dt`` (e.g. 100 frames/s on an MJCF's 5 ms step: 2), else the time step
+    that ``substeps`` needs."""
+    ratio = frame_dt / dt
+    whole = round(ratio)
+    if whole >= 1 and abs(ratio - whole) <= 1e-9 * ratio:
+        return (f"set substeps = {whole} (the frame interval over the time step; TOML [options]), or the scene's "
+                f"time step to {frame_dt / substeps:.6g} s")
+    return f"for {substeps} substeps the scene's time step must be {frame_dt / substeps:.6g} s"
+
+
 @dataclass(frozen=True, eq=False)
 class SysIdProblem:
     """Identification of ``parameters`` from ``observations`` of ``scene``: a frozen
@@ -1120,7 +1133,7 @@ class SysIdProblem:
                 raise DanoError(
                     f"{obs.name or f'trajectory {k}'}: frame interval {obs.frame_dt:.6g} s "
                     f"({1 / obs.frame_dt:.4g} frames/s) does not match the scene's time step {scene.dt:.6g} s x "
-                    f"{self.substeps} substeps: for {self.substeps} substeps the scene's dt must be {expected!r} s")
+                    f"{self.substeps} substeps: {_time_step_fix(obs.frame_dt, scene.dt, self.substeps)}")
         w = self.weights
         wp = np.asarray(w.position, dtype=np.float64)
         if wp.shape != (3,) or not np.all(np.isfinite(wp)) or np.any(wp < 0) or not all(
