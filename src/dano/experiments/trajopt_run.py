@@ -70,7 +70,8 @@ def report(task, solution, model_error=None) -> dict:
     object, whatever it is), ``pusher_final_error`` [m] (null for a pusher without a goal),
     ``max_constraint_violation``, ``iterations``, ``converged``, ``status``, ``cost``,
     ``wall_time_s``, ``compile_time_s``, ``plain_push_bunny_final`` (where the plain push
-    leaves the bunny; also ``plain_push_object_final``: the pushed object, whatever it is), goals, ``object_final_speed`` [m/s] (the pushed object's x–y speed
+    leaves the bunny; also ``plain_push_object_final``: the pushed object, whatever it is), goals,
+    ``object_final_speed`` [m/s] (the pushed object's x–y speed
     at the last step: above 0 it slides on past where it is), ``replay_final_gap`` [qpos units: m
     for positions] (the largest qpos difference at the last step between the plan's states and the scene's own
     rollout of its controls, :func:`replay`; null where that rollout diverges: above 1e-6, or
