@@ -48,9 +48,11 @@ def render_frames(scene, traj, fps: float = 30.0, width: int = 640, height: int 
     idx = np.minimum(np.round(np.arange(n_frames) / fps / scene.dt).astype(int), len(traj.time) - 1)
     centres = np.stack([traj.dano_pose(n)[0] for n in traj.dano_names]).mean(0) if traj.dano_names else np.zeros(
         (len(traj.time), 3))
-    extent = max(float(np.ptp(centres[:, :2], axis=0).max()), 1.0) if len(centres) else 1.0
+    extent = float(np.ptp(centres[:, :2], axis=0).max()) if len(centres) else 0.0
     size = max((a.points.max(0) - a.points.min(0)).max() for a in scene.assets) if scene.assets else 1.0
     cam = mujoco.MjvCamera()
+    # far enough for the path and three object sizes (a 10 cm object pushed 12 cm: 0.3 m; the
+    # distance was at least 1.3 m, where such an object was a few pixels across)
     cam.distance = max(1.3 * extent, 3.0 * size)
     cam.azimuth, cam.elevation = 135.0, -25.0
     opt = mujoco.MjvOption()
