@@ -247,8 +247,10 @@ def test_primitive_sdf_gradients_in_closed_form_are_the_sdfs_derivatives(kind, s
     from dano.contact.primitive import SDFS
 
     sdf, grad = SDFS[kind]
+    r, h = size[0], size[1]
+    extent = {"sphere": (r, r, r), "capsule": (r, r, h + r), "box": size}[kind]  # half-extents of the geom
     size = jnp.asarray(size, dtype=jnp.float64)
-    y = jnp.asarray(np.random.default_rng(seed).normal(size=(3, 400)) * np.asarray(size)[:, None] * 1.5)
+    y = jnp.asarray(np.random.default_rng(seed).normal(size=(3, 400)) * np.asarray(extent)[:, None] * 1.5)
     by_jax = jax.vmap(jax.grad(lambda c: sdf(c[:, None], size)[0]), in_axes=1, out_axes=1)(y)
     closed = grad(y, size)
     np.testing.assert_allclose(closed, by_jax, rtol=0, atol=1e-14)
