@@ -315,6 +315,8 @@ def _mjcf(asset, name: str, meshes: dict, free: bool, contact: dict | None = Non
     if free:
         ET.SubElement(body, "freejoint", name=f"{name}_free")
     ET.SubElement(body, "inertial", pos="0 0 0", mass=_num(asset.mass), fullinertia=_nums(_fullinertia(asset.inertia)))
+    friction, note = friction_note(contact) if contact else (None, None)
+    carried = {"priority": "1"} if contact and any(k in contact for k in FRICTION_KEYS) else {}  # (PRIORITY_NOTE)
     for stem in meshes:
         attrs = {"name": f"{name}_{stem}", "type": "mesh", "mesh": f"{name}_{stem}", "density": "0"}
         if stem == "visual":
@@ -322,12 +324,10 @@ def _mjcf(asset, name: str, meshes: dict, free: bool, contact: dict | None = Non
         else:
             attrs.update(group="3", rgba=_nums(COLLISION_RGBA))
             if contact:
-                attrs["friction"] = friction_note(contact)[0]
-                if any(k in contact for k in FRICTION_KEYS):  # (PRIORITY_NOTE)
-                    attrs["priority"] = "1"
+                attrs.update(friction=friction, **carried)
         ET.SubElement(body, "geom", attrs)
     if contact:
-        body.insert(0, ET.Comment(friction_note(contact)[1]))
+        body.insert(0, ET.Comment(note))
     return ET.ElementTree(root)
 
 
