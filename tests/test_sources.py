@@ -39,6 +39,31 @@ def test_scale_and_size_refused_where_they_do_not_apply(tmp_path, shared):
         build_from_source(path, scale=-1.0)
     with pytest.raises(DanoError, match="do not apply to a .jld2"):
         build_from_source(shared / "dano" / "bunny.jld2", size=0.1)
+    # --field-scale is --scale for a trained field: both would multiply (a new user's 0.12 mm object)
+    with pytest.raises(DanoError, match="either --field-scale or --scale/--size"):
+        build_from_source(path, scale=0.001, field_scale=0.5)
+
+
+def test_build_warns_of_a_mesh_in_millimetres(tmp_path, capsys):
+    """`dano build` of a mesh written in millimetres with its mass in kg: the mean density is
+    implausible, so build warns as `dano inspect` does (the warning on stderr, the JSON's
+    "warnings"), naming --scale 0.001; with --scale 0.001 it does not."""
+    import json
+
+    import trimesh
+
+    from dano.cli import main
+
+    mesh = tmp_path / "bracket_mm.stl"
+    trimesh.creation.box((100.0, 50.0, 30.0)).export(mesh)  # 0.1 x 0.05 x 0.03 m written in mm
+    common = ["build", str(mesh), "--mass", "0.05", "--resolution", "16", "--samples", "200", "--quiet", "--json"]
+    assert main([*common, "-o", str(tmp_path / "mm.dano")]) == 0
+    cap = capsys.readouterr()
+    (warning,) = json.loads(cap.out)["warnings"]
+    assert "mean density" in warning and "--scale 0.001" in cap.err and "mean density" in cap.err
+    assert main([*common, "--scale", "0.001", "-o", str(tmp_path / "m.dano")]) == 0
+    cap = capsys.readouterr()
+    assert json.loads(cap.out)["warnings"] == [] and "warning" not in cap.err
 
 
 def test_up_turns_a_y_up_mesh_onto_its_feet(shared):

@@ -768,7 +768,7 @@ def test_the_template_is_a_valid_problem_and_a_tracked_videos_sets_its_route(tmp
     """`dano sysid --template` gives a TOML problem that reads as one (once its file is real);
     for poses tracked from a video (`dano track --identify` writes it) the trajectory is the
     tracked poses.npz, the time step a whole fraction of the frame interval no longer than
-    0.01 s, and the two-stage route's options are set (windows, ground, start velocities)."""
+    0.01 s, and the ground's height is fitted (single shooting: windows only as an option)."""
     import tomllib
 
     from dano._config import typed_table
@@ -784,7 +784,7 @@ def test_the_template_is_a_valid_problem_and_a_tracked_videos_sets_its_route(tmp
     tracked = typed_table(tomllib.loads(path.read_text()), SysIdConfig, "")
     assert tracked.trajectory[0].file == "poses.npz" and tracked.scene.object[0].asset == "builtin:bunny_lowpoly"
     assert tracked.options.substeps == 4 and abs(tracked.scene.dt - 0.01) < 1e-15
-    assert (tracked.options.window, tracked.options.fit_ground, tracked.options.fit_velocity) == (10, True, "xyz")
+    assert (tracked.options.window, tracked.options.fit_ground, tracked.options.fit_velocity) == (0, True, "auto")
     assert tracked.options.fit_angular_velocity == ""
     for rate in (24.0, 29.97, 30.0, 60.0, 240.0):  # dt written in full: the problem's 1e-9 check of dt holds
         raw = tomllib.loads(template(["builtin:bunny_lowpoly"], tracked="poses.npz", frame_interval=1 / rate))
@@ -792,6 +792,34 @@ def test_the_template_is_a_valid_problem_and_a_tracked_videos_sets_its_route(tmp
         assert raw["scene"]["dt"] <= 0.01
     with pytest.raises(DanoError, match="needs one object and a positive frame interval"):
         template(["builtin:bunny_lowpoly", "builtin:bunny"], tracked="poses.npz", frame_interval=0.01)
+
+
+def test_the_template_names_each_object_as_its_asset_does_so_tracked_poses_are_found(tmp_path, box_setup):
+    """A new user's `dano track --identify` failed after tracking: the template named the
+    object after its file's stem ("mallet-img") while the tracked poses.npz named it as the
+    asset does ("mallet"). The template now takes the asset's own name (a repeated one gets a
+    suffix), and a trajectory's missing object names the one it has."""
+    import tomllib
+
+    from dano.asset import save
+    from dano.data import load_builtin
+    from dano.sysid.config import _read_observation, template
+    from dano.tracking.outputs import write_tracked_problem
+    from dano.trajectory import Trajectory, save_trajectory
+
+    asset = save(load_builtin("bunny_lowpoly"), tmp_path / "my-scan.dano")
+    raw = tomllib.loads(template([str(asset), str(asset)]))
+    assert [o["name"] for o in raw["scene"]["object"]] == ["bunny_lowpoly", "bunny_lowpoly_2"]
+    assert [t["object"] for t in raw["trajectory"]] == ["bunny_lowpoly", "bunny_lowpoly_2"]
+    tracked = tomllib.loads(write_tracked_problem(tmp_path, str(asset), 0.01).read_text())
+    assert tracked["scene"]["object"][0]["name"] == tracked["trajectory"][0]["object"] == "bunny_lowpoly"
+
+    _, scene, _ = box_setup
+    traj = Trajectory(np.arange(5) * 0.01, np.tile([0, 0, 0.1, 1, 0, 0, 0.0], (5, 1)), np.zeros((5, 6)), np.zeros((5, 0)),
+                      ("box",), ("box",), (0,), (0,), (), {})
+    path = save_trajectory(traj, tmp_path / "poses.npz")
+    with pytest.raises(DanoError, match="no DANO 'mallet-img' in the trajectory .* set object = \"box\""):
+        _read_observation(path, "mallet-img", scene)
 
 
 def test_a_withheld_standard_error_is_told_apart_from_an_undetermined_one():

@@ -170,18 +170,25 @@ def _primary() -> bool:
 
 
 def _build(c) -> None:
+    from .asset import density_warning
     from .sources import build_file
 
     with _progress(not c.quiet and not c.json_) as progress:
         result = build_file(c, progress=progress)
     cal, asset = result.calibration, result.asset
+    summary = asset.summary()
+    warning = density_warning(summary)  # (as dano inspect warns: a mesh in mm, a mass in g)
     if c.json_:
-        _print_report({**asset.summary(), "file": str(c.out), "calibration": cal or None})
+        _print_report({**summary, "file": str(c.out), "calibration": cal or None,
+                       "warnings": [warning] if warning else []})
     if cal:
         err.print(f"solid surface moved out by {cal['surface_offset']:.4g} m ({cal['surface_offset_nodes']:.2f} nodes): "
                   f"silhouette area {cal['silhouette_area_ratio_before']:.3f} -> "
                   f"{cal['silhouette_area_ratio_after']:.3f} of the field's renders")
     err.print(f"wrote {c.out} ({asset.num_samples} samples, mass {asset.mass:.6g})")
+    if warning:
+        err.print(f"[yellow]warning:[/] {escape(f'{c.out}: {warning}')} (--scale 0.001 for a mesh in millimetres)",
+                  highlight=False, soft_wrap=True)
 
 
 def inspect(

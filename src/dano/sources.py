@@ -114,6 +114,9 @@ def build_from_source(source: str | Path, *, mass: float | None = None, alpha: f
     kind = source_kind(source)
     if scale is not None and size is not None:
         raise DanoError("give either --scale or --size, not both")
+    if field_scale != 1.0 and (scale is not None or size is not None):  # (they would multiply)
+        raise DanoError("give either --field-scale or --scale/--size, not both (--field-scale is --scale for a "
+                        "trained field: metres per field unit)")
     for opt, v in (("scale", scale), ("size", size)):
         if v is not None and not 0 < v < np.inf:
             raise DanoError(f"--{opt} must be a finite positive number, got {v}")
@@ -234,7 +237,8 @@ class BuildConfig:
     """no progress bar."""
     json_: Annotated[bool, tyro.conf.arg(name="json")] = False
     """print one JSON object: the asset's summary (as dano inspect --json), the file written ("file"), the
-    surface calibration of a trained field ("calibration", or null), wall_time_s and compile_time_s."""
+    surface calibration of a trained field ("calibration", or null), "warnings" (a list: an implausible
+    mean density, as dano inspect warns), wall_time_s and compile_time_s."""
 
     def __post_init__(self):
         up_rotation(self.up)

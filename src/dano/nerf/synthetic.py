@@ -165,7 +165,8 @@ def render_dataset(mesh_path: str | Path, out_dir: str | Path, views: int = 100,
         meta = {"camera_angle_x": float(2 * np.arctan(0.5 * size / focal)), "fl_x": focal, "fl_y": focal,
                 "cx": size / 2, "cy": size / 2, "w": size, "h": size, "dano_bounds": bounds.tolist(),
                 "dano_source": Path(mesh_path).name, "dano_units": "m",
-                "dano_note": "RGBA views of the mesh rendered by MuJoCo (dano render-dataset); frame: the mesh file's",
+                "dano_note": "RGBA views of the mesh rendered by MuJoCo (dano render-dataset); frame: the mesh file's; "
+                             "lengths: the mesh file's, read as metres (a mesh in mm: dano build DIR --scale 0.001)",
                 "frames": frames}
         (tmp / "transforms.json").write_text(json.dumps(meta, indent=1) + "\n")
     return out_dir

@@ -175,7 +175,9 @@ def _read_observation(path: Path, obj: str | None, scene, velocities: bool = Fal
     poses, vel = {}, {}
     for n in names:
         if n not in traj.dano_names:
-            raise DanoError(f"{path}: no DANO {n!r} in the trajectory (it has {list(traj.dano_names)})")
+            hint = (f"; set object = {json.dumps(traj.dano_names[0])} in its [[trajectory]] and name the scene's "
+                    "object alike" if len(traj.dano_names) == 1 else "")
+            raise DanoError(f"{path}: no DANO {n!r} in the trajectory (it has {list(traj.dano_names)}){hint}")
         poses[n] = np.concatenate(traj.dano_pose(n), axis=1)
         if velocities:  # the file's qvel at the DANO's free joint (simulated, or central differences of tracking)
             adr = traj.dof_adr[traj.dano_names.index(n)]
@@ -510,20 +512,38 @@ def run(config: str | Path, *, jacobian: str | None = None) -> tuple[SysIdProble
     return problem, result, {"report": estimates_report(result), "config": resolved}
 
 
+def _object_names(objects: list[str]) -> list[str]:
+    """Each object's name in a template: its asset's own name (the one a tracked or simulated
+    trajectory of it carries), made unique by a suffix ``_2``, ``_3``, ... where repeated."""
+    names: list[str] = []
+    for o in objects:
+        asset = load_builtin(o.split(":", 1)[1]) if o.startswith("builtin:") else load(o)
+        name, k = asset.name, 2
+        while name in names:
+            name, k = f"{asset.name}_{k}", k + 1
+        names.append(name)
+    return names
+
+
 def template(files, tracked: str | None = None, frame_interval: float | None = None) -> str:
     """A commented TOML problem for one's own scene and objects, for ``dano sysid --template``:
     ``files`` are an optional MJCF scene (``.xml``, first) and one or more ``.dano`` assets (or
     ``builtin:NAME``). The scene's time step is the one its MJCF states (else 0.01 s); each
-    object is named after its file's stem. The ``[[trajectory]]`` entries point at
+    object is named as its asset names itself (``dano build --name``; what ``dano simulate``
+    and ``dano track``'s ``poses.npz`` call it), a repeated name given a suffix ``_2``, ``_3``,
+    .... The ``[[trajectory]]`` entries point at
     ``<name>_1.csv`` placeholders whose columns and units the comments give.
 
     ``tracked``: instead, one object's poses tracked from a video (``dano track``'s
     ``poses.npz``, a path as the TOML file will read it) at ``frame_interval`` [s]: the
     trajectory points at it, the time step is the frame interval (or a whole fraction of it
-    no longer than 0.01 s, with ``substeps``), and the options of the two-stage route of
-    docs/tracking.md are set (windows of 10 frame intervals, the ground's height and each
-    window's start velocity fitted). Raises DanoError when no object is given, a file is
-    missing, or ``tracked`` comes with more than one object or no positive frame interval."""
+    no longer than 0.01 s, with ``substeps``), and the ground's height is fitted (the route of
+    docs/tracking.md: single shooting from the first frame, its velocity fitted where the
+    frames' noise makes finite differences poor; windows of multiple shooting left as a
+    commented option: on a new user's mallet slide tracked with 11 mm errors, windows of 10
+    frame intervals gave a friction of 0.053 for MuJoCo's 0.4, single shooting 0.408). Raises DanoError when no object is given, a file is
+    missing, or ``tracked`` comes with more than one object or no positive frame interval;
+    FileFormatError when an object's file is not a ``.dano`` asset."""
     files = [str(f) for f in files]
     scene = files[0] if files and files[0].lower().endswith(".xml") else None
     objects = files[1:] if scene else files
@@ -533,7 +553,7 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
     for f in ([scene] if scene else []) + [o for o in objects if not o.startswith("builtin:")]:
         if not Path(f).exists():
             raise DanoError(f"--template: {f}: no such file")
-    names = [o.split(":", 1)[1] if o.startswith("builtin:") else Path(o).stem for o in objects]
+    names = _object_names(objects)
     dt = (stated_timestep(scene) if scene else None) or DEFAULT_DT
     substeps = 1
     if tracked is not None:
@@ -567,7 +587,7 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
                   *(["# add one [[trajectory]] per recording"] if tracked is None else
                     ["skip_poor_frames = true         # frames the tracker flagged poor (track.csv) left out as missing",
                      "# (poses tracked from a video by dano track: its world frame is camera.json's, the ground z = 0)"])]
-    route = "" if tracked is not None else "# "  # the two-stage route's options: set for a tracked video
+    route = "" if tracked is not None else "# "  # the ground's height: fitted for a tracked video
     lines += ["", "[[parameter]]", 'name = "sliding_friction"       # or impact_spring, impact_damper, torsional_friction,',
               "                                 # rolling_friction, com_offset_x|y|z, ...; alpha (mass scale) only",
               "                                 # where something of known mass pushes the object",
@@ -581,11 +601,11 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
               "# scan = 15                         # a global scan first (left out: automatic; 0: off)",
               "# profile_points = 32               # verify the estimate and give its interval (0: off)",
               "# level = 0.95                      # the interval's level",
-              "# poses tracked from a video (dano track): multiple shooting, docs/tracking.md",
-              f"{route}window = 10                       # frame intervals per window, each restarted from its frame",
+              "# poses tracked from a video (dano track): docs/tracking.md",
               f"{route}fit_ground = true                 # the ground's height (tracking errors along the camera axis)",
-              f'{route}fit_velocity = "xyz"              # each window\'s start velocity (finite differences of tracked',
-              "                                   # frames are poor)",
-              '# fit_angular_velocity = "xyz"      # and its angular velocity, for an object that tumbles or spins',
-              "                                   # (6 more parameters per window: slower, often not needed)"]
+              "# window = 10                      # multiple shooting: each 10 frame intervals restarted from their",
+              '# fit_velocity = "xyz"              # first frame, its velocity fitted: for a motion that tumbles;',
+              "                                   # a slide tracked with mm errors loses its friction in short windows",
+              '# fit_angular_velocity = "xyz"      # and each start\'s angular velocity, for an object that tumbles',
+              "                                   # or spins (6 more parameters per window: slower, often not needed)"]
     return "\n".join(lines) + "\n"
