@@ -816,7 +816,8 @@ def test_the_template_names_each_object_as_its_asset_does_so_tracked_poses_are_f
 
     _, scene, _ = box_setup
     qpos = np.tile([0, 0, 0.1, 1, 0, 0, 0.0], (5, 1))
-    traj = Trajectory(np.arange(5) * 0.01, qpos, np.zeros((5, 6)), np.zeros((5, 0)), ("box",), ("box",), (0,), (0,), (), {})
+    traj = Trajectory(np.arange(5) * 0.01, qpos, np.zeros((5, 6)), np.zeros((5, 0)), ("box",), ("box",), (0,), (0,),
+                      (), {})
     path = save_trajectory(traj, tmp_path / "poses.npz")
     with pytest.raises(DanoError, match="no DANO 'mallet-img' in the trajectory .* set object = \"box\""):
         _read_observation(path, "mallet-img", scene)
