@@ -543,7 +543,8 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
     commented option: on a new user's mallet slide tracked with 11 mm errors, windows of 10
     frame intervals gave a friction of 0.053 for MuJoCo's 0.4, single shooting 0.408).
     Raises DanoError when no object is given, a file is missing, or ``tracked`` comes with
-    more than one object or no positive frame interval; FileFormatError when an object's file is not a ``.dano`` asset."""
+    more than one object or no positive frame interval; FileFormatError when an object's
+    file is not a ``.dano`` asset."""
     files = [str(f) for f in files]
     scene = files[0] if files and files[0].lower().endswith(".xml") else None
     objects = files[1:] if scene else files
