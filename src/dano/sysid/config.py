@@ -76,7 +76,7 @@ from .. import sharding
 from .._config import read_table, typed_table
 from .._files import read_npz
 from ..asset import load
-from ..data import load_builtin
+from ..data import load_asset, load_builtin
 from ..errors import DanoError, FileFormatError
 from ..sim.scenes import DEFAULT_DT, stated_timestep
 from ..sim.scene import DanoObject, compose, contact_model_or_error
@@ -517,7 +517,7 @@ def _object_names(objects: list[str]) -> list[str]:
     trajectory of it carries), made unique by a suffix ``_2``, ``_3``, ... where repeated."""
     names: list[str] = []
     for o in objects:
-        asset = load_builtin(o.split(":", 1)[1]) if o.startswith("builtin:") else load(o)
+        asset = load_asset(o)
         name, k = asset.name, 2
         while name in names:
             name, k = f"{asset.name}_{k}", k + 1
