@@ -372,3 +372,34 @@ def test_a_segment_left_far_off_is_rescanned_and_refitted():
     assert out.nfev > held.nfev and "were re-scanned" in out.notes[-1]
     with pytest.raises(DanoError, match="level"):
         segment_restarts(problem, held, level=1.5)
+
+
+def test_an_answer_moved_to_a_lower_point_speaks_of_that_point(box):
+    """The verification moves the answer to a lower point it evaluated where a restart's solve
+    ends higher. On the real soap in windows of 16 that solve had stopped at the upper bound
+    (friction 2) and the answer reported was 0.539, yet the warnings said five times that
+    "sliding_friction = 2 sits at its upper bound", with no standard error. The moved answer
+    now carries the point's own bound check and standard errors, and a restart carries no
+    warning of the answer it replaced."""
+    from dano.sysid import solve
+
+    obs = analytic_slides(0, 0.05, 2, noise=0.001, frames=12)  # friction 0.45
+    local = dict(jacobian="ad", max_iterations=50, xtol=1e-8, ftol=None, gtol=1e-8)
+    fenced = SysIdProblem(box, obs, [FitParameter("sliding_friction", 0.8, 0.6, 2.0)], substeps=4)
+    stuck = solve._local_solve(fenced, fenced.initial(), **local)
+    assert stuck.estimates[0] == pytest.approx(0.6) and any(" sits at its lower bound" in w for w in stuck.warnings)
+    assert np.isnan(stuck.standard_errors[0])
+
+    problem = SysIdProblem(box, obs, [FitParameter("sliding_friction", 0.8, 0.0, 2.0)], substeps=4)
+    moved = solve._at_point(problem, stuck, np.array([0.45]))
+    assert moved.estimates[0] == 0.45 and moved.final_cost < 0.5 * float(fenced.residuals(np.array([0.6])) @
+                                                                           fenced.residuals(np.array([0.6])))
+    assert not any("sits at its" in w for w in moved.warnings), moved.warnings
+    assert 0 < moved.standard_errors[0] < 0.05  # the curvature's, at 0.45
+    assert sum("did not improve on the lowest point" in w for w in moved.warnings) == 1
+    again = solve._at_point(problem, moved, np.array([0.45]))
+    assert sum("did not improve on the lowest point" in w for w in again.warnings) == 1  # said once
+
+    restart = solve._local_solve(problem, np.array([0.5]), **local)
+    carried = solve._continued(stuck, restart)
+    assert not any("sits at its" in w for w in carried.warnings), carried.warnings

@@ -37,5 +37,7 @@ def test_default_identification_ends_at_the_global_minimum_of_a_rough_cost():
     ratio = res.identifiability["sliding_friction"]["curvature_ratio"]
     rough = next(w for w in res.warnings if "the cost is rough" in w)
     assert f"would give an interval {1 / ratio:.3g}x the profile's" in rough, (ratio, rough)
+    # tosses tumble and bounce: windows are named for them, with the slide's caveat (no windows yet)
+    assert "windows ([options] window or auto_windows) for motions that tumble or bounce" in rough, rough
     # the verification restarted from a lower point (measured: once); "initial" stays the user's guess
     assert res.verification["restarts"] >= 1 and res.initial.tolist() == [0.2]

@@ -280,6 +280,7 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     else:
         result.noise = _noise_and_misfit(problem, result)
     result.notes = list(problem.notes) + result.notes
+    result.warnings = list(dict.fromkeys(result.warnings))  # each said once, in order
     if noise_rms is not None and result.rms_residual > 2 * noise_rms:
         result.warnings.append(
             f"rms residual {result.rms_residual:.3g} is {result.rms_residual / noise_rms:.1f}x the stated noise "
@@ -482,19 +483,34 @@ def _standard_errors(problem: SysIdProblem, fit: LeastSquaresFit,
     the Jacobian without its column (the fit conditional on the bound)."""
     n = fit.x.shape[0]
     if not fit.converged:
-        return np.full(n, np.nan), [f"the solver stopped at its evaluation limit ({max_iterations}) before a "
-                                    "convergence test was met: no standard errors (not a converged minimum)"]
+        return np.full(n, np.nan), [f"the solver stopped at its evaluation limit ({max_iterations}) "
+                                    f"{_EVALUATION_LIMIT} (not a converged minimum)"]
     notes, free = [], np.ones(n, dtype=bool)
     for i, side in at_bound(problem, fit.x):
         free[i] = False
         p = problem.parameters[i]
-        notes.append(f"{p.label} = {fit.x[i]:.6g} sits at its {side} bound: no standard error (the cost may keep "
+        notes.append(f"{p.label} = {fit.x[i]:.6g}{_AT_BOUND} {side} bound: no standard error (the cost may keep "
                      "falling beyond it; widen the bound if that is physical)")
     se = least_squares_standard_errors(fit, free)  # AD's Jacobian, or SciPy's finite differences, at the solution
     if se is None:
-        notes.append("JᵀJ is singular: the data do not determine every parameter; no standard errors")
+        notes.append(_SINGULAR)
         se = np.full(n, np.nan)
     return se, notes
+
+
+# what a local solve says of its own answer (:func:`_standard_errors`, :func:`_at_point`): said
+# again of each new answer, never carried over from an earlier one
+_AT_BOUND = " sits at its"
+_SINGULAR = "JᵀJ is singular: the data do not determine every parameter; no standard errors"
+_EVALUATION_LIMIT = "before a convergence test was met: no standard errors"
+_AT_POINT = ("the local solver did not improve on the lowest point the checks evaluated; that point is reported "
+             "(its standard errors from the Jacobian there)")
+
+
+def _of_another_answer(warning: str) -> bool:
+    """Whether ``warning`` speaks of a particular answer's bounds, standard errors or point."""
+    return (_AT_BOUND in warning or warning == _SINGULAR or _EVALUATION_LIMIT in warning
+            or warning == _AT_POINT)
 
 
 def _basin_starts(points: np.ndarray, costs: np.ndarray, lo: np.ndarray, hi: np.ndarray, scan: int,
@@ -664,7 +680,9 @@ def _continued(best: SysIdResult, new: SysIdResult) -> SysIdResult:
     new.compile_time_s += best.compile_time_s
     new.nfev += best.nfev
     new.njev += best.njev
-    new.warnings = [w for w in best.warnings if "scan saw a lower cost" not in w] + new.warnings
+    new.warnings = [w for w in best.warnings
+                    if "scan saw a lower cost" not in w and not _of_another_answer(w) and w not in new.warnings] \
+        + new.warnings
     return new
 
 
@@ -882,14 +900,18 @@ def _verify_and_assess(problem: SysIdProblem, best: SysIdResult, points: int, le
 
 
 def _at_point(problem: SysIdProblem, result: SysIdResult, theta: np.ndarray) -> SysIdResult:
-    """The result moved to an evaluated point whose cost is lower than the solver's answer."""
+    """The result moved to an evaluated point ``theta`` (n,) whose cost is lower than the
+    solver's answer: its cost, Jacobian and standard errors there, and the warnings of the
+    answer it replaces about bounds and standard errors replaced by the point's own."""
     r = problem.residuals(theta)
     result.estimates = np.asarray(theta, dtype=np.float64)
     result.final_cost = float(0.5 * r @ r)
     result.rms_residual = float(np.sqrt(2 * result.final_cost / len(r)))
-    result.jacobian_matrix = problem.jacobian(theta)
-    result.warnings.append("the local solver did not improve on the lowest point the checks evaluated; that point "
-                           "is reported (its standard errors are the local solve's)")
+    result.jacobian_matrix = J = problem.jacobian(theta)
+    fit = LeastSquaresFit(x=result.estimates, cost=result.final_cost, cost_history=[], residuals=r, jacobian=J,
+                          nfev=0, njev=0, status=1, success=True, message="", wall_time_s=0.0)
+    result.standard_errors, notes = _standard_errors(problem, fit, 0)
+    result.warnings = [w for w in result.warnings if not _of_another_answer(w)] + notes + [_AT_POINT]
     return result
 
 
@@ -967,11 +989,24 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
                    "profile's" if ratio else "")
                 + "): no standard error is reported, the interval comes from the profile"
                 + (" and the bootstrap" if boot is not None else "")
-                + "; windows ([options] window or auto_windows) or more trajectories smooth the cost")
+                + "; " + _rough_cost_hint(problem))
     best.interval = interval
     best.profiles = {problem.parameters[i].label: {"values": pr.values.tolist(),
                                                    "cost": [float(c) if np.isfinite(c) else None for c in pr.costs]}
                      for i, pr in sorted(profiles.items())}
+
+
+def _rough_cost_hint(problem: SysIdProblem) -> str:
+    """What smooths a rough cost, for the route the problem already takes: windows shorten the
+    rollouts but restart each from a fitted state, so on a slide they keep only the deceleration
+    within a window (½μg·(10 Δt)² = 2 cm at μ = 0.4, 100 Hz), the size of a tracked pose's error
+    (docs/tracking.md: a tracked mallet's friction 0.05 with windows of 10, 0.41 without)."""
+    if problem.window is None:
+        return ("more trajectories smooth the cost; so do windows ([options] window or auto_windows) for "
+                "motions that tumble or bounce, but on a slide or a push with tracking errors of a centimetre "
+                "they can lose the friction, since each window restarts the velocity (docs/tracking.md)")
+    return ("more trajectories, or longer windows (fewer restarts of the velocity), smooth the cost of a "
+            f"problem already split into windows ({problem.window!r})")
 
 
 def _falls_toward_bound(profile, side: str | None, tolerance: float) -> bool:
