@@ -10,8 +10,9 @@ import pytest
 
 from dano.cli import main
 from dano.data import load_builtin
-from dano.errors import FileFormatError
+from dano.errors import DanoError, FileFormatError
 from dano.io.exporters import export, read_contact_params
+from dano.sysid import SysIdResult
 
 
 def test_identified_friction_reaches_mujoco(tmp_path, capsys):
@@ -45,6 +46,28 @@ def test_identified_friction_reaches_mujoco(tmp_path, capsys):
     text = " ".join(out.read_text().split())
     assert "friction = sliding_friction identified by dano (the rest: MuJoCo defaults)" in text
     assert "contact spring, damper and drags act on the density overlap psi" in text
+
+
+def test_an_identifications_answer_exports_from_python(tmp_path):
+    """``export(asset, path, contact=...)`` takes what ``identify`` returns, or its
+    ``as_dict()`` (estimates under "parameters"). A new user passed ``as_dict()`` and got
+    MuJoCo's default friction with no error: the export's comment said "none identified", and
+    the exported object slid 0.055 m where the recording slid 0.105. A table with no contact
+    parameter is refused and nothing is written."""
+    asset = load_builtin("bunny_lowpoly")
+    answer = SysIdResult(labels=["sliding_friction", "slide_1:vx"], estimates=np.array([0.5055, 1.02]),
+                         standard_errors=np.array([0.01, 0.02]), initial=np.array([0.3, 1.0]), cost_history=[],
+                         final_cost=1e-3, rms_residual=2e-3, num_residuals=60, nfev=10, njev=10, wall_time_s=1.0,
+                         compile_time_s=0.0, success=True, message="", jacobian="ad")
+    for contact in (answer, answer.as_dict()):
+        out = export(asset, tmp_path / "identified.xml", contact=contact)
+        m = mujoco.MjModel.from_xml_path(str(out))
+        collision = [g for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g]]
+        assert collision and all(np.allclose(m.geom_friction[g], [0.5055, 0.005, 0.0001]) for g in collision)
+        assert all(m.geom_priority[g] == 1 for g in collision)
+    with pytest.raises(DanoError, match="no contact parameter found"):
+        export(asset, tmp_path / "none.xml", contact={"parameters": {"slide_1:vx": 1.0}, "rms_residual": 1e-3})
+    assert not (tmp_path / "none.xml").exists()
 
 
 def test_ambiguous_or_missing_parameters_refused(tmp_path):

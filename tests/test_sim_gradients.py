@@ -113,3 +113,36 @@ def test_vmapped_rollouts_match_single_ones(sliding_box):
     for k in range(3):
         single = rollout_arrays(scene, State(q0, vs[k]), None, params, STEPS)[0]
         np.testing.assert_allclose(np.asarray(batched[k]), np.asarray(single), rtol=1e-10, atol=1e-12)
+
+
+def test_a_jointless_wall_body_leaves_reverse_mode_working(sliding_box):
+    """A scene's wall or table as a body without joints is welded to the world: MuJoCo never
+    collides it with the floor, so MuJoCo's constraint solver has no rows. A new user's scene
+    with such a wall ran MJX's solver all the same (a ``while_loop``), and ``jax.grad``
+    through the step failed with JAX's while-loop error. The step now leaves the solver out:
+    the same motion, into the wall too, and reverse mode agrees with forward mode."""
+    import mujoco
+
+    _, q0, v0 = sliding_box
+    spec = mujoco.MjSpec()
+    spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[2, 2, 0.1])
+    wall = spec.worldbody.add_body(name="wall", pos=[0.2, 0, 0.05])
+    wall.add_geom(name="wall", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.02, 0.3, 0.05])
+    box = sliding_box[0].assets[0]
+    scene = compose([DanoObject("box", box, q0[:3])], base=spec, dt=0.005)
+    assert not scene.has_constraints and [p.kind for p in scene.pairs] == ["plane", "box"]
+    solver = dataclasses.replace(scene, has_constraints=True)  # what the step ran before
+    params = scene.default_params()
+    steps = 60  # 0.3 s at 1.5 m/s: the box reaches the wall
+    qpos, _, _ = rollout_arrays(scene, State(q0, v0), None, params, steps)
+    qpos_solver, _, _ = rollout_arrays(solver, State(q0, v0), None, params, steps)
+    half_length = 0.1  # the box's half extent along x
+    assert float(qpos[:, 0].max()) > 0.2 - 0.02 - half_length - 0.002  # it reached the wall's face
+    assert float(qpos[-1, 0]) < float(qpos[:, 0].max()) - 0.005  # and the wall pushed it back
+    np.testing.assert_allclose(qpos, qpos_solver, atol=1e-9)
+
+    def final_x(mu):
+        p = params.replace(contact=params.contact.replace(sliding_friction=jnp.full(2, mu)))
+        return rollout_arrays(scene, State(q0, v0), None, p, 20)[0][-1, 0]
+
+    assert float(jax.grad(final_x)(0.3)) == pytest.approx(float(jax.jacfwd(final_x)(0.3)), rel=1e-9)

@@ -457,3 +457,25 @@ def test_unrolled_rollout_has_no_lapack_call_and_agrees_with_lapack():
         NewtonConfig(linear_solver="lu")
     with pytest.raises(DanoError, match="reverse_mode must be True or False"):
         NewtonConfig(reverse_mode="no")
+
+
+def test_compose_keeps_the_time_step_the_mjcf_states(tmp_path):
+    """``compose(objects, base)`` runs at the MJCF's ``<option timestep>`` as ``dano simulate``
+    does (a new user's scene stating 2 ms ran at 10 ms, silently); a given dt wins; a model
+    that states none runs at 0.01 s, MuJoCo's own default (0.002) not taken for a statement."""
+    import mujoco
+
+    box = DanoObject("box", build(BoxField((0.05, 0.05, 0.05)), mass=1.0, num_samples=100, mesh_resolution=0),
+                     (0, 0, 0.05))
+    floor = '<geom name="floor" type="plane" size="1 1 0.1"/>'
+    stated = tmp_path / "stated.xml"
+    stated.write_text(f'<mujoco><option timestep="0.002"/><worldbody>{floor}</worldbody></mujoco>')
+    assert compose([box], stated).dt == 0.002
+    assert compose([box], str(stated)).dt == 0.002
+    assert compose([box], stated, dt=0.005).dt == 0.005
+    assert compose([box], f'<mujoco><option timestep="0.004"/><worldbody>{floor}</worldbody></mujoco>').dt == 0.004
+    assert compose([box], f"<mujoco><worldbody>{floor}</worldbody></mujoco>").dt == 0.01
+    spec = mujoco.MjSpec.from_file(str(stated))
+    spec.option.timestep = 0.003
+    assert compose([box], spec).dt == 0.003
+    assert compose([box], mujoco.MjSpec()).dt == 0.01 and compose([box]).dt == 0.01

@@ -624,7 +624,8 @@ def build(
     alpha / mass: the mass scale α, or the total mass [kg] that sets it (default α = 1).
     num_samples, band, seed, stencil: see :func:`boundary_samples`.
     integration, integration_points: see :func:`mass_properties`.
-    mesh_level: density of the visual mesh's level set (default: the middle of the band);
+    mesh_level: density of the visual mesh's level set (default: the field's surface, its
+    signed distance's zero for a field that has one, e.g. a mesh's; else the middle of the band);
     mesh_resolution: marching-cubes nodes along the longest axis (0: no mesh).
     name: the asset's name, which scenes, tables and exports call it (None or "": the field's,
     :func:`~dano.fields.field_name`: the file's stem for :func:`~dano.fields.mesh_field` and
@@ -638,7 +639,13 @@ def build(
     bs = boundary_samples(field, num_samples, band=band, seed=seed, stencil=stencil, progress=progress)
     mu = mp.center_of_mass
     verts, faces = np.zeros((0, 3)), np.zeros((0, 3), np.int64)
-    if mesh_resolution:
+    if mesh_resolution and mesh_level is None and callable(getattr(field, "signed_distance", None)):
+        # a signed distance is linear across a flat face, a sharp density step is not: the level
+        # set of the band's middle, interpolated between nodes 2.3 mm apart, sat 0.25 mm inside
+        # a 15 mm plate (volume -5.9 %; at d = 0: 15.003 mm, -2.3 %, from the corners)
+        verts, faces = visual_mesh(field, 0.0, mesh_resolution, signed_distance=True)
+        verts = verts - mu
+    elif mesh_resolution:
         level = 0.5 * (bs.band[0] + bs.band[1]) if mesh_level is None else float(mesh_level)
         verts, faces = visual_mesh(field, level, mesh_resolution)
         verts = verts - mu

@@ -8,10 +8,10 @@ from .jld2 import PAPER_ALPHA, load_paper_collider, normals_from_mesh
 from .mesh import MESH_SUFFIXES, load_mesh
 
 __all__ = ["PAPER_ALPHA", "MESH_SUFFIXES", "Decomposition", "add_to_spec", "body_meshes", "export", "load_mesh",
-           "load_paper_collider", "normals_from_mesh", "read_contact_params", "source_kind"]
+           "load_paper_collider", "normals_from_mesh", "read_contact_params", "contact_params", "source_kind"]
 
 
-_EXPORTERS = ("Decomposition", "add_to_spec", "body_meshes", "export", "read_contact_params")
+_EXPORTERS = ("Decomposition", "add_to_spec", "body_meshes", "contact_params", "export", "read_contact_params")
 
 
 def __getattr__(name: str):

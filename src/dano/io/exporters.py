@@ -236,10 +236,7 @@ def read_contact_params(path: str | Path) -> dict[str, float]:
     it is the only one of its name) or any JSON table of names to numbers. Returns the
     finite numbers among :data:`dano.contact.ContactParams` names. Raises FileFormatError
     when the file cannot be read or holds none."""
-    import dataclasses
     import json
-
-    from ..contact.params import ContactParams  # not at the top: `import dano` loads io, not contact
 
     path = Path(path)
     try:
@@ -248,6 +245,29 @@ def read_contact_params(path: str | Path) -> dict[str, float]:
         raise FileFormatError(f"{path}: cannot read the parameters ({exc})") from exc
     if not isinstance(table, dict):
         raise FileFormatError(f"{path}: expected a JSON table of parameter names to values")
+    return contact_params(table, source=str(path), error=FileFormatError)
+
+
+def contact_params(contact, source: str = "contact", error: type[DanoError] = DanoError) -> dict[str, float]:
+    """The contact parameters in ``contact``: an identification's answer
+    (:class:`dano.sysid.SysIdResult`, or its ``as_dict()``, estimates under ``"parameters"``),
+    ``dano sysid``'s ``result.json`` table (estimates as top-level keys) or any mapping of
+    names to numbers. A pair-prefixed key such as ``soap/ground:sliding_friction`` counts
+    when it is the only one of its name. Returns {name: value} of the finite numbers among
+    :data:`dano.contact.ContactParams` names. Raises ``error`` (naming ``source``) when there
+    are none, or when a name is given for several pairs."""
+    import dataclasses
+
+    from ..contact.params import ContactParams  # not at the top: `import dano` loads io, not contact
+
+    if hasattr(contact, "labels") and hasattr(contact, "estimates"):  # a SysIdResult
+        table = dict(zip(contact.labels, np.asarray(contact.estimates, dtype=np.float64).tolist()))
+    elif isinstance(contact, dict):
+        nested = contact.get("parameters")
+        table = {**nested, **contact} if isinstance(nested, dict) else dict(contact)
+    else:
+        raise error(f"{source}: expected an identification's result or a table of parameter names to values, "
+                    f"got {type(contact).__name__}")
 
     def number(v) -> bool:
         return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
@@ -259,12 +279,12 @@ def read_contact_params(path: str | Path) -> dict[str, float]:
             continue
         keys = [k for k, v in table.items() if str(k).endswith(":" + base) and number(v)]
         if len(keys) > 1:
-            raise FileFormatError(f"{path}: {base} is given for several pairs ({', '.join(keys)}); an export "
-                                  "carries one value: give a JSON table with the one to use")
+            raise error(f"{source}: {base} is given for several pairs ({', '.join(keys)}); an export "
+                        "carries one value: give a table with the one to use")
         if keys:
             params[base] = float(table[keys[0]])
     if not params:
-        raise FileFormatError(f"{path}: no contact parameter found (keys such as {', '.join(FRICTION_KEYS)})")
+        raise error(f"{source}: no contact parameter found (keys such as {', '.join(FRICTION_KEYS)})")
     return params
 
 
@@ -382,20 +402,23 @@ def export(asset, path: str | Path, *, meshes: BodyMeshes | None = None, collisi
     meshes: from :func:`body_meshes`; otherwise made with ``collision`` and ``mesh_options``
     (``level``, ``mesh``, ``resolution``, ``decomposition``). free: MJCF only, give the
     body a free joint (a URDF root link has no joint; add one when loading, e.g.
-    ``spec.body(name).add_freejoint()``). contact: identified contact parameters
-    (:func:`dano.io.read_contact_params` of a ``result.json``): MJCF collision geoms get ``friction`` = sliding, torsional,
+    ``spec.body(name).add_freejoint()``). contact: identified contact parameters: an
+    identification's answer (``dano.sysid.identify(...)``, a :class:`~dano.sysid.SysIdResult`, or its
+    ``as_dict()``), :func:`dano.io.read_contact_params` of a ``result.json``, or a table such as
+    ``{"sliding_friction": 0.5}`` (:func:`contact_params`): MJCF collision geoms get ``friction`` = sliding, torsional,
     rolling friction (MuJoCo's defaults for any not given) and ``priority="1"``
     (:func:`friction_note`), and a comment says what is not
     carried (the spring, damper and drags); URDF gets the comment only (it has no friction
     element). MuJoCo compiles the result from a temporary
     location before it is published.
-    Raises DanoError for an unknown suffix or mode, or if MuJoCo cannot compile the result
-    (nothing is written then).
+    Raises DanoError for an unknown suffix or mode, a ``contact`` with no contact parameter
+    in it, or if MuJoCo cannot compile the result (nothing is written then).
     """
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in EXPORT_SUFFIXES:
         raise DanoError(f"{path}: unknown export format {suffix!r}; use .xml (MJCF) or .urdf (URDF)")
+    contact = None if contact is None else contact_params(contact)
     meshes = meshes or body_meshes(asset, collision, **mesh_options)
     name = _safe_name(name or asset.name)
     files = _mesh_files(meshes)

@@ -368,6 +368,34 @@ def add_ground(spec: mujoco.MjSpec, name: str = "ground") -> None:
         spec.worldbody.add_light(name="sun", pos=[0, 0, 6], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
 
 
+#: time step [s] of a scene whose MJCF states none (dano's stiff contact is designed for it)
+DEFAULT_DT = 0.01
+#: MuJoCo's own time step where a model states none [s]
+MUJOCO_DEFAULT_TIMESTEP = 0.002
+
+
+def stated_timestep(base) -> float | None:
+    """The time step [s] an MJCF states in its ``<option timestep="..."/>``: ``base`` a path
+    or an MJCF string (the last such option in the file itself; included files are not
+    read), or an MjSpec (its ``option.timestep`` where it is not MuJoCo's default 0.002,
+    which a spec cannot tell from one never set). None where none is stated, for a URDF, or a
+    file that does not parse (:func:`compose` reports that)."""
+    import xml.etree.ElementTree as ET
+
+    if isinstance(base, mujoco.MjSpec):
+        dt = float(base.option.timestep)
+        return None if dt == MUJOCO_DEFAULT_TIMESTEP else dt
+    if base is None:
+        return None
+    try:
+        text = str(base).lstrip()
+        root = ET.fromstring(text) if isinstance(base, str) and text.startswith("<") else ET.parse(base).getroot()
+        options = [o for o in root.iter("option") if "timestep" in o.attrib]
+        return float(options[-1].attrib["timestep"]) if options else None
+    except (ET.ParseError, OSError, ValueError):
+        return None
+
+
 def _load_spec(base) -> mujoco.MjSpec:
     if base is None:
         return mujoco.MjSpec()
@@ -485,7 +513,10 @@ def quaternion_slots(m: mujoco.MjModel) -> tuple[tuple[int, int], ...]:
 
 def _could_have_constraints(m: mujoco.MjModel) -> bool:
     """Whether MuJoCo's constraint solver can have rows: equalities, friction loss, joint or
-    tendon limits, or geom pairs that may collide (contype/conaffinity or explicit pairs)."""
+    tendon limits, or geom pairs that may collide (contype/conaffinity or explicit pairs;
+    MuJoCo never collides two geoms welded to one body, e.g. the floor and a jointless wall
+    body: a user's scene with such a wall ran MJX's solver, a ``while_loop`` that reverse mode
+    cannot differentiate, for no rows)."""
     if m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONSTRAINT:
         return False
     if m.neq or m.npair or np.any(m.dof_frictionloss > 0) or np.any(m.jnt_limited) or (m.ntendon and (
@@ -493,7 +524,7 @@ def _could_have_constraints(m: mujoco.MjModel) -> bool:
         return True
     if m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT:
         return False
-    ct, ca, body = m.geom_contype, m.geom_conaffinity, m.geom_bodyid
+    ct, ca, body = m.geom_contype, m.geom_conaffinity, m.body_weldid[m.geom_bodyid]
     for i in range(m.ngeom):
         for j in range(i + 1, m.ngeom):
             if body[i] != body[j] and ((ct[i] & ca[j]) or (ct[j] & ca[i])):
@@ -524,7 +555,7 @@ def compose(
     objects: Sequence[DanoObject],
     base: mujoco.MjSpec | str | Path | None = None,
     *,
-    dt: float = 0.01,
+    dt: float | None = None,
     ground: bool | None = None,
     contacts: Sequence[tuple[str, str]] | None = None,
     gravity: Sequence[float] = (0.0, 0.0, -9.81),
@@ -537,7 +568,8 @@ def compose(
 
     objects: the DANOs; base: an MJCF or URDF path, MJCF string or MjSpec (robots,
     primitives; a given MjSpec is copied, not modified), or None for an empty world;
-    dt: time step [s]; ground: add a ground plane at z = 0 named "ground" (default: when
+    dt: time step [s]; default: the one ``base`` states in its ``<option timestep>``
+    (:func:`stated_timestep`), else :data:`DEFAULT_DT` (0.01 s); ground: add a ground plane at z = 0 named "ground" (default: when
     ``base`` is None); contacts: restrict the DANO pairs to these (name, name) pairs of DANO
     and geom/DANO names (default: all); gravity: (3,) [m/s²];
     contact_model: "centroid" (the paper's, default), "per_sample", or a contact model
@@ -548,6 +580,8 @@ def compose(
     names, a non-positive dt, unknown contact models or pairs, a requested DANO-DANO pair
     without a queryable field, or float64 without JAX's 64-bit mode.
     """
+    if dt is None:
+        dt = stated_timestep(base) or DEFAULT_DT
     if not np.isfinite(dt) or dt <= 0:
         raise DanoError(f"time step dt must be positive, got {dt}")
     if dtype is not None:

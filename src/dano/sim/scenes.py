@@ -8,7 +8,6 @@ paper's bunny is about one unit across; we treat units as metres, gravity −9.8
 from __future__ import annotations
 
 import os
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -21,7 +20,7 @@ import numpy as np
 from ..data import load_builtin
 from ..errors import DanoError
 from ..pose import quat_to_matrix
-from .scene import DanoObject, Scene, SimParams, add_ground, compose
+from .scene import DEFAULT_DT, DanoObject, Scene, SimParams, add_ground, compose, stated_timestep
 from .dynamics import State
 
 
@@ -219,19 +218,6 @@ def panda_push_bunny(dt: float | None = None, contact_model: str = "centroid") -
     return Setup(scene, state, scene.default_params(sliding_friction=0.3), 3.2, controls, panda_push_bunny.__doc__)
 
 
-def stated_timestep(path: str | Path) -> float | None:
-    """The time step [s] an MJCF file states in its ``<option timestep="..."/>`` (the last one
-    in the file itself; included files are not read), or None (none stated, a URDF, or a file
-    that does not parse: :func:`compose` reports that)."""
-    try:
-        options = [o for o in ET.parse(path).getroot().iter("option") if "timestep" in o.attrib]
-        return float(options[-1].attrib["timestep"]) if options else None
-    except (ET.ParseError, OSError, ValueError):
-        return None
-
-
-#: time step [s] of a user's MJCF that states none (dano's stiff contact is designed for it)
-DEFAULT_DT = 0.01
 
 
 def keyframe_names(scene: Scene) -> list[str]:
@@ -312,8 +298,6 @@ def mjcf_setup(path: str | Path, objects: list[DanoObject], dt: float | None = N
     ctrl held for the whole run; the DANOs keep their pose, at rest. Raises DanoError if the
     file is missing or does not compile, or for an unknown or unsupported key."""
     path = Path(path)
-    if dt is None:
-        dt = stated_timestep(path) or DEFAULT_DT
     scene = compose(objects, path, dt=dt, name=path.stem, contact_model=contact_model)
     start = keyframe_start(scene, keyframe, where=str(path)) if keyframe is not None else None
     state = initial_state(scene, {o.name: (o.pos, o.quat) for o in objects}, start=start.state if start else None)
