@@ -569,9 +569,10 @@ def compose(
     objects: the DANOs; base: an MJCF or URDF path, MJCF string or MjSpec (robots,
     primitives; a given MjSpec is copied, not modified), or None for an empty world;
     dt: time step [s]; default: the one ``base`` states in its ``<option timestep>``
-    (:func:`stated_timestep`), else :data:`DEFAULT_DT` (0.01 s); ground: add a ground plane at z = 0 named "ground" (default: when
-    ``base`` is None); contacts: restrict the DANO pairs to these (name, name) pairs of DANO
-    and geom/DANO names (default: all); gravity: (3,) [m/s²];
+    (:func:`stated_timestep`), else :data:`DEFAULT_DT` (0.01 s); ground: add a ground plane
+    at z = 0 named "ground" (default: when ``base`` is None); contacts: restrict the DANO
+    pairs to these (name, name) pairs of DANO and geom/DANO names (default: all); gravity:
+    (3,) [m/s²];
     contact_model: "centroid" (the paper's, default), "per_sample", or a contact model
     instance (e.g. ``Centroid(drag="overlap")``), for every pair; pair_contact_models:
     {pair name "A/B": model} overrides for single pairs; dtype: float32 or float64 (default:
