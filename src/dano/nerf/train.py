@@ -123,6 +123,9 @@ class TrainResult:
     log: list = field(default_factory=list)
     heldout_renders: list = field(default_factory=list)
     """The final field's renders (H, W, 3) of the held-out views (empty without them)."""
+    compile_time_s: float = 0.0
+    """Compiling (or loading) the step's and the occupancy update's programs before the
+    run [s]; not on the training clock (``wall_time_s``)."""
 
 
 def render_options(bounds, config: TrainConfig, chunk: int | None = None) -> RenderConfig:
@@ -239,8 +242,11 @@ def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None,
     resume: continue from the checkpoint in ``out_dir`` (parameters, Adam state, occupancy
     grid, step and clock); progress: called after every step with a dict (step, elapsed_s,
     loss, psnr_train, lr, complete: the fraction of the step's rays trained, samples_per_ray
-    of those, fraction: of the run done). ``rays_per_s`` of the result counts trained
-    (complete) rays over the run's clock, compilation included.
+    of those, fraction: of the run done). The training clock (``config.minutes``, the
+    learning-rate schedule, ``wall_time_s``) starts after the step's program is compiled
+    (``compile_time_s``), so a run's schedule, and with a step budget its result, do not
+    depend on the compilation cache. ``rays_per_s`` counts trained (complete) rays over
+    that clock.
 
     Raises DanoError for an inconsistent configuration, FileFormatError for a bad checkpoint.
     """
@@ -269,6 +275,14 @@ def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None,
     occ_fn = jax.jit(lambda f, g, k: update_occupancy(g, f.density, k, keep=keep))
     key = jax.random.fold_in(jax.random.PRNGKey(config.seed), start_step)
     budget_s = config.minutes * 60.0
+    # compiled before the clock starts: the schedule follows the training clock, so a first
+    # step that waited for its compilation skewed it (the same seed trained to 40.21 dB with
+    # an empty compilation cache and 40.20 with a warm one; 40.67 and 40.20 on jax 0.12)
+    t_compile = time.perf_counter()
+    lr0 = jnp.float32(config.learning_rate)
+    step_fn = step_fn.lower(field, opt_state, occupancy, images, alpha, cameras, key, lr0).compile()
+    occ_fn = occ_fn.lower(field, occupancy, key).compile()
+    compile_time_s = time.perf_counter() - t_compile
     psnr_at: dict = {}
     pending = sorted(m for m in config.eval_at_minutes if m * 60.0 > clock0)
     elapsed = clock0
@@ -318,7 +332,7 @@ def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None,
     score, renders = evaluate(field, occupancy, heldout, config) if heldout is not None else (None, [])
     wall = elapsed - clock0
     result = TrainResult(field, occupancy, step, elapsed, trained_rays / max(wall, 1e-9), score, psnr_at, log,
-                         renders)
+                         renders, compile_time_s)
     if out_dir is not None:
         save_field(out_dir, field, occupancy, info({"psnr_heldout": score}), opt_state)
     return result
@@ -327,13 +341,15 @@ def train(data: Dataset, config: TrainConfig, *, heldout: Dataset | None = None,
 def write_outputs(out_dir: str | Path, result: TrainResult, config: TrainConfig, dataset: Dataset, train_set: Dataset,
                   heldout: Dataset, data: str | Path) -> dict:
     """Beside the field directory ``out_dir`` that :func:`train` wrote: ``report.json`` (the
-    returned report: ``psnr_heldout`` [dB], ``wall_time_s``, ``rays_per_s``, ``steps``,
+    returned report: ``psnr_heldout`` [dB], ``wall_time_s`` (the training clock),
+    ``compile_time_s`` (before it), ``rays_per_s``, ``steps``,
     ``psnr_at_minutes``, view counts, ``image_size``, ``occupied_fraction``, ``data``,
     ``field``), ``config.json`` (the resolved configuration), ``log.csv`` (the training log)
     and ``heldout.png`` (renders over images). Each file is written atomically."""
     out_dir = Path(out_dir)
     report = {
-        "psnr_heldout": result.psnr_heldout, "wall_time_s": result.wall_time_s, "rays_per_s": result.rays_per_s,
+        "psnr_heldout": result.psnr_heldout, "wall_time_s": result.wall_time_s,
+        "compile_time_s": result.compile_time_s, "rays_per_s": result.rays_per_s,
         "steps": result.steps, "psnr_at_minutes": result.psnr_at, "train_views": train_set.num_images,
         "heldout_views": heldout.num_images, "image_size": [dataset.cameras.width, dataset.cameras.height],
         "occupied_fraction": result.occupancy.fraction_occupied(), "data": str(data), "field": str(out_dir),
