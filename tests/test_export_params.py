@@ -65,6 +65,15 @@ def test_an_identifications_answer_exports_from_python(tmp_path):
         collision = [g for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g]]
         assert collision and all(np.allclose(m.geom_friction[g], [0.5055, 0.005, 0.0001]) for g in collision)
         assert all(m.geom_priority[g] == 1 for g in collision)
+    # NumPy's and JAX's scalars are numbers too (a review found np.float32 dropped without a word)
+    import jax.numpy as jnp
+
+    for value in (np.float32(0.5), jnp.asarray(0.5), np.int64(1)):
+        out = export(asset, tmp_path / "scalar.xml", contact={"sliding_friction": value, "rolling_friction": 0.001})
+        m = mujoco.MjModel.from_xml_path(str(out))
+        g = next(g for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g])
+        assert np.allclose(m.geom_friction[g], [float(value), 0.005, 0.001]), (value, m.geom_friction[g])
+    assert export(asset, tmp_path / "defaults.xml", contact={}).exists()  # {} as None: MuJoCo's defaults
     with pytest.raises(DanoError, match="no contact parameter found"):
         export(asset, tmp_path / "none.xml", contact={"parameters": {"slide_1:vx": 1.0}, "rms_residual": 1e-3})
     assert not (tmp_path / "none.xml").exists()

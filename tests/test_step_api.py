@@ -479,3 +479,7 @@ def test_compose_keeps_the_time_step_the_mjcf_states(tmp_path):
     spec.option.timestep = 0.003
     assert compose([box], spec).dt == 0.003
     assert compose([box], mujoco.MjSpec()).dt == 0.01 and compose([box]).dt == 0.01
+    zero = tmp_path / "zero.xml"
+    zero.write_text(f'<mujoco><option timestep="0"/><worldbody>{floor}</worldbody></mujoco>')
+    with pytest.raises(dano.DanoError, match="zero.xml: <option timestep> must be positive, got 0.0"):
+        compose([box], zero)

@@ -269,8 +269,14 @@ def contact_params(contact, source: str = "contact", error: type[DanoError] = Da
         raise error(f"{source}: expected an identification's result or a table of parameter names to values, "
                     f"got {type(contact).__name__}")
 
-    def number(v) -> bool:
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
+    def number(v) -> bool:  # a finite real scalar: Python's, NumPy's or a 0-d (JAX) array
+        if isinstance(v, (bool, np.bool_, str, bytes)) or np.ndim(v) != 0:
+            return False
+        try:
+            x = np.asarray(v)
+        except Exception:  # noqa: BLE001 (an object NumPy cannot take is no number)
+            return False
+        return x.dtype.kind in "iuf" and bool(np.isfinite(x))
 
     params = {}
     for base in (f.name for f in dataclasses.fields(ContactParams)):
@@ -405,7 +411,8 @@ def export(asset, path: str | Path, *, meshes: BodyMeshes | None = None, collisi
     ``spec.body(name).add_freejoint()``). contact: identified contact parameters: an
     identification's answer (``dano.sysid.identify(...)``, a :class:`~dano.sysid.SysIdResult`, or its
     ``as_dict()``), :func:`dano.io.read_contact_params` of a ``result.json``, or a table such as
-    ``{"sliding_friction": 0.5}`` (:func:`contact_params`): MJCF collision geoms get ``friction`` = sliding, torsional,
+    ``{"sliding_friction": 0.5}`` (:func:`contact_params`; None or {}: none): MJCF collision geoms get
+    ``friction`` = sliding, torsional,
     rolling friction (MuJoCo's defaults for any not given) and ``priority="1"``
     (:func:`friction_note`), and a comment says what is not
     carried (the spring, damper and drags); URDF gets the comment only (it has no friction
@@ -418,7 +425,7 @@ def export(asset, path: str | Path, *, meshes: BodyMeshes | None = None, collisi
     suffix = path.suffix.lower()
     if suffix not in EXPORT_SUFFIXES:
         raise DanoError(f"{path}: unknown export format {suffix!r}; use .xml (MJCF) or .urdf (URDF)")
-    contact = None if contact is None else contact_params(contact)
+    contact = None if contact is None or (isinstance(contact, dict) and not contact) else contact_params(contact)
     meshes = meshes or body_meshes(asset, collision, **mesh_options)
     name = _safe_name(name or asset.name)
     files = _mesh_files(meshes)

@@ -6,7 +6,8 @@ field evaluations) and takes an Adam step (optax) on the mean squared colour err
 optionally, the squared alpha error against the images' masks). The learning rate decays
 log-linearly from ``learning_rate`` to ``final_learning_rate`` over the run (by steps or by
 the clock, whichever ends it). The occupancy grid is refreshed every ``occupancy_every``
-steps. The clock counts compilation and training, not evaluation or checkpoint writing.
+steps. The clock counts training only: it starts after the step's program is compiled (or
+loaded), and leaves out evaluation and checkpoint writing.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ class TrainConfig:
     against a dataset."""
 
     minutes: float = 3.0
-    """Training time [min] (compilation included, evaluation excluded)."""
+    """Training time [min] (compiling before it and evaluation excluded)."""
     steps: int = 0
     """Stop after this many steps (0: only the clock stops training)."""
     rays_per_step: int = 4096
@@ -385,7 +386,7 @@ class TrainFieldConfig:
     heldout.png). Checkpoints are written every 2 minutes of training; an interrupted run keeps its last
     checkpoint (continue it with --resume)."""
     minutes: float = 3.0
-    """training time (compilation included, evaluation excluded)."""
+    """training time [min] (compiling before it and evaluation excluded)."""
     steps: int = 0
     """also stop after this many steps (0: only the clock stops)."""
     holdout: int = 10

@@ -378,8 +378,8 @@ def stated_timestep(base) -> float | None:
     """The time step [s] an MJCF states in its ``<option timestep="..."/>``: ``base`` a path
     or an MJCF string (the last such option in the file itself; included files are not
     read), or an MjSpec (its ``option.timestep`` where it is not MuJoCo's default 0.002,
-    which a spec cannot tell from one never set). None where none is stated, for a URDF, or a
-    file that does not parse (:func:`compose` reports that)."""
+    which a spec cannot tell from one never set: give ``dt``). None where none is stated, for
+    a URDF without one, or a file that does not parse (:func:`compose` reports that)."""
     import xml.etree.ElementTree as ET
 
     if isinstance(base, mujoco.MjSpec):
@@ -582,7 +582,12 @@ def compose(
     without a queryable field, or float64 without JAX's 64-bit mode.
     """
     if dt is None:
-        dt = stated_timestep(base) or DEFAULT_DT
+        dt = stated_timestep(base)
+        if dt is None:
+            dt = DEFAULT_DT
+        elif not np.isfinite(dt) or dt <= 0:
+            where = str(base) if isinstance(base, (str, Path)) and not str(base).lstrip().startswith("<") else "the MJCF"
+            raise DanoError(f"{where}: <option timestep> must be positive, got {dt}; or give dt")
     if not np.isfinite(dt) or dt <= 0:
         raise DanoError(f"time step dt must be positive, got {dt}")
     if dtype is not None:

@@ -218,8 +218,6 @@ def panda_push_bunny(dt: float | None = None, contact_model: str = "centroid") -
     return Setup(scene, state, scene.default_params(sliding_friction=0.3), 3.2, controls, panda_push_bunny.__doc__)
 
 
-
-
 def keyframe_names(scene: Scene) -> list[str]:
     """The names of the scene's MuJoCo keyframes (``<keyframe><key name=...>``), in order
     ("" for an unnamed key)."""

@@ -1005,6 +1005,9 @@ def _rough_cost_hint(problem: SysIdProblem) -> str:
         return ("more trajectories smooth the cost; so do windows ([options] window or auto_windows) for "
                 "motions that tumble or bounce, but on a slide or a push with tracking errors of a centimetre "
                 "they can lose the friction, since each window restarts the velocity (docs/tracking.md)")
+    if problem.window == "auto":
+        return ("more trajectories smooth the cost of a problem already split into windows at its impacts "
+                "(auto_windows)")
     return ("more trajectories, or longer windows (fewer restarts of the velocity), smooth the cost of a "
             f"problem already split into windows ({problem.window!r})")
 
