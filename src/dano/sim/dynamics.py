@@ -366,6 +366,6 @@ def step(scene: Scene, params: SimParams, data, newton: NewtonConfig = NewtonCon
     params or scene arrays; differentiable in data, params and scene arrays, in forward mode
     always and in reverse mode where MuJoCo's constraint solver does not run
     (``scene.has_constraints`` False: no joint limits, equalities, friction loss or MuJoCo
-    geoms that can collide; its loop is a ``while_loop``). Controls and applied forces for the step are ``data.ctrl``,
-    ``data.qfrc_applied`` and ``data.xfrc_applied``. newton: options of the implicit solve."""
+    geoms that can collide; its loop is a ``while_loop``). Controls and applied forces for
+    the step are ``data.ctrl``, ``data.qfrc_applied`` and ``data.xfrc_applied``. newton: options of the implicit solve."""
     return step_with_info(scene, params, data, newton)[0]

@@ -20,7 +20,7 @@ import numpy as np
 from ..data import load_builtin
 from ..errors import DanoError
 from ..pose import quat_to_matrix
-from .scene import DEFAULT_DT, DanoObject, Scene, SimParams, add_ground, compose, stated_timestep
+from .scene import DanoObject, Scene, SimParams, add_ground, compose
 from .dynamics import State
 
 
@@ -290,8 +290,8 @@ def mjcf_setup(path: str | Path, objects: list[DanoObject], dt: float | None = N
                contact_model: str = "centroid", keyframe: str | int | None = None) -> Setup:
     """A runnable :class:`Setup` from a user's MJCF/URDF file and DANOs placed at their
     ``pos``/``quat`` at rest (paper default contact parameters, zero controls). dt: the time
-    step [s]; default: the one the MJCF states (:func:`stated_timestep`), else
-    :data:`DEFAULT_DT`. keyframe: start the MJCF's own joints and actuators from this key of
+    step [s]; default: the one the MJCF states (:func:`~dano.sim.scene.stated_timestep`), else
+    :data:`~dano.sim.scene.DEFAULT_DT`. keyframe: start the MJCF's own joints and actuators from this key of
     its ``<keyframe>`` (name or index; :func:`keyframe_start`): its qpos and qvel, and its
     ctrl held for the whole run; the DANOs keep their pose, at rest. Raises DanoError if the
     file is missing or does not compile, or for an unknown or unsupported key."""

@@ -78,7 +78,7 @@ from .._files import read_npz
 from ..asset import load
 from ..data import load_asset, load_builtin
 from ..errors import DanoError, FileFormatError
-from ..sim.scenes import DEFAULT_DT, stated_timestep
+from ..sim.scene import DEFAULT_DT, stated_timestep
 from ..sim.scene import DanoObject, compose, contact_model_or_error
 from ..trajectory import load_trajectory
 from .problem import (MIN_RUN_FRAMES, FitParameter, Observation, SysIdProblem, Weights,
