@@ -265,6 +265,25 @@ def test_bad_inputs_of_the_image_route_and_build_say_what_is_wrong(tmp_path, cap
     assert not (tmp_path / "f").exists()
 
 
+def test_library_deprecations_are_not_printed_to_the_user(tmp_path, capsys, monkeypatch):
+    """A command prints the warnings meant for its user (here a UserWarning), not a library's
+    deprecations, which speak to developers: under NumPy 2.5 scikit-image's marching cubes
+    raised one, and `dano build` printed it as its own warning."""
+    import warnings
+
+    import dano.experiments
+
+    def command(c):
+        warnings.warn("np.array.shape setter is deprecated", DeprecationWarning)
+        warnings.warn("the scan saw a lower cost", UserWarning)
+        return None, None, {"warnings": [], "estimates": {}}, tmp_path
+
+    monkeypatch.setattr(dano.experiments, "sysid_command", command)
+    code, _, err = run(capsys, "sysid", "problem.toml", "--json")
+    err = " ".join(err.split())
+    assert code == 0 and "UserWarning: the scan saw a lower cost" in err and "deprecated" not in err, err
+
+
 def test_warnings_are_printed_as_written_not_as_markup(tmp_path, capsys, monkeypatch):
     """A warning that names a TOML table ("[options] window") reaches the terminal whole: the
     console's markup would take "[options]" for a style and drop it."""

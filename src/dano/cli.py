@@ -480,6 +480,11 @@ def _configure_process(args: list[str] | None = None) -> None:
 
     from .errors import DanoWarning
 
+    # library deprecations speak to developers, not to the user of a command (Python's own
+    # default outside __main__); a test run turns them on, and NumPy 2.5's deprecation in
+    # scikit-image's marching cubes then printed as a warning of `dano build`
+    warnings.filterwarnings("ignore", category=DeprecationWarning)
+    warnings.filterwarnings("ignore", category=PendingDeprecationWarning)
     warnings.showwarning = lambda message, category, *rest: err.print(
         "[yellow]warning:[/] " + ("" if issubclass(category, DanoWarning) else f"{category.__name__}: ")
         + escape(" ".join(str(message).split())), highlight=False, soft_wrap=True)
