@@ -256,6 +256,52 @@ def _takes_twist(cls) -> bool:
     return len(positional) >= 4 or any(p.kind == p.VAR_POSITIONAL for p in params)
 
 
+@jax.custom_batching.custom_vmap
+def _all_apart(apart):
+    """``apart`` (() bool) as it is; under ``jax.vmap``: True where every member of the batch
+    is apart, unbatched, so that the ``lax.cond`` of :func:`skip_separated` stays a branch
+    (a batched predicate turns it into a select that runs both sides)."""
+    return apart
+
+
+@_all_apart.def_vmap
+def _all_apart_vmap(axis_size, in_batched, apart):
+    # (called again on the result: an enclosing vmap then reduces over its axis too, where a
+    # plain jnp.all would reach it as an ordinary batched value)
+    return _all_apart(jnp.all(apart) if in_batched[0] else apart), False
+
+
+#: the fields of a :class:`PairGeometry` that sum over the samples into one value per pair
+AGGREGATES = ("psi", "chi", "normal", "psi_rate", "moment_rate")
+
+
+def aggregates(g: PairGeometry) -> dict:
+    """The :data:`AGGREGATES` of ``g`` as a dict."""
+    return {k: getattr(g, k) for k in AGGREGATES}
+
+
+def skip_separated(kind: "PairKind", geometry: Callable) -> Callable:
+    """``geometry`` (one pair's inputs -> :class:`PairGeometry`) for a kind with the
+    optional methods ``apart(inputs)`` (() bool, conservative: True only where no sample
+    can touch the other body) and ``separated(inputs)`` (the :data:`AGGREGATES` ψ, χ, n and
+    their rates there, as a dict, without visiting the samples): the aggregates come from a
+    branch that calls ``separated`` where the pair is apart and ``geometry`` elsewhere, the
+    per-sample arrays from ``geometry`` outside it. Meant for contact models that read the
+    aggregates only (``aggregates_only``: the centroid model), for which XLA then drops the
+    per-sample work of a separated pair; a model that reads the samples would pay for the
+    geometry twice where the pair is not apart. Under ``jax.vmap`` (a group's pairs, a batch
+    of environments, at any depth) the cheap side runs only where every member is apart
+    (:func:`_all_apart`). Values and derivatives (forward and reverse mode) are those of
+    ``geometry``; no derivative passes through the test, which reads the poses only."""
+
+    def culled(inputs):
+        apart = _all_apart(kind.apart(jax.lax.stop_gradient(inputs)))
+        sums = jax.lax.cond(apart, kind.separated, lambda i: aggregates(geometry(i)), inputs)
+        return dataclasses.replace(geometry(inputs), **sums)
+
+    return culled
+
+
 PAIR_KINDS: dict[str, PairKind] = {}
 CONTACT_MODELS: dict[str, Callable[..., ContactModel]] = {}
 

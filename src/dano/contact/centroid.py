@@ -45,6 +45,10 @@ class Centroid:
     name: ClassVar[str] = "centroid"
     #: a rollout of its step compiles into one XLA kernel on the CPU (docs/simulation.md, Speed)
     single_kernel_rollout: ClassVar[bool] = True
+    #: its prepare reads ψ, χ, n and their rates only (:data:`~dano.contact.base.AGGREGATES`), not the
+    #: per-sample arrays: the step skips the samples of a pair that none of them can touch
+    #: (:func:`~dano.contact.base.skip_separated`)
+    aggregates_only: ClassVar[bool] = True
     drag: str = "normal_force"
     friction_steepness: float = FRICTION_STEEPNESS
 

@@ -98,13 +98,36 @@ class PrimitiveKind:
         y = A @ s.points + (gmat.T @ (x - gpos))[:, None]  # samples in the geom frame (3, N)
         depth = -self.sdf(y, size) / s.radius
         psi, _, chi = weighted_centroid(s.wp, occupancy(depth), inp["alpha"], x, R)
-        fallback = unit(x - gpos, jnp.array([0.0, 0.0, 1.0], dtype=x.dtype))
-        normal = unit(gmat @ self.grad((gmat.T @ (chi - gpos))[:, None], size)[:, 0], fallback)
+        normal = self._normal(inp, chi)
         sdf_grad = gmat @ self.grad(y, size)  # (3, N) world
         points = R @ s.points + x[:, None]
         weight, grad, moves = inp["alpha"] * s.weights, -sdf_grad / s.radius, jnp.ones_like(depth)
         return PairGeometry(psi, chi, normal, *centroid_rates(weight, depth, grad, moves, points, chi), weight, depth,
                             grad, moves, points, unit(sdf_grad, normal[:, None], axis=0), *world_frame(x.dtype))
+
+    def _normal(self, inp, chi):
+        """The pair normal (3,): ∇sdf at χ, world (away from the geom's centre where ∇sdf is 0)."""
+        gpos, gmat = inp["xb"], inp["Rb"]
+        fallback = unit(inp["xa"] - gpos, jnp.array([0.0, 0.0, 1.0], dtype=chi.dtype))
+        return unit(gmat @ self.grad((gmat.T @ (chi - gpos))[:, None], inp["size"])[:, 0], fallback)
+
+    def apart(self, inp):
+        """() bool: True where no sample can reach the geom: the body's position lies farther
+        from the geom's surface than the samples' extent plus one sample radius (the signed
+        distance is 1-Lipschitz, so every sample then lies outside, every occupancy and its
+        slope are 0). Conservative: False says nothing."""
+        s, gmat = inp["samples"], inp["Rb"]
+        centre = self.sdf((gmat.T @ (inp["xa"] - inp["xb"]))[:, None], inp["size"])[0]
+        return centre > s.extent + s.radius
+
+    def separated(self, inp) -> dict:
+        """The aggregates of :meth:`geometry` where :meth:`apart` holds (ψ = 0, its rates 0,
+        χ at the body's position, the same normal: the values :meth:`geometry` gives there, as
+        are their derivatives), without visiting the samples
+        (:func:`~dano.contact.base.skip_separated`)."""
+        x = inp["xa"]
+        return dict(psi=jnp.zeros((), x.dtype), chi=x, normal=self._normal(inp, x), psi_rate=jnp.zeros(6, x.dtype),
+                    moment_rate=jnp.zeros((3, 6), x.dtype))
 
 
 SDFS = {"sphere": (sdf_sphere, grad_sphere), "capsule": (sdf_capsule, grad_capsule), "box": (sdf_box, grad_box)}

@@ -39,7 +39,11 @@ class Samples:
     arrays, not one of ten rows: a product with the first four rows of one array copied
     them in every step, 2 µs of the bunny drop's 10); radius: (D,) sample radius r [m], the depth over which a sample's
     occupancy rises from 0 to 1; com: (D, 3) centre of mass, object frame [m];
-    rho_ref: (D,) interior (full-occupancy) density of each DANO's field, 1 without one.
+    rho_ref: (D,) interior (full-occupancy) density of each DANO's field, 1 without one;
+    extent: (D,) the largest distance of a sample from the body origin [m] (0 without
+    samples): every sample lies in the ball of that radius about the body's position, which
+    lets a pair kind tell cheaply that no sample can touch the other body
+    (:func:`~dano.contact.base.skip_separated`).
     """
 
     points: jax.Array
@@ -50,6 +54,7 @@ class Samples:
     radius: jax.Array
     com: jax.Array
     rho_ref: jax.Array
+    extent: jax.Array
 
     def take(self, idx) -> "Samples":
         """The samples of DANOs ``idx`` (a static sequence of indices), leading axis len(idx)."""
@@ -81,6 +86,8 @@ class Samples:
         x, y, z = P[:, 0], P[:, 1], P[:, 2]
         WP = np.concatenate([P * W[:, None, :], W[:, None, :]], axis=1)
         WPP = np.stack([x * x, y * y, z * z, x * y, x * z, y * z], axis=1) * W[:, None, :]
+        extent = np.array([np.max(np.linalg.norm(p, axis=1), initial=0.0) for p in points])
         f = jax.device_put  # (as jnp.asarray, without compiling a small program per shape)
         return Samples(f(P), f(Nn), f(W), f(WP), f(WPP), f(np.asarray(radius, dtype=np.float64)),
-                       f(np.asarray(com, dtype=np.float64).reshape(-1, 3)), f(np.asarray(rho_ref, dtype=np.float64)))
+                       f(np.asarray(com, dtype=np.float64).reshape(-1, 3)), f(np.asarray(rho_ref, dtype=np.float64)),
+                       f(extent.reshape(len(points))))
