@@ -41,7 +41,7 @@ from .sim import DanoObject, NewtonConfig, SimParams, State, compose, rollout_ar
 from .sim.dynamics import as_data
 from .sim.implicit import iteration_limit, resolve_linear_solver
 from .sim.scene import cast_floats
-from .sim.scenes import load_scene
+from .sim.scenes import PAPER_DROP_QUAT, load_scene
 from .sysid import FitParameter, SysIdProblem, Weights, identify
 from .sysid.solve import solve_least_squares
 from .sysid.uncertainty import least_squares_functions
@@ -132,6 +132,24 @@ def _hull_model(sc):
     return spec.compile(), len(hull.vertices)
 
 
+#: three MuJoCo primitives out of the bunny drop's reach (it lands near x = 2.3, y = 1.8 [m])
+UNTOUCHED_PRIMITIVES = """<mujoco><worldbody>
+  <geom name="ground" type="plane" size="0 0 1"/>
+  <geom name="wall" type="box" size="0.05 1 0.5" pos="-3 0 0.5"/>
+  <geom name="post" type="capsule" size="0.05 0.5" pos="-2 -3 0.5"/>
+  <geom name="ball" type="sphere" size="0.2" pos="0 -3 0.2"/>
+</worldbody></mujoco>"""
+
+
+def _bunny_drop_beside_primitives(drop):
+    """(scene, params) of the bunny drop (``drop``: :func:`~dano.sim.scenes.bunny_drop`'s
+    setup, whose state it keeps) composed with :data:`UNTOUCHED_PRIMITIVES`, every pair with
+    the drop's friction."""
+    obj = DanoObject("bunny", drop.scene.assets[0], (0, 0, 1.1), PAPER_DROP_QUAT)
+    scene = compose([obj], UNTOUCHED_PRIMITIVES, dt=drop.scene.dt)
+    return scene, scene.default_params(sliding_friction=float(drop.params.contact.sliding_friction[0]))
+
+
 def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) -> dict:
     """Simulation speed (CPU or GPU, float64), all measured in this one run (the default
     step counts keep every timing above 0.2 s on the 2-core CPU):
@@ -146,7 +164,10 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     * ``mujoco_c_convex_hull``: what a user would otherwise pick: MuJoCo C (``mujoco.rollout``,
       no Python loop) simulating the same bunny as a convex-hull mesh collider from the same
       state; ``ratio_dano_over_mujoco_c`` compares steps/s;
-    * these four are timed round after round (``repeats`` rounds, each round one run of each),
+    * ``bunny_drop_untouched_primitives``: the same drop composed with a box, a capsule and a
+      sphere it never reaches (:data:`UNTOUCHED_PRIMITIVES`; a user's walls and posts), whose
+      pairs skip their samples (``ratio_untouched_primitives_over_drop_time``);
+    * these six are timed round after round (``repeats`` rounds, each round one run of each),
       so that a change in the machine's load falls on all alike; the two ratios are medians
       over the rounds of the ratio within each round;
     * ``sphere_hits_bunny``: the scene of that name (a 10 kg ball rolls into the bunny): a
@@ -174,6 +195,9 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     state0 = np.empty(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS))
     mujoco.mj_getState(m, d, state0, mujoco.mjtState.mjSTATE_FULLPHYSICS)
 
+    # the same drop beside a box, a capsule and a sphere it never reaches (a user's scene:
+    # walls, posts): their pairs skip their samples (dano.contact.base.skip_separated)
+    far, far_params = _bunny_drop_beside_primitives(setup)
     # the same drop with the Newton systems solved by LAPACK: what the step costs when XLA
     # cannot compile the rollout into one kernel (NewtonConfig.linear_solver)
     lapack = NewtonConfig(linear_solver="lapack")
@@ -183,6 +207,7 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
         "bunny_drop_per_sample": lambda: jax.block_until_ready(rollout_arrays(ps.scene, s0, None, ps.params, steps)),
         "bunny_drop_float32": lambda: jax.block_until_ready(rollout_arrays(sc32, s32, None, p32, steps)),
         "bunny_drop_lapack": lambda: jax.block_until_ready(rollout_arrays(sc, s0, None, p, steps, newton=lapack)),
+        "bunny_drop_untouched_primitives": lambda: jax.block_until_ready(rollout_arrays(far, s0, None, far_params, steps)),
         "mujoco_c_convex_hull": lambda: mujoco.rollout.rollout(m, d, state0[None], nstep=mujoco_steps),
     }, repeats)
     for name, r in stats.items():
@@ -204,6 +229,9 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     out["bunny_drop_lapack"]["linear_solver"] = "lapack"
     out["ratio_lapack_over_default_time"] = statistics.median(
         a / b for a, b in zip(rounds["bunny_drop_lapack"], rounds["bunny_drop"]))
+
+    out["ratio_untouched_primitives_over_drop_time"] = statistics.median(
+        a / b for a, b in zip(rounds["bunny_drop_untouched_primitives"], rounds["bunny_drop"]))
 
     hits = load_scene("sphere-hits-bunny")
     out["sphere_hits_bunny"] = _steps_per_second(

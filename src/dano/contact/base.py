@@ -194,7 +194,10 @@ class PairKind(Protocol):
     ``xa`` (3,) [m] and ``Ra`` (3, 3) of DANO A's body, ``xb`` and ``Rb`` of B's frame (a
     geom's or a body's). ``geometry`` maps one pair's inputs to its :class:`PairGeometry`,
     including the rates of ψ and of its first moment along the relative twist (the step
-    advances the geometry with them); it is vmapped over the group."""
+    advances the geometry with them); it is vmapped over the group. Optional: ``apart(inputs)``
+    (() bool, True only where no sample can touch B) and ``separated(inputs)`` (the
+    :data:`AGGREGATES` there, without visiting the samples) let the step skip a separated
+    pair's samples (:func:`skip_separated`)."""
 
     name: str
 
@@ -229,7 +232,12 @@ class ContactModel(Protocol):
     unrolled solve for a rollout on the CPU (on a GPU it does for every model:
     :func:`dano.sim.implicit.resolve_linear_solver`). ``spurious_roots = True``
     (False if absent) says the step's equation can have roots far from the physical one, and
-    turns on the solve's second try (:attr:`dano.sim.NewtonConfig.second_try`)."""
+    turns on the solve's second try (:attr:`dano.sim.NewtonConfig.second_try`).
+    ``aggregates_only = True``: ``prepare`` reads only the :data:`AGGREGATES` of the
+    geometry, so the step may skip the samples of a pair that cannot touch
+    (:func:`skip_separated`); ``zero_when_apart = True``: the wrench is 0, with all its
+    derivatives, for a pair whose ψ is 0 at the step's start, so the Newton iteration may
+    skip a group whose pairs are all apart (False if absent; the centroid model has both)."""
 
     name: str
 
@@ -257,18 +265,19 @@ def _takes_twist(cls) -> bool:
 
 
 @jax.custom_batching.custom_vmap
-def _all_apart(apart):
-    """``apart`` (() bool) as it is; under ``jax.vmap``: True where every member of the batch
-    is apart, unbatched, so that the ``lax.cond`` of :func:`skip_separated` stays a branch
-    (a batched predicate turns it into a select that runs both sides)."""
-    return apart
+def batch_all(flag):
+    """``flag`` (() bool) as it is; under ``jax.vmap``, at any depth: True where it is true
+    for every member of the batch, unbatched, so that a ``lax.cond`` on it stays a branch
+    (a batched predicate turns it into a select that runs both sides). Not differentiable
+    (a bool); used where the branch taken does not change the result, only its cost."""
+    return flag
 
 
-@_all_apart.def_vmap
-def _all_apart_vmap(axis_size, in_batched, apart):
+@batch_all.def_vmap
+def _batch_all_vmap(axis_size, in_batched, flag):
     # (called again on the result: an enclosing vmap then reduces over its axis too, where a
     # plain jnp.all would reach it as an ordinary batched value)
-    return _all_apart(jnp.all(apart) if in_batched[0] else apart), False
+    return batch_all(jnp.all(flag) if in_batched[0] else flag), False
 
 
 #: the fields of a :class:`PairGeometry` that sum over the samples into one value per pair
@@ -291,11 +300,11 @@ def skip_separated(kind: "PairKind", geometry: Callable) -> Callable:
     per-sample work of a separated pair; a model that reads the samples would pay for the
     geometry twice where the pair is not apart. Under ``jax.vmap`` (a group's pairs, a batch
     of environments, at any depth) the cheap side runs only where every member is apart
-    (:func:`_all_apart`). Values and derivatives (forward and reverse mode) are those of
+    (:func:`batch_all`). Values and derivatives (forward and reverse mode) are those of
     ``geometry``; no derivative passes through the test, which reads the poses only."""
 
     def culled(inputs):
-        apart = _all_apart(kind.apart(jax.lax.stop_gradient(inputs)))
+        apart = batch_all(kind.apart(jax.lax.stop_gradient(inputs)))
         sums = jax.lax.cond(apart, kind.separated, lambda i: aggregates(geometry(i)), inputs)
         return dataclasses.replace(geometry(inputs), **sums)
 

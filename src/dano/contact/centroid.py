@@ -49,6 +49,9 @@ class Centroid:
     #: per-sample arrays: the step skips the samples of a pair that none of them can touch
     #: (:func:`~dano.contact.base.skip_separated`)
     aggregates_only: ClassVar[bool] = True
+    #: its wrench is 0, with all its derivatives, for a pair whose overlap ψ is 0 at the step's
+    #: start (``touching`` below): the Newton iteration skips a group of such pairs
+    zero_when_apart: ClassVar[bool] = True
     drag: str = "normal_force"
     friction_steepness: float = FRICTION_STEEPNESS
 

@@ -119,7 +119,10 @@ class ImplicitProblem:
     generalized forces other than DANO contact; jac: per pair group, (G, nv, 6) [Jp | Jr]
     relative point Jacobians at the centroids; state: per group, the contact model's
     prepared state of each pair (leading axis G); params: per group, ContactParams with
-    (G,) fields.
+    (G,) fields; idle: per group, () bool, True where the group's wrenches are 0 with all
+    their derivatives (every pair apart at the step's start, for a model with
+    ``zero_when_apart``), or None (always evaluated); empty: none idles. An idle group's
+    wrenches are not evaluated (:func:`_each_group`).
     """
 
     Mh: jax.Array
@@ -128,6 +131,18 @@ class ImplicitProblem:
     jac: tuple
     state: tuple
     params: tuple
+    idle: tuple = ()
+
+
+def _each_group(pr: ImplicitProblem, value, zero):
+    """Σ over the groups of ``value(group index)`` (a pytree like ``zero``), skipping, in a
+    branch, the groups marked idle (:attr:`ImplicitProblem.idle`)."""
+    total = zero
+    idle = pr.idle or (None,) * len(pr.jac)
+    for i, flag in enumerate(idle):
+        part = value(i) if flag is None else jax.lax.cond(flag, lambda: zero, lambda i=i: value(i))
+        total = jax.tree_util.tree_map(jnp.add, total, part)
+    return total
 
 
 def _pick(pr: ImplicitProblem, full: bool) -> ImplicitProblem:
@@ -171,12 +186,12 @@ def contact_force(models, pr: ImplicitProblem, v, reverse_mode: bool = True):
 
 
 def _contact_force(models, pr: ImplicitProblem, v):
-    Q = jnp.zeros_like(v)
-    for model, J, st, p in zip(models, pr.jac, pr.state, pr.params):
-        u = jnp.einsum("gvk,v->gk", J, v)
-        W = jax.vmap(model.wrench)(p, st, u)
-        Q = Q + jnp.einsum("gvk,gk->v", J, W)
-    return Q
+    def group(i):
+        J = pr.jac[i]
+        W = jax.vmap(models[i].wrench)(pr.params[i], pr.state[i], jnp.einsum("gvk,v->gk", J, v))
+        return jnp.einsum("gvk,gk->v", J, W)
+
+    return _each_group(pr, group, jnp.zeros_like(v))
 
 
 def contact_force_and_jacobian(models, pr: ImplicitProblem, v):
@@ -185,12 +200,10 @@ def contact_force_and_jacobian(models, pr: ImplicitProblem, v):
 
 
 def _contact_force_and_jacobian(models, pr: ImplicitProblem, v):
-    Q = jnp.zeros_like(v)
-    D = jnp.zeros((v.shape[0], v.shape[0]), v.dtype)
-    for model, J, st, p in zip(models, pr.jac, pr.state, pr.params):
-        u = jnp.einsum("gvk,v->gk", J, v)
+    def group(i):
+        model, J = models[i], pr.jac[i]
 
-        def value_and_jac(p_, st_, u_, model=model):
+        def value_and_jac(p_, st_, u_):
             if hasattr(model, "wrench_and_jacobian"):  # the model's own (closed-form) Jacobian
                 return model.wrench_and_jacobian(p_, st_, u_)
 
@@ -201,10 +214,10 @@ def _contact_force_and_jacobian(models, pr: ImplicitProblem, v):
             K, W = jax.jacfwd(w, has_aux=True)(u_)
             return W, K
 
-        W, K = jax.vmap(value_and_jac)(p, st, u)
-        Q = Q + jnp.einsum("gvk,gk->v", J, W)
-        D = D + jnp.einsum("gvi,gij,gwj->vw", J, K, J)
-    return Q, D
+        W, K = jax.vmap(value_and_jac)(pr.params[i], pr.state[i], jnp.einsum("gvk,v->gk", J, v))
+        return jnp.einsum("gvk,gk->v", J, W), jnp.einsum("gvi,gij,gwj->vw", J, K, J)
+
+    return _each_group(pr, group, (jnp.zeros_like(v), jnp.zeros((v.shape[0], v.shape[0]), v.dtype)))
 
 
 def _residual(models, h, pr: ImplicitProblem, v, reverse_mode: bool = True):
