@@ -207,7 +207,8 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
         "bunny_drop_per_sample": lambda: jax.block_until_ready(rollout_arrays(ps.scene, s0, None, ps.params, steps)),
         "bunny_drop_float32": lambda: jax.block_until_ready(rollout_arrays(sc32, s32, None, p32, steps)),
         "bunny_drop_lapack": lambda: jax.block_until_ready(rollout_arrays(sc, s0, None, p, steps, newton=lapack)),
-        "bunny_drop_untouched_primitives": lambda: jax.block_until_ready(rollout_arrays(far, s0, None, far_params, steps)),
+        "bunny_drop_untouched_primitives": lambda: jax.block_until_ready(
+            rollout_arrays(far, s0, None, far_params, steps)),
         "mujoco_c_convex_hull": lambda: mujoco.rollout.rollout(m, d, state0[None], nstep=mujoco_steps),
     }, repeats)
     for name, r in stats.items():
