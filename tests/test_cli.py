@@ -229,14 +229,14 @@ def test_sim_benchmark_keys_and_interleaved_ratios(monkeypatch):
     monkeypatch.delenv("MENAGERIE_ROOT", raising=False)
     r = bench_sim(repeats=3, steps=20, mujoco_steps=200)
     for key in ("bunny_drop", "bunny_drop_per_sample", "bunny_drop_float32", "bunny_drop_lapack",
-                "mujoco_c_convex_hull"):
+                "bunny_drop_untouched_primitives", "mujoco_c_convex_hull"):
         assert r[key]["repeats"] == 3 and 0 < r[key]["min_s"] <= r[key]["median_s"]
         assert r[key]["steps_per_s"] > 0
     assert r["bunny_drop"]["contact_model"] == "centroid" and r["bunny_drop"]["num_samples"] == 5000
     assert r["ratio_per_sample_over_centroid_time"] > 0 and r["ratio_dano_over_mujoco_c"] > 0
     # 20 steps are too few for the unrolled solve (NewtonConfig.linear_solver="auto")
     assert r["bunny_drop"]["linear_solver"] == r["bunny_drop_lapack"]["linear_solver"] == "lapack"
-    assert r["ratio_lapack_over_default_time"] > 0
+    assert r["ratio_lapack_over_default_time"] > 0 and r["ratio_untouched_primitives_over_drop_time"] > 0
     assert r["sphere_hits_bunny"]["steps_per_s"] > 0 and r["ratio_sphere_hits_over_drop_time"] > 0
     assert r["panda_push_bunny"].startswith("skipped")
     assert r["jacfwd_200"]["parameters"] == ["sliding_friction", "alpha"]
