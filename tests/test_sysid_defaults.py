@@ -16,11 +16,12 @@ from rich.console import Console
 from dano._tables import sysid_table
 from dano.asset import build
 from dano.cli import main
+from dano.errors import DanoError
 from dano.fields import BoxField
 from dano.sim import DanoObject, compose
 from dano.sysid import FitParameter, SysIdProblem, Weights, identify, observation_noise
 from dano.experiments.sysid_examples import analytic_slides, interval_coverage
-from dano.sysid.problem import _residuals_and_jacobian_jit, rotation_length
+from dano.sysid.problem import _residuals_and_jacobian_jit, rotation_length, start_velocity_disagreement
 
 
 @pytest.fixture(scope="module")
@@ -230,6 +231,100 @@ def test_noisy_starts_have_their_velocities_fitted_by_default(box):
     windowed = SysIdProblem(box, from_frames, fit, weights=Weights((1.0, 0.0, 0.0), 0.0), substeps=4, window=2,
                             fit_position="x", fit_angular_velocity="z")
     assert windowed.fit_velocity == "" and any("would outnumber the residuals" in n for n in windowed.notes)
+
+
+def _first_frame_off(obs, name, offset):
+    """The observation with its first frame moved back along its motion by ``offset`` [m] (a
+    pose read a substep apart from the rest, a tracker's cold start)."""
+    p = np.array(obs.poses[name], dtype=np.float64)
+    u = p[1, :3] - p[0, :3]
+    p[0, :3] -= offset * u / np.linalg.norm(u)
+    return dataclasses.replace(obs, poses={**obs.poses, name: p})
+
+
+def test_a_first_frame_off_has_the_start_velocities_fitted(box):
+    """Exact closed-form Coulomb slides (no noise) whose first frame lies 2 mm back along the
+    motion: the start velocities that finite differences take from the first three frames
+    disagree with the next four frames' motion, which the noise cannot explain. By default
+    each start is taken from the parabola through the next four frames (position and
+    velocity), its velocity is fitted, and the note says why: within 1 % of the truth (0.45).
+    Started from the first frames and not fitted (both turned off) it is 90 % high, and a
+    warning names the option. The same slides with every frame right: nothing changes."""
+    exact = [dataclasses.replace(o, qvel0=None) for o in analytic_slides(0, 0.05, 4, noise=0.0)]
+    off = [_first_frame_off(o, "box", 0.002) for o in exact]
+    fit = [FitParameter("sliding_friction", 0.3, 0.0, 2.0)]
+    weights = Weights((1.0, 1.0, 0.0), 0.0)
+    pose = lambda obs, **kw: SysIdProblem(box, obs, fit, weights=weights, substeps=4, **kw)  # noqa: E731
+    gap, noise, typical = start_velocity_disagreement(off, pose(off).segments, [0.0, 0.0, 0.0], "xy")
+    assert gap > 0.1 * typical and noise == 0.0
+    # windows inside a run start from ordinary frames (often just before an impact): not counted
+    windowed = pose(off, window=5, fit_velocity="")
+    assert len(windowed.segments) > 4
+    assert start_velocity_disagreement(off, windowed.segments, [0.0, 0.0, 0.0], "xy") == (gap, noise, typical)
+    right = pose(exact)
+    assert start_velocity_disagreement(exact, right.segments, [0.0, 0.0, 0.0], "xy")[0] < 1e-6 * typical
+    assert (right.fit_velocity, right.start_velocity) == ("", "first frames")  # a parabola: they agree
+    problem = pose(off)
+    (note,) = [n for n in problem.notes if n.startswith("start velocities (fit_velocity auto)")]
+    assert (problem.fit_velocity, problem.start_velocity) == ("xy", "next frames")
+    assert "a first frame may be off" in note and 'start_velocity = "next frames"' in note
+    only_start = pose(off, fit_velocity="")
+    (note,) = [n for n in only_start.notes if n.startswith("start velocities (start_velocity auto)")]
+    assert only_start.start_velocity == "next frames" and "a first frame may be off" in note
+    fitted = identify(problem, scan=0, profile_points=0)
+    unfitted = identify(pose(off, fit_velocity="", start_velocity="first frames"), scan=0, profile_points=0)
+    assert any('fit_velocity = "xy" or "auto"' in w and "a first frame may be off" in w for w in unfitted.warnings)
+    assert not any("a first frame may be off" in w for w in fitted.warnings)
+    # (measured: 0.4502, and 0.856 from the first frames; the first frame stays in the residuals, an outlier)
+    assert abs(fitted.estimates[0] / 0.45 - 1) < 0.01 and abs(unfitted.estimates[0] / 0.45 - 1) > 0.5
+    with pytest.raises(DanoError, match="start_velocity must be one of"):
+        pose(exact, start_velocity="first")
+
+
+def test_plain_mujoco_slides_read_a_substep_apart_have_their_starts_fitted(shared, tmp_path):
+    """Plain MuJoCo C slides of the low-poly bunny (0.2 m, 0.7 kg), as a new user recorded them
+    reading the poses MuJoCo derives after mj_step (xipos), which lag qpos by one substep: every
+    frame but the first 2 ms late (moved back by the recorded velocity × 2 ms). Their TOML with
+    defaults starts each slide from the frames after its first and fits the start velocities;
+    the slides as recorded from qpos neither (their noise-free first frames agree with the
+    motion that follows within 3.5 %, the median of the three)."""
+    from dano.experiments.mujoco_c import mujoco_c_slides
+    from dano.sysid.config import problem_from_toml
+
+    made = mujoco_c_slides(tmp_path / "toy", mesh=shared / "meshes" / "bunny_lowpoly.obj", num_samples=500)
+    recorded = problem_from_toml(made["toml"])[0]
+    assert (recorded.fit_velocity, recorded.start_velocity) == ("", "first frames")
+    _lag_every_frame_but_the_first(made["csv"])
+    problem = problem_from_toml(made["toml"])[0]
+    assert (problem.fit_velocity, problem.start_velocity) == ("xyz", "next frames")
+    assert any("a first frame may be off" in n for n in problem.notes)
+
+
+def _lag_every_frame_but_the_first(csvs, lag=0.002):
+    """Rewrites the CSVs as read from MuJoCo's xipos after mj_step: every frame but the first
+    ``lag`` [s] late (moved back by the recorded velocity × lag; the error, ½·a·lag², is 10 µm)."""
+    for csv in csvs:
+        rows = np.loadtxt(csv, delimiter=",", skiprows=1)
+        rows[1:, 1:4] -= lag * np.gradient(rows[:, 1:4], rows[:, 0], axis=0)[1:]
+        np.savetxt(csv, rows, delimiter=",", header="t,x,y,z,qw,qx,qy,qz", comments="", fmt="%.9g")
+
+
+@pytest.mark.slow
+def test_own_object_read_a_substep_apart_with_the_first_toml(shared, tmp_path, capsys):
+    """The first TOML's bunny slides (plain MuJoCo C, friction 0.5) read a substep apart: the
+    defaults once said 0.192 [0.174, 0.214] (the starts' velocities from finite differences
+    30-45 % slow); now each start is taken from the frames after its first and its velocity
+    fitted: within 10 % of 0.5 and the interval covers it (measured 0.468 [0.392, 0.602], with
+    warnings of a rough cost and of the misfit: the two engines' contact models differ)."""
+    from dano.experiments.mujoco_c import mujoco_c_slides
+
+    made = mujoco_c_slides(tmp_path / "toy", mesh=shared / "meshes" / "bunny_lowpoly.obj")
+    _lag_every_frame_but_the_first(made["csv"])
+    assert main(["sysid", str(made["toml"]), "--json", "--out-dir", str(tmp_path / "out")]) == 0
+    report = json.loads(capsys.readouterr().out)
+    mu, lower, upper = report["sliding_friction"], report["sliding_friction_lower"], report["sliding_friction_upper"]
+    assert abs(mu / 0.5 - 1) < 0.1 and lower <= 0.5 <= upper, (mu, lower, upper)
+    assert any("a first frame may be off" in n for n in report["notes"])
 
 
 def test_problems_of_one_structure_share_one_compilation():

@@ -37,6 +37,7 @@
     fit_position = ""             # nuisance initial position axes (world frame), e.g. "xy" for noisy starts
     fit_rotation = ""             # nuisance initial rotation-vector axes (world frame), e.g. "z" (heading)
     start_prior = true            # each fitted start offset also weighed by what the frames say of it
+    start_velocity = "auto"       # "first frames", "next frames" (a first frame that is off), "auto"
     window = 0                    # >0: multiple shooting windows of this many frames
     auto_windows = false          # true: a window from just before each observed impact instead
     horizons = []                 # continuation, e.g. [0.4]
@@ -304,8 +305,9 @@ class OptionsConfig:
     """Simulation steps per observed frame interval; >= 1."""
     fit_velocity: str = "auto"
     """Nuisance initial linear velocity axes (world frame) fitted per trajectory (window), e.g. ``"xy"``; ``""``:
-    none; ``"auto"``: ``"xyz"`` where finite differences of noisy frames make the start velocities uncertain by more
-    than 5 % of their typical speed (said in the result's notes), else none."""
+    none; ``"auto"``: the weighed axes where finite differences of noisy frames make the start velocities uncertain
+    by more than 5 % of their typical speed, or the first frames disagree that much with the frames after them (said
+    in the result's notes), else none."""
     fit_angular_velocity: str = ""
     """Nuisance initial angular velocity axes (body frame), e.g. ``"z"``."""
     fit_position: str = ""
@@ -319,6 +321,13 @@ class OptionsConfig:
     floor) near the frames' value; a moving start's velocity row weighs 0.02–0.04 % of a 10-interval window's frames
     (one to many simulation steps per frame), a pose offset's row one frame. Velocities that are given (``velocities``, rest frames) get none; ``false``: plain least
     squares."""
+    start_velocity: str = "auto"
+    """Where each rollout's start comes from when no velocity is measured or given: ``"first frames"``, the
+    first frame's pose and finite differences of the first three frames; ``"next frames"``, at a recording's first
+    frame (and the first after missing ones), the parabola through the four frames after it (position and velocity:
+    for a first frame that is off); ``"auto"``: ``"next
+    frames"`` where the first three frames' velocities disagree with it by more than 5 % of the typical speed and
+    more than the noise explains (said in the result's notes), else ``"first frames"``."""
     window: int = 0
     """> 0: multiple shooting, windows of this many frame intervals (>= 2); 0: one shot per trajectory."""
     auto_windows: bool = False
@@ -363,6 +372,9 @@ class OptionsConfig:
             if not (_axes_ok(getattr(self, key)) or key == "fit_velocity" and self.fit_velocity == "auto"):
                 raise DanoError(f"[options].{key}: must be made of the letters x, y, z, each at most once, "
                                 f"got {getattr(self, key)!r}")
+        if self.start_velocity not in ("auto", "first frames", "next frames"):
+            raise DanoError(f"[options].start_velocity: \"auto\", \"first frames\" or \"next frames\", "
+                            f"got {self.start_velocity!r}")
         if self.fit_tilt and not self.fit_ground:
             raise DanoError("[options].fit_tilt: the ground's tilt is fitted with its height: "
                             "set fit_ground = true too")
@@ -468,7 +480,7 @@ def problem_from_toml(path: str | Path) -> tuple[SysIdProblem, dict, dict]:
         problem = SysIdProblem(scene, obs, params, weights, base_params=base_params, substeps=opt.substeps,
                                fit_velocity=opt.fit_velocity, fit_angular_velocity=opt.fit_angular_velocity,
                                fit_position=opt.fit_position, fit_rotation=opt.fit_rotation,
-                               start_prior=opt.start_prior,
+                               start_prior=opt.start_prior, start_velocity=opt.start_velocity,
                                window="auto" if opt.auto_windows else (opt.window or None),
                                fit_ground=opt.fit_ground, fit_tilt=opt.fit_tilt, notes=notes)
     except TypeError as exc:  # e.g. an unknown [contact] parameter name
@@ -598,6 +610,7 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
               f"{'' if substeps > 1 else '# '}substeps = {substeps}",
               '# fit_velocity = "auto"            # nuisance: each start\'s velocity along these axes;',
               '                                   # auto: "xyz" where the frames\' noise makes finite differences poor',
+              '                                   # or the first frame disagrees with the next ones',
               '# fit_position = ""                # nuisance: each start\'s position axes, e.g. "xy" for noisy starts',
               "# scan = 15                         # a global scan first (left out: automatic; 0: off)",
               "# profile_points = 32               # verify the estimate and give its interval (0: off)",

@@ -336,6 +336,27 @@ def finite_difference_velocity(times: np.ndarray, poses: np.ndarray, step: float
     return velocity_from_poses(times, np.asarray(poses)[:3], degree=2, at=-0.5 * float(step))
 
 
+def next_frames_start(times: np.ndarray, poses: np.ndarray, step: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """A free body's start that leaves its first frame's position out: (position (3,) [m,
+    world frame], velocity (6,)) from the least-squares parabola through the next
+    :data:`NEXT_FRAMES` frames (times (≥ 1 + NEXT_FRAMES,) [s], poses (≥ 1 + NEXT_FRAMES, 7)):
+    its value at the first frame's time, and its slope half a step h = ``step`` [s] before it
+    (the integrator's, as in :func:`finite_difference_velocity`); angular velocity [rad/s,
+    body frame] as :func:`finite_difference_velocity` takes it, and the orientation stays the
+    first frame's. Where a rollout starts from when the first frames disagree with the
+    motion after them (a first frame that is off: :func:`start_velocity_disagreement`);
+    exact for a constant acceleration. Raises DanoError with fewer frames."""
+    t = np.asarray(times, dtype=np.float64)
+    if len(t) < 1 + NEXT_FRAMES:
+        raise DanoError(f"next_frames_start needs {1 + NEXT_FRAMES} frames, got {len(t)}")
+    p = np.asarray(poses, dtype=np.float64)
+    n = slice(1, 1 + NEXT_FRAMES)
+    coef = np.polynomial.polynomial.polyfit(t[n] - t[1], p[n, :3], 2)  # (3, 3): constant, slope, curvature
+    position = np.polynomial.polynomial.polyval(t[0] - t[1], coef)
+    linear = velocity_from_poses(t[n], p[n], degree=2, at=float(t[0] - t[1]) - 0.5 * float(step))[:3]
+    return position, np.concatenate([linear, finite_difference_velocity(t, p, step)[3:]])
+
+
 def finite_difference_gain(step_ratio: float = 0.0) -> float:
     """How many times a start velocity from :func:`finite_difference_velocity` amplifies the
     position noise σ of equally spaced frames, over the frame interval Δ (its noise is
@@ -351,6 +372,27 @@ START_VELOCITY_NOISE = 0.05
 
 #: position noise below this [m] is rounding, not measurement: no start is fitted for it
 NOISE_FLOOR = 1e-6
+
+
+def _moving_starts(observations, segments, sigma_all, opening_only: bool = False):
+    """(obs, segment, poses (n, 7)) of each segment start whose velocity comes from finite
+    differences of its frames (no measured velocities, ``qvel0`` or ``rest_frames``; at least
+    3 frames) and whose segment moves: its net displacement exceeds 3√2‖σ‖ (σ (3,) [m]; a
+    still object's start velocity is noise that its contact damps at once). opening_only:
+    only starts that open a recording's run of frames (:func:`_opens_a_run`)."""
+    for seg in segments:
+        obs = observations[seg.obs]
+        if seg.start == 0 and (obs.qvel0 is not None or obs.rest_frames > 1):
+            continue
+        if opening_only and not _opens_a_run(obs, seg):
+            continue
+        for name, poses in obs.poses.items():
+            if name in obs.velocities or seg.frames < 3:
+                continue
+            k, p = seg.start, np.asarray(poses, dtype=np.float64)
+            if np.linalg.norm(p[k + seg.frames - 1, :3] - p[k, :3]) <= 3 * np.sqrt(2) * np.linalg.norm(sigma_all):
+                continue  # still within the noise
+            yield obs, seg, p
 
 
 def start_velocity_uncertainty(observations, segments, position_noise, axes: str = "xyz", substeps: int = 1
@@ -370,24 +412,70 @@ def start_velocity_uncertainty(observations, segments, position_noise, axes: str
     if not np.linalg.norm(sigma_all) > NOISE_FLOOR:
         return None
     speeds, dts = [], []
-    for seg in segments:
-        obs = observations[seg.obs]
-        if seg.start == 0 and (obs.qvel0 is not None or obs.rest_frames > 1):
-            continue
-        for name, poses in obs.poses.items():
-            if name in obs.velocities or seg.frames < 3:
-                continue
-            k, p = seg.start, np.asarray(poses, dtype=np.float64)
-            if np.linalg.norm(p[k + seg.frames - 1, :3] - p[k, :3]) <= 3 * np.sqrt(2) * np.linalg.norm(sigma_all):
-                continue  # still within the noise
-            v = finite_difference_velocity(np.asarray(obs.time)[k:k + 3], p[k:k + 3])
-            speeds.append(float(np.linalg.norm(v[:3])))
-            dts.append(obs.frame_dt)
+    for obs, seg, p in _moving_starts(observations, segments, sigma_all):
+        k = seg.start
+        v = finite_difference_velocity(np.asarray(obs.time)[k:k + 3], p[k:k + 3])
+        speeds.append(float(np.linalg.norm(v[:3])))
+        dts.append(obs.frame_dt)
     if not speeds:
         return None
     sigma = sigma_all[["xyz".index(a) for a in axes]]
     gain = finite_difference_gain(1.0 / substeps)
     return gain * float(np.linalg.norm(sigma)) / float(np.median(dts)), float(np.median(speeds))
+
+
+#: frames after a start's first that :func:`start_velocity_disagreement` fits its second
+#: velocity estimate to
+NEXT_FRAMES = 4
+
+
+def _opens_a_run(obs: Observation, seg: Segment) -> bool:
+    """Whether ``seg`` starts at the first frame of a run of ``obs``'s frames (the recording's
+    first, or the first after missing frames: where a tracker starts cold), not at a window's
+    start inside one (:meth:`Observation.runs`)."""
+    return seg.start == 0 or any(first == seg.start for first, _ in obs.runs())
+
+
+def start_velocity_disagreement(observations, segments, position_noise, axes: str = "xyz"
+                                ) -> tuple[float, float, float] | None:
+    """How far the start velocities that finite differences take from each start's first
+    three frames (:func:`finite_difference_velocity`) stray from the motion that the frames
+    after the first describe: at each moving start (as :func:`start_velocity_uncertainty`
+    counts them) that opens a run of frames (the recording's first frame or the first after
+    missing ones; windows inside a run start from ordinary frames, often just before an
+    impact, where no parabola holds) with at least 1 + :data:`NEXT_FRAMES` frames, the
+    difference along ``axes``
+    between that velocity and the slope, at the first frame, of the least-squares parabola
+    through the next :data:`NEXT_FRAMES` frames (both exact for a constant acceleration: a
+    slide, a flight). A first frame that is off (a tracker's cold start, a pose read a
+    substep apart from the rest, a push between the first frames) makes them disagree.
+
+    position_noise: (3,) per axis [m], or None (taken as none). Returns (disagreement,
+    noise, typical) [m/s]: the median over those starts of the difference's norm, the
+    median of what the noise alone makes it (‖w‖·‖σ_axes‖, w the two stencils'
+    difference), and the median speed of those starts; None where there is no such start
+    or no axis."""
+    if not axes:
+        return None
+    sigma_all = np.zeros(3) if position_noise is None else np.asarray(position_noise, dtype=np.float64)
+    cols = ["xyz".index(a) for a in axes]
+    sigma = float(np.linalg.norm(sigma_all[cols]))
+    gaps, noise, speeds = [], [], []
+    for obs, seg, p in _moving_starts(observations, segments, sigma_all, opening_only=True):
+        k, n = seg.start, NEXT_FRAMES
+        if seg.frames < 1 + n:
+            continue
+        t = np.asarray(obs.time, dtype=np.float64)[k:k + 1 + n]
+        first = slope_weights(t[:3], 2)  # (the stencil of finite_difference_velocity at its first frame)
+        after = slope_weights(t[1:], 2, at=t[0] - t[1])
+        w = np.concatenate([first, np.zeros(n - 2)]) - np.concatenate([[0.0], after])
+        x = p[k:k + 1 + n, :3]
+        gaps.append(float(np.linalg.norm((w @ x)[cols])))
+        noise.append(float(np.linalg.norm(w)) * sigma)
+        speeds.append(float(np.linalg.norm(first @ x[:3])))
+    if not gaps:
+        return None
+    return float(np.median(gaps)), float(np.median(noise)), float(np.median(speeds))
 
 
 def noisy_start_velocities(observations, segments, position_noise, axes: str, substeps: int = 1) -> str | None:
@@ -404,6 +492,32 @@ def noisy_start_velocities(observations, segments, position_noise, axes: str, su
     return (f"finite differences of the observed frames, whose position noise along {axes} is {sigma}, "
             f"start the rollouts from velocities uncertain by about {spread:.3g} m/s, "
             f"{100 * spread / typical:.0f} % of the typical moving start's speed ({typical:.3g} m/s)")
+
+
+#: where a rollout's start velocity comes from when no velocity is measured or given
+#: (:attr:`SysIdProblem.start_velocity`)
+START_VELOCITIES = ("auto", "first frames", "next frames")
+
+#: a start velocity disagreement this many times what the noise alone makes is not noise
+DISAGREEMENT_SIGNIFICANCE = 3.0
+
+
+def stray_start_velocities(observations, segments, position_noise, axes: str) -> str | None:
+    """Where the first frames disagree with the motion of the frames after them
+    (:func:`start_velocity_disagreement`) by more than :data:`START_VELOCITY_NOISE` of the
+    typical moving start's speed and more than :data:`DISAGREEMENT_SIGNIFICANCE` times what
+    the noise alone would make (noise-free data too: another engine's), the phrase that says
+    so; None otherwise. position_noise: (3,) per axis [m], or None."""
+    found = start_velocity_disagreement(observations, segments, position_noise, axes)
+    if found is None:
+        return None
+    gap, noise, typical = found
+    if typical <= 0 or gap <= START_VELOCITY_NOISE * typical or gap <= DISAGREEMENT_SIGNIFICANCE * noise:
+        return None
+    return (f"the start velocities that finite differences take from each start's first three frames disagree "
+            f"with the motion of the next {NEXT_FRAMES} frames by {gap:.3g} m/s along {axes} (median over the "
+            f"moving starts), {100 * gap / typical:.0f} % of the typical moving start's speed ({typical:.3g} m/s): "
+            "a first frame may be off (a tracker's cold start, a pose read a substep apart from the rest)")
 
 
 #: rotation vector of q_obs⁻¹ ⊗ q_sim, (..., 3) [rad]; sign-invariant and NaN-free
@@ -918,16 +1032,17 @@ def identification_params(scene: Scene, parameters: Sequence[FitParameter], give
 
 
 _AUTO_NOTE = "start velocities (fit_velocity auto):"
+_STARTS_NOTE = "start velocities (start_velocity auto):"
 _GIVEN_NOTE = " (given: base_params or TOML [contact])"
 _MISSING_NOTE = "rolled out from its own first frame, as windows are"  # (in every missing-frames note)
 
 
 def _derived_anew(note: str, auto: bool) -> bool:
     """Whether ``note`` is one that SysIdProblem derives again on this construction: a given
-    drag's (always), missing frames' (always), the start velocities' (when fit_velocity is
-    "auto" again)."""
+    drag's (always), missing frames' (always), the start velocities' (when fit_velocity or
+    start_velocity is "auto" again)."""
     return (_GIVEN_NOTE in note or _MISSING_NOTE in note or _JITTER_NOTE in note
-            or auto and note.startswith(_AUTO_NOTE))
+            or auto and note.startswith((_AUTO_NOTE, _STARTS_NOTE)))
 
 
 _JITTER_NOTE = "compared with the simulation interpolated to its own time"  # (in every jitter note)
@@ -1038,9 +1153,11 @@ class SysIdProblem:
     substeps: simulation steps per frame interval (scene.dt must equal frame_dt/substeps);
     fit_velocity: axes ("x", "y", "z" letters) of each tracked DANO's initial linear
     velocity to fit as nuisance parameters, per segment (e.g. "xy"), "" for none, or "auto"
-    (the default): "xyz" where the start velocities come from finite differences of frames
-    noisy enough to make them uncertain by more than :data:`START_VELOCITY_NOISE` of their
-    typical speed, else "" (resolved here; said in :attr:`notes`); window: split
+    (the default): the weighed axes where the start velocities come from finite differences
+    of frames noisy enough to make them uncertain by more than :data:`START_VELOCITY_NOISE`
+    of their typical speed, or of first frames that disagree by that much with the motion
+    after them (:func:`stray_start_velocities`), else "" (resolved here; said in
+    :attr:`notes`); window: split
     trajectories into windows of this many frame intervals, each rolled out from its
     observed state (multiple shooting for long or chaotic motions), or "auto": a window
     starting just before each impact the observation shows (:func:`impact_windows`);
@@ -1076,6 +1193,15 @@ class SysIdProblem:
     finite difference reuses frames 1 and 2, which are residuals too: counted twice, a
     negligible amount for moving starts, a little optimistic for the offsets' own standard
     errors. False: plain least squares over the frames.
+    start_velocity: where a start that is neither measured nor given comes from: "first
+    frames", its pose and the finite differences of its first three frames
+    (:func:`finite_difference_velocity`); "next frames", at the starts that open a run of
+    frames (a recording's first frame, the first after missing ones; not windows inside a
+    run), the parabola through the :data:`NEXT_FRAMES` frames after the first
+    (:func:`next_frames_start`: position and velocity); "auto" (the default): "next frames" where the first frames disagree with the
+    motion after them along the weighed axes (:func:`stray_start_velocities`; said in
+    :attr:`notes`, and then ``fit_velocity="auto"`` fits the start velocities too), else
+    "first frames" (resolved here).
     Raises DanoError for inconsistent input (see :func:`_check_observation`), unknown
     parameters, bounds that exclude the initial guess, or fewer residuals than parameters.
     """
@@ -1095,6 +1221,7 @@ class SysIdProblem:
     fit_rotation: str = ""
     notes: tuple[str, ...] = ()
     start_prior: bool = True
+    start_velocity: str = "auto"
 
     def __post_init__(self):
         def put(name, value):  # normalised fields of the frozen specification
@@ -1148,6 +1275,9 @@ class SysIdProblem:
             if not isinstance(axes, str) or set(axes) - set("xyz") or len(set(axes)) != len(axes):
                 raise DanoError(f"{name} must be made of the letters x, y, z, each at most once"
                                 + (', or "auto"' if name == "fit_velocity" else "") + f", got {axes!r}")
+        if self.start_velocity not in START_VELOCITIES:
+            raise DanoError(f"start_velocity must be one of {', '.join(map(repr, START_VELOCITIES))}, "
+                            f"got {self.start_velocity!r}")
         for p in self.parameters:
             if p.name not in ("alpha",) + INERTIAL_PARAMETERS + ContactParams.names():
                 raise DanoError(f"unknown parameter {p.name!r}; known: alpha, {', '.join(INERTIAL_PARAMETERS)}, "
@@ -1161,7 +1291,8 @@ class SysIdProblem:
             if not (p.lower <= p.initial <= p.upper) or not np.isfinite(p.initial):
                 raise DanoError(f"bounds [{p.lower}, {p.upper}] of {p.label} exclude the initial guess {p.initial}")
         # notes this method derives are made anew (dataclasses.replace passes the old ones on)
-        put("notes", tuple(n for n in self.notes if not _derived_anew(n, self.fit_velocity == "auto"))
+        put("notes", tuple(n for n in self.notes if not _derived_anew(n, "auto" in (self.fit_velocity,
+                                                                                     self.start_velocity)))
             + tuple(n for n in missing if n))
         if self.base_params is None:
             params, notes = identification_params(scene, self.parameters)
@@ -1169,21 +1300,26 @@ class SysIdProblem:
             put("notes", self.notes + notes)
         else:
             put("notes", self.notes + _given_drag_notes(self.base_params, self.parameters))
-        if self.fit_velocity == "auto":
-            put("notes", self.notes + self._auto_fit_velocity(put))
-            if not self.parameters and not (self.fit_velocity or any(a for _, a in kinds[1:])):
+        if "auto" in (self.fit_velocity, self.start_velocity):
+            auto_fit = self.fit_velocity == "auto"
+            put("notes", self.notes + self._auto_starts(put))
+            if auto_fit and not self.parameters and not (self.fit_velocity or any(a for _, a in kinds[1:])):
                 raise DanoError("no parameters to identify")
         n_res = self.num_observed_residuals  # also checks the window
         if n_res < self.num_parameters:
             raise DanoError(f"{n_res} residuals for {self.num_parameters} parameters: observe more frames "
                             "or fit fewer parameters")
 
-    def _auto_fit_velocity(self, put) -> tuple[str, ...]:
-        """Resolves ``fit_velocity="auto"`` (with ``put``, __post_init__'s setter) and returns
-        the note saying why: the axes whose positions are weighed, on every segment start, where
-        finite differences of noisy frames make the moving starts' velocities uncertain by more
-        than :data:`START_VELOCITY_NOISE` of their typical speed (:func:`noisy_start_velocities`);
-        "" otherwise (no note), and where those parameters would outnumber the residuals."""
+    def _auto_starts(self, put) -> tuple[str, ...]:
+        """Resolves ``start_velocity="auto"`` and ``fit_velocity="auto"`` (with ``put``,
+        __post_init__'s setter) and returns the note saying why. Along the axes whose positions
+        are weighed: where the first frames disagree with the motion after them
+        (:func:`stray_start_velocities`), each start is taken from the next frames ("next
+        frames", else "first frames"); the start velocities are fitted where finite
+        differences of noisy frames make them uncertain by more than
+        :data:`START_VELOCITY_NOISE` of their typical speed (:func:`noisy_start_velocities`) or
+        the first frames disagree so, "" otherwise (no note), and not where those parameters
+        would outnumber the residuals."""
         from .uncertainty import noise_of_observations  # (it imports this module)
 
         def fit(axes):  # (and the layout derived from it made anew)
@@ -1193,10 +1329,19 @@ class SysIdProblem:
 
         axes = "".join(a for a, w in zip("xyz", self.weights.position) if w > 0)
         noise = noise_of_observations(self.observations)["position_m"]
-        why = noisy_start_velocities(self.observations, self.segments, noise, axes, self.substeps)
+        stray = stray_start_velocities(self.observations, self.segments, noise, axes)
+        moved = ""
+        if self.start_velocity == "auto":
+            put("start_velocity", "next frames" if stray else "first frames")
+            moved = (f"each rollout starts from the parabola through the {NEXT_FRAMES} frames after its first "
+                     "(start_velocity = \"next frames\")") if stray else ""
+        if self.fit_velocity != "auto":
+            return (f"{_STARTS_NOTE} {stray}; {moved}",) if moved else ()
+        why = noisy_start_velocities(self.observations, self.segments, noise, axes, self.substeps) or stray
         fit("")
         if why is None:
             return ()
+        why += f"; {moved}" if moved else ""
         without = self.num_parameters
         fit(axes)
         if self.num_observed_residuals < self.num_parameters:
@@ -1393,6 +1538,13 @@ class SysIdProblem:
             p = np.asarray(p, dtype=np.float64)[sl]
             i = sc.dano_index(name)
             qpos[sc.qpos_adr[i] : sc.qpos_adr[i] + 7] = p[0]
+            differenced = name not in o.velocities and (seg.start > 0 or (o.qvel0 is None and o.rest_frames <= 1))
+            if (differenced and self.start_velocity == "next frames" and len(t) > NEXT_FRAMES
+                    and _opens_a_run(o, seg)):
+                position, velocity = next_frames_start(t, p, step)
+                qpos[sc.qpos_adr[i] : sc.qpos_adr[i] + 3] = position
+                qvel[sc.dof_adr[i] : sc.dof_adr[i] + 6] = velocity
+                continue
             if seg.start == 0 and o.rest_frames > 1:
                 k = min(o.rest_frames, len(p))
                 mean_q = quat_mean(p[:k, 3:])

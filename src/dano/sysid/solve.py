@@ -35,7 +35,7 @@ from ..errors import DanoError
 from . import uncertainty as unc
 from .._compiled import compile_seconds
 from .._threads import in_background, or_error, side_by_side
-from .problem import NOISE_FLOOR, SysIdProblem, noisy_start_velocities
+from .problem import NOISE_FLOOR, SysIdProblem, noisy_start_velocities, stray_start_velocities
 
 
 @dataclass
@@ -652,12 +652,16 @@ def start_velocity_warning(problem: SysIdProblem, noise: dict) -> str | None:
     :func:`~dano.sysid.problem.finite_difference_gain`), more than
     :data:`~dano.sysid.problem.START_VELOCITY_NOISE` of the moving starts' median speed
     (:func:`~dano.sysid.problem.noisy_start_velocities`, which leaves out starts with
-    measured velocities, a given ``qvel0`` or ``rest_frames``). None where there is nothing
-    to say."""
+    measured velocities, a given ``qvel0`` or ``rest_frames``), or, where the rollouts start
+    from their first frames (``start_velocity="first frames"``), first frames that disagree so
+    with the motion after them (:func:`~dano.sysid.problem.stray_start_velocities`). None
+    where there is nothing to say."""
     weighed = [a for a, w in zip("xyz", problem.weights.position) if w > 0]
     missing = "".join(a for a in weighed if a not in problem.fit_velocity)
     why = noisy_start_velocities(problem.observations, problem.segments, noise.get("position_m"), missing,
                                  problem.substeps)
+    if why is None and problem.start_velocity == "first frames":
+        why = stray_start_velocities(problem.observations, problem.segments, noise.get("position_m"), missing)
     if why is None:
         return None
     suggest = "".join(a for a in "xyz" if a in missing or a in problem.fit_velocity)
