@@ -47,6 +47,9 @@ class PairGeometry:
     sample_normal (3, S) unit normal from B into A at each sample, world. Vectors of samples
     are columns (the (3, S) layout keeps XLA from transposing them every step); depth_grad
     and sample_normal may be (3, 1) where they are the same for every sample (plane pairs).
+    anchor: (3,) A's body position, world [m] (a DANO's body frame has its origin at its
+    centre of mass): the point A's torques are taken about over the step (the centroid
+    model's implicit lever is the centroid's shift relative to it).
     A contact model prepares this once per step (:meth:`ContactModel.prepare`).
     """
 
@@ -63,6 +66,7 @@ class PairGeometry:
     sample_normal: jax.Array
     points_rotation: jax.Array
     points_offset: jax.Array
+    anchor: jax.Array
 
 
 def world_frame(dtype):

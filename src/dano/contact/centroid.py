@@ -17,13 +17,15 @@ from .params import FRICTION_STEEPNESS
 @dataclass(frozen=True)
 class CentroidState:
     """A pair prepared for the step: psi () overlap at q; psi_rate (6,) dψ/du; moment_rate
-    (3, 6) dM/du of the first moment M = Σ w·o·(x − χ) (zero at q); normal (3,); h ()."""
+    (3, 6) dM/du of the first moment M = Σ w·o·(x − χ) (zero at q); normal (3,); h ();
+    anchor (3,) A's body position relative to χ, world [m]."""
 
     psi: jax.Array
     psi_rate: jax.Array
     moment_rate: jax.Array
     normal: jax.Array
     h: jax.Array
+    anchor: jax.Array
 
 
 @register_contact_model("centroid")
@@ -37,7 +39,10 @@ class Centroid:
 
     Over a step with relative twist u the overlap and the centroid advance to first order,
     ψ + h·ψ̇u and χ + h·Ṁu/ψ (M the first moment of the overlap about χ), so the contact
-    spring, including the shift of χ that makes a tilted face push back, is implicit. The
+    spring, including the shift of χ that makes a tilted face push back, is implicit; the
+    force acts at the centroid's shift relative to A's body position (its centre of mass),
+    which advances by h·(v + ω × (x_A − χ)): the lever A has at the step's end (a shift of χ
+    with A's own motion is no lever: a rolling ball keeps rolling, a sliding plate flat). The
     advanced overlap is kept positive by a smooth max over ψ/20 and the arm's denominator
     by one at ψ/2, so the wrench stays C¹ as the linearised overlap reaches 0 (the pair
     separates) and Newton's method converges."""
@@ -60,7 +65,7 @@ class Centroid:
         object.__setattr__(self, "friction_steepness", check_steepness(self.friction_steepness))
 
     def prepare(self, g: PairGeometry, h, u=None) -> CentroidState:
-        return CentroidState(g.psi, g.psi_rate, g.moment_rate, g.normal, jnp.asarray(h, g.psi.dtype))
+        return CentroidState(g.psi, g.psi_rate, g.moment_rate, g.normal, jnp.asarray(h, g.psi.dtype), g.anchor - g.chi)
 
     def wrench(self, p, st: CentroidState, u):
         touching = st.psi > 0
@@ -71,6 +76,9 @@ class Centroid:
         clamped = smooth_max0(jnp.stack([psi_lin, psi_lin - 0.5 * ref]), 0.05 * ref)  # (one call: fewer kernels)
         psi = jnp.where(touching, clamped[0], 0.0)
         denom = 0.5 * ref + clamped[1]
-        arm = jnp.where(touching, st.h * (st.moment_rate @ u) / denom, 0.0)
+        # the centroid's shift over the step relative to A's body position, which moves with
+        # A's velocity there (u is taken at χ): the lever A's torque has at the step's end
+        carried = u[:3] + jnp.cross(u[3:], st.anchor)
+        arm = jnp.where(touching, st.h * ((st.moment_rate @ u) / denom - carried), 0.0)
         force, torque = pair_wrench(p, psi, st.normal, u[:3], u[3:], self.drag, self.friction_steepness)  # at χ
         return jnp.concatenate([force, torque + jnp.cross(arm, force)])

@@ -65,7 +65,7 @@ class DanoPairKind:
         cat = lambda a, b: jnp.concatenate([a, b], axis=-1)  # noqa: E731
         weight, depth, grad, points = 0.5 * cat(ua, ub), cat(za, zb), cat(ga, gb), cat(pa, pb)
         return PairGeometry(0.5 * total, chi, normal, *centroid_rates(weight, depth, grad, moves, points, chi), weight,
-                            depth, grad, moves, points, cat(-na, nb), *world_frame(chi.dtype))
+                            depth, grad, moves, points, cat(-na, nb), *world_frame(chi.dtype), inp["xa"])
 
 
 register_pair_kind(DanoPairKind())

@@ -48,7 +48,7 @@ class PlaneKind:
         # the samples stay in the body frame and the normal is one column: a model that needs
         # few samples (per_sample) transforms only those
         return PairGeometry(psi, chi, n, psi_rate, moment_rate, inp["alpha"] * s.weights, depth,
-                            -n[:, None] / s.radius, jnp.ones_like(depth), s.points, n[:, None], R, x)
+                            -n[:, None] / s.radius, jnp.ones_like(depth), s.points, n[:, None], R, x, x)
 
 
 register_pair_kind(PlaneKind())

@@ -103,7 +103,8 @@ class PrimitiveKind:
         points = R @ s.points + x[:, None]
         weight, grad, moves = inp["alpha"] * s.weights, -sdf_grad / s.radius, jnp.ones_like(depth)
         return PairGeometry(psi, chi, normal, *centroid_rates(weight, depth, grad, moves, points, chi), weight, depth,
-                            grad, moves, points, unit(sdf_grad, normal[:, None], axis=0), *world_frame(x.dtype))
+                            grad, moves, points, unit(sdf_grad, normal[:, None], axis=0), *world_frame(x.dtype),
+                            x)
 
     def _normal(self, inp, chi):
         """The pair normal (3,): ∇sdf at χ, world (away from the geom's centre where ∇sdf is 0)."""
