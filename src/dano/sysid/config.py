@@ -325,9 +325,9 @@ class OptionsConfig:
     """Where each rollout's start comes from when no velocity is measured or given: ``"first frames"``, the
     first frame's pose and finite differences of the first three frames; ``"next frames"``, at a recording's first
     frame (and the first after missing ones), the parabola through the four frames after it (position and velocity:
-    for a first frame that is off); ``"auto"``: ``"next
-    frames"`` where the first three frames' velocities disagree with it by more than 5 % of the typical speed and
-    more than the noise explains (said in the result's notes), else ``"first frames"``."""
+    for a first frame that is off); ``"auto"``: ``"next frames"`` where the first three frames' velocities disagree
+    with it by more than 5 % of the typical speed and more than the noise explains (said in the result's notes),
+    else ``"first frames"``."""
     window: int = 0
     """> 0: multiple shooting, windows of this many frame intervals (>= 2); 0: one shot per trajectory."""
     auto_windows: bool = False
