@@ -281,6 +281,23 @@ def test_a_first_frame_off_has_the_start_velocities_fitted(box):
         pose(exact, start_velocity="first")
 
 
+def test_next_frames_start_leaves_the_first_frame_out():
+    """A constant acceleration (a flight, a slide) with its first frame 2 mm off: the start
+    from the next four frames' parabola is its exact position at the first frame's time and
+    its exact velocity half a step before (rounding only); too few frames are refused."""
+    from dano.sysid.problem import next_frames_start
+
+    t = np.arange(6) * 0.01
+    x0, v, a = np.array([0.1, 0.2, 0.05]), np.array([1.0, 0.4, -0.2]), np.array([0.3, -1.2, -9.81])
+    poses = np.c_[x0 + np.outer(t, v) + 0.5 * np.outer(t**2, a), np.tile([1.0, 0, 0, 0], (6, 1))]
+    poses[0, :3] += 0.002
+    position, velocity = next_frames_start(t, poses, 0.0025)
+    np.testing.assert_allclose(position, x0, atol=1e-12)
+    np.testing.assert_allclose(velocity, np.r_[v - a * 0.00125, 0, 0, 0], atol=1e-12)
+    with pytest.raises(DanoError, match="needs 5 frames"):
+        next_frames_start(t[:4], poses[:4])
+
+
 def test_plain_mujoco_slides_read_a_substep_apart_have_their_starts_fitted(shared, tmp_path):
     """Plain MuJoCo C slides of the low-poly bunny (0.2 m, 0.7 kg), as a new user recorded them
     reading the poses MuJoCo derives after mj_step (xipos), which lag qpos by one substep: every

@@ -82,7 +82,7 @@ from ..errors import DanoError, FileFormatError
 from ..sim.scene import DEFAULT_DT, stated_timestep
 from ..sim.scene import DanoObject, compose, contact_model_or_error
 from ..trajectory import load_trajectory
-from .problem import (MIN_RUN_FRAMES, FitParameter, Observation, SysIdProblem, Weights,
+from .problem import (MIN_RUN_FRAMES, START_VELOCITIES, FitParameter, Observation, SysIdProblem, Weights,
                       identification_params, is_jittered)
 from .outputs import estimates_report
 from .solve import identify
@@ -372,8 +372,8 @@ class OptionsConfig:
             if not (_axes_ok(getattr(self, key)) or key == "fit_velocity" and self.fit_velocity == "auto"):
                 raise DanoError(f"[options].{key}: must be made of the letters x, y, z, each at most once, "
                                 f"got {getattr(self, key)!r}")
-        if self.start_velocity not in ("auto", "first frames", "next frames"):
-            raise DanoError(f"[options].start_velocity: \"auto\", \"first frames\" or \"next frames\", "
+        if self.start_velocity not in START_VELOCITIES:
+            raise DanoError(f"[options].start_velocity: one of {', '.join(map(repr, START_VELOCITIES))}, "
                             f"got {self.start_velocity!r}")
         if self.fit_tilt and not self.fit_ground:
             raise DanoError("[options].fit_tilt: the ground's tilt is fitted with its height: "

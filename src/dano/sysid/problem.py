@@ -351,10 +351,11 @@ def next_frames_start(times: np.ndarray, poses: np.ndarray, step: float = 0.0) -
         raise DanoError(f"next_frames_start needs {1 + NEXT_FRAMES} frames, got {len(t)}")
     p = np.asarray(poses, dtype=np.float64)
     n = slice(1, 1 + NEXT_FRAMES)
-    coef = np.polynomial.polynomial.polyfit(t[n] - t[1], p[n, :3], 2)  # (3, 3): constant, slope, curvature
-    position = np.polynomial.polynomial.polyval(t[0] - t[1], coef)
-    linear = velocity_from_poses(t[n], p[n], degree=2, at=float(t[0] - t[1]) - 0.5 * float(step))[:3]
-    return position, np.concatenate([linear, finite_difference_velocity(t, p, step)[3:]])
+    P = np.polynomial.polynomial
+    coef = P.polyfit(t[n] - t[1], p[n, :3], 2)  # (3, 3): per axis, constant, slope, curvature
+    first = t[0] - t[1]
+    linear = P.polyval(first - 0.5 * float(step), P.polyder(coef))
+    return P.polyval(first, coef), np.concatenate([linear, finite_difference_velocity(t, p, step)[3:]])
 
 
 def finite_difference_gain(step_ratio: float = 0.0) -> float:
@@ -444,10 +445,9 @@ def start_velocity_disagreement(observations, segments, position_noise, axes: st
     counts them) that opens a run of frames (the recording's first frame or the first after
     missing ones; windows inside a run start from ordinary frames, often just before an
     impact, where no parabola holds) with at least 1 + :data:`NEXT_FRAMES` frames, the
-    difference along ``axes``
-    between that velocity and the slope, at the first frame, of the least-squares parabola
-    through the next :data:`NEXT_FRAMES` frames (both exact for a constant acceleration: a
-    slide, a flight). A first frame that is off (a tracker's cold start, a pose read a
+    difference along ``axes`` between that velocity and the slope, at the first frame, of the
+    least-squares parabola through the next :data:`NEXT_FRAMES` frames (both exact for a
+    constant acceleration: a slide, a flight). A first frame that is off (a tracker's cold start, a pose read a
     substep apart from the rest, a push between the first frames) makes them disagree.
 
     position_noise: (3,) per axis [m], or None (taken as none). Returns (disagreement,
@@ -1198,10 +1198,10 @@ class SysIdProblem:
     (:func:`finite_difference_velocity`); "next frames", at the starts that open a run of
     frames (a recording's first frame, the first after missing ones; not windows inside a
     run), the parabola through the :data:`NEXT_FRAMES` frames after the first
-    (:func:`next_frames_start`: position and velocity); "auto" (the default): "next frames" where the first frames disagree with the
-    motion after them along the weighed axes (:func:`stray_start_velocities`; said in
-    :attr:`notes`, and then ``fit_velocity="auto"`` fits the start velocities too), else
-    "first frames" (resolved here).
+    (:func:`next_frames_start`: position and velocity); "auto" (the default): "next frames"
+    where the first frames disagree with the motion after them along the weighed axes
+    (:func:`stray_start_velocities`; said in :attr:`notes`, and then ``fit_velocity="auto"``
+    fits the start velocities too), else "first frames" (resolved here).
     Raises DanoError for inconsistent input (see :func:`_check_observation`), unknown
     parameters, bounds that exclude the initial guess, or fewer residuals than parameters.
     """
@@ -1534,13 +1534,13 @@ class SysIdProblem:
         step = sc.dt  # differenced velocities are the integrator's: half a step early (also where stamps jitter)
         if o.qvel0 is not None and seg.start == 0:
             qvel = np.array(o.qvel0, dtype=np.float64)
+        moving = seg.start > 0 or (o.qvel0 is None and o.rest_frames <= 1)  # velocity from the frames, not given
         for name, p in o.poses.items():
             p = np.asarray(p, dtype=np.float64)[sl]
             i = sc.dano_index(name)
             qpos[sc.qpos_adr[i] : sc.qpos_adr[i] + 7] = p[0]
-            differenced = name not in o.velocities and (seg.start > 0 or (o.qvel0 is None and o.rest_frames <= 1))
-            if (differenced and self.start_velocity == "next frames" and len(t) > NEXT_FRAMES
-                    and _opens_a_run(o, seg)):
+            if (moving and name not in o.velocities and self.start_velocity == "next frames"
+                    and len(t) > NEXT_FRAMES and _opens_a_run(o, seg)):
                 position, velocity = next_frames_start(t, p, step)
                 qpos[sc.qpos_adr[i] : sc.qpos_adr[i] + 3] = position
                 qvel[sc.dof_adr[i] : sc.dof_adr[i] + 6] = velocity
@@ -1549,7 +1549,7 @@ class SysIdProblem:
                 k = min(o.rest_frames, len(p))
                 mean_q = quat_mean(p[:k, 3:])
                 qpos[sc.qpos_adr[i] : sc.qpos_adr[i] + 7] = np.r_[p[:k, :3].mean(0), mean_q]
-            if seg.start > 0 or (o.qvel0 is None and o.rest_frames <= 1):
+            if moving:
                 qvel[sc.dof_adr[i] : sc.dof_adr[i] + 6] = (
                     np.asarray(o.velocities[name], dtype=np.float64)[seg.start] if name in o.velocities
                     else finite_difference_velocity(t, p, step))
@@ -1561,7 +1561,7 @@ class SysIdProblem:
             qa, da = int(sc.mj_model.jnt_qposadr[j]), int(sc.mj_model.jnt_dofadr[j])
             v = np.asarray(v, dtype=np.float64)[sl]
             qpos[qa] = v[:min(o.rest_frames, len(v))].mean() if seg.start == 0 else v[0]
-            if seg.start > 0 or (o.qvel0 is None and o.rest_frames <= 1):
+            if moving:
                 qvel[da] = slope_weights(t[:3], 2, at=-0.5 * step) @ v[:3]  # as finite_difference_velocity's
             elif o.qvel0 is None:
                 qvel[da] = 0.0
