@@ -174,11 +174,38 @@ def test_float32_and_numpy_input():
         assert pose.quat_to_rotvec(q64).dtype == np.float64  # host code keeps float64
 
 
+@cases
+@given(BATCH, SEED)
+def test_numpy_input_gives_the_jax_values(shape, seed):
+    """The host path (NumPy and SciPy) against the JAX one, at random rotations, the identity,
+    a half turn and rotation vectors past π; binary functions broadcast a single argument."""
+    rng = np.random.default_rng(seed)
+    q1, q2 = np.asarray(quats(rng, shape)), np.asarray(quats(rng, shape))
+    q1 = q1 * rng.uniform(0.5, 2.0, (*shape, 1))  # not normalised: the product is Hamilton's as given
+    special = np.array([[1.0, 0, 0, 0], [0.0, 1, 0, 0], [0.0, 0.6, 0.8, 0], [-0.5, 0.5, 0.5, 0.5]])
+    r = np.concatenate([np.asarray(rotvecs(rng, (5,), max_angle=6.0)), np.zeros((1, 3))])
+    v = rng.normal(size=(*shape, 3))
+    cases = [(pose.normalize_quat, (q1,)), (pose.quat_multiply, (q1, q2)), (pose.quat_multiply, (special[1], q2)),
+             (pose.quat_inverse, (q1,)), (pose.quat_to_matrix, (q1,)), (pose.quat_to_matrix, (special,)),
+             (pose.rotate, (q2, v)), (pose.rotate, (special[2], v)), (pose.rotvec_to_quat, (r,)),
+             (pose.quat_to_rotvec, (q1,)), (pose.quat_to_rotvec, (special,)), (pose.quat_error, (q1, q2)),
+             (pose.quat_error, (special, special[::-1])), (pose.quat_mean, (special,))]
+    with jax.enable_x64(True):
+        for fn, args in cases:
+            host = fn(*args)
+            assert isinstance(host, np.ndarray) and host.dtype == np.float64, fn.__name__
+            np.testing.assert_allclose(host, fn(*map(jnp.asarray, args)), atol=1e-12, err_msg=fn.__name__)
+
+
 def test_bad_shapes_are_refused():
     with pytest.raises(DanoError, match=r"quaternion must have shape \(\.\.\., 4\), got \(3,\)"):
         pose.quat_to_matrix(np.zeros(3))
     with pytest.raises(DanoError, match=r"rotation vector must have shape \(\.\.\., 3\)"):
         pose.rotvec_to_quat(np.zeros(4))
+    with pytest.raises(DanoError, match=r"vector must have shape \(\.\.\., 3\)"):
+        pose.rotate(np.array([1.0, 0, 0, 0]), np.zeros(4))
+    with pytest.raises(DanoError, match="quaternions must be finite and non-zero, got 1 that are not"):
+        pose.quat_to_matrix(np.array([[1.0, 0, 0, 0], [0.0, 0, 0, 0]]))
     with pytest.raises(DanoError, match="at least 3 poses"):
         pose.velocity_from_poses(np.arange(2.0), np.tile([0, 0, 0, 1.0, 0, 0, 0], (2, 1)), degree=2)
     with pytest.raises(DanoError, match="increasing times"):

@@ -10,8 +10,10 @@ pose (..., 7) is ``x y z`` [m, world] followed by the quaternion. A free body's 
 Every function takes any leading batch axes (``...``; binary ones broadcast), traces under
 ``jit``/``vmap``/``grad`` (numerically safe branches with ``jnp.where``, so values and
 gradients are finite at zero rotation and at a half turn), and takes NumPy input too: when no
-argument is a JAX array the computation runs in float64 whatever JAX's 64-bit setting (host
-code keeps its precision) and returns NumPy arrays.
+argument is a JAX array the computation runs in NumPy and SciPy's ``Rotation`` (float64
+whatever JAX's 64-bit setting, nothing to compile: host code that reads a recording's poses
+costs no compilation) and returns NumPy arrays; both paths give the same values to rounding
+(``tests/test_pose.py``).
 """
 
 from __future__ import annotations
@@ -23,7 +25,6 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
-from ._compiled import cached_jit
 from .errors import DanoError
 
 __all__ = ["normalize_quat", "quat_error", "quat_inverse", "quat_mean", "quat_multiply", "quat_to_matrix",
@@ -34,21 +35,97 @@ __all__ = ["normalize_quat", "quat_error", "quat_inverse", "quat_mean", "quat_mu
 _TAYLOR = {jnp.dtype("float32"): 1e-5, jnp.dtype("float64"): 1e-10}
 
 
-def _host_or_jax(fn):
-    """NumPy in, NumPy out (float64 computation, jitted: one compilation per shape instead of
-    one per JAX operation executed eagerly, and traced once per shape across processes when the
-    compilation cache is on); JAX arrays or tracers in: plain JAX."""
-    jitted = cached_jit(fn)
+def _host_or_jax(host):
+    """The decorated function for JAX arrays and tracers (plain JAX: jit, vmap, grad), and
+    ``host`` (NumPy/SciPy, float64) for NumPy or list input, which returns NumPy arrays:
+    host code neither compiles nor depends on JAX's 64-bit setting, also inside a trace."""
 
-    @functools.wraps(fn)
-    def wrapped(*args, **kwargs):
-        if any(isinstance(a, jax.Array) for a in (*args, *kwargs.values())):
-            return fn(*args, **kwargs)
-        with jax.enable_x64(True), jax.ensure_compile_time_eval():  # eager also inside a trace
-            args = [np.asarray(a) for a in args]  # (shape errors are raised while tracing: DanoError)
-            return np.array(jitted(*args, **kwargs))  # a writable copy, as NumPy code expects
+    def decorate(fn):
+        @functools.wraps(fn)
+        def wrapped(*args, **kwargs):
+            if any(isinstance(a, jax.Array) for a in (*args, *kwargs.values())):
+                return fn(*args, **kwargs)
+            return host(*(_host_float(a) for a in args), **kwargs)
 
-    return wrapped
+        return wrapped
+
+    return decorate
+
+
+def _host_float(x) -> np.ndarray:
+    return np.array(x, dtype=np.float64)  # (a copy: results never alias the caller's array)
+
+
+def _rotation(q: np.ndarray):
+    """SciPy's Rotation of the quaternions q (..., 4) w x y z (normalised by SciPy). Raises
+    DanoError for a quaternion of zero (or non-finite) norm."""
+    from scipy.spatial.transform import Rotation
+
+    _check(q, 4, "quaternion")
+    norms = np.linalg.norm(q, axis=-1)
+    if not np.all(np.isfinite(norms) & (norms > 0)):
+        raise DanoError("quaternions must be finite and non-zero, got "
+                        f"{np.count_nonzero(~(np.isfinite(norms) & (norms > 0)))} that are not")
+    return Rotation.from_quat(q, scalar_first=True)
+
+
+def _host_broadcast(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Broadcast the leading (batch) axes of a (..., m) and b (..., n)."""
+    lead = np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
+    return np.array(np.broadcast_to(a, lead + a.shape[-1:])), np.array(np.broadcast_to(b, lead + b.shape[-1:]))
+
+
+def _host_normalize(q):
+    _check(q, 4, "quaternion")
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def _host_multiply(q1, q2):
+    # the Hamilton product of q1 and q2 as given (SciPy composes the normalised ones)
+    _check(q1, 4, "quaternion")
+    _check(q2, 4, "quaternion")
+    q1, q2 = _host_broadcast(q1, q2)
+    norms = np.linalg.norm(q1, axis=-1, keepdims=True) * np.linalg.norm(q2, axis=-1, keepdims=True)
+    return (_rotation(q1) * _rotation(q2)).as_quat(canonical=False, scalar_first=True) * norms
+
+
+def _host_inverse(q):
+    _check(q, 4, "quaternion")
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def _host_matrix(q):
+    return _rotation(q).as_matrix()
+
+
+def _host_rotate(q, v):
+    _check(v, 3, "vector")
+    _check(q, 4, "quaternion")
+    q, v = _host_broadcast(q, v)
+    return _rotation(q).apply(v)
+
+
+def _host_exp(r):
+    from scipy.spatial.transform import Rotation
+
+    _check(r, 3, "rotation vector")
+    return Rotation.from_rotvec(r).as_quat(canonical=False, scalar_first=True)
+
+
+def _host_log(q):
+    _check(q, 4, "quaternion")
+    return _rotation(q).as_rotvec()  # (angle in [0, π] from the two-argument arctangent, as below)
+
+
+def _host_error(q_ref, q):
+    return _host_log(_host_multiply(_host_inverse(q_ref), q))
+
+
+def _host_mean(q):
+    q = _host_normalize(q)
+    _, vectors = np.linalg.eigh(np.einsum("...ki,...kj->...ij", q, q))
+    m = vectors[..., :, -1]
+    return np.where(m[..., :1] < 0, -m, m)
 
 
 def _float(x) -> jax.Array:
@@ -73,7 +150,7 @@ def _broadcast(a: jax.Array, b: jax.Array) -> tuple[jax.Array, jax.Array]:
     return jnp.broadcast_to(a, lead + a.shape[-1:]), jnp.broadcast_to(b, lead + b.shape[-1:])
 
 
-@_host_or_jax
+@_host_or_jax(_host_normalize)
 def normalize_quat(q) -> jax.Array:
     """q / ‖q‖, (..., 4) → (..., 4)."""
     q = _float(q)
@@ -81,27 +158,27 @@ def normalize_quat(q) -> jax.Array:
     return q / jnp.linalg.norm(q, axis=-1, keepdims=True)
 
 
-@_host_or_jax
+@_host_or_jax(_host_multiply)
 def quat_multiply(q1, q2) -> jax.Array:
     """Hamilton product q₁ ⊗ q₂ (..., 4): the rotation q₂, then q₁ (frames: a ← b ⊗ b ← c = a ← c)."""
     a, b = _broadcast(_so3(q1).wxyz, _so3(q2).wxyz)
     return (jaxlie.SO3(a) @ jaxlie.SO3(b)).wxyz
 
 
-@_host_or_jax
+@_host_or_jax(_host_inverse)
 def quat_inverse(q) -> jax.Array:
     """The inverse of a unit quaternion (its conjugate), (..., 4): body ← world for world ← body."""
     return _so3(q).inverse().wxyz
 
 
-@_host_or_jax
+@_host_or_jax(_host_matrix)
 def quat_to_matrix(q) -> jax.Array:
     """Rotation matrix (..., 3, 3) of the quaternion (..., 4) (normalised first: any non-zero
     quaternion); R·x maps body-frame x to the world frame."""
     return _so3(q).as_matrix()
 
 
-@_host_or_jax
+@_host_or_jax(_host_rotate)
 def rotate(q, v) -> jax.Array:
     """q ⊗ v ⊗ q⁻¹: the vectors v (..., 3) rotated by the unit quaternions q (..., 4)
     (body-frame vectors to the world frame); broadcasts q against v's leading axes."""
@@ -111,7 +188,7 @@ def rotate(q, v) -> jax.Array:
     return jaxlie.SO3(q) @ v
 
 
-@_host_or_jax
+@_host_or_jax(_host_exp)
 def rotvec_to_quat(r) -> jax.Array:
     """Exponential map: the unit quaternion (..., 4) of the rotation vector r (..., 3) [rad]
     (angle ‖r‖ about r/‖r‖); Taylor series near zero (exact value and gradients at r = 0)."""
@@ -120,7 +197,7 @@ def rotvec_to_quat(r) -> jax.Array:
     return jaxlie.SO3.exp(r).wxyz
 
 
-@_host_or_jax
+@_host_or_jax(_host_log)
 def quat_to_rotvec(q) -> jax.Array:
     """Logarithm: the rotation vector (..., 3) [rad] of the quaternion (..., 4), angle in
     [0, π]; the same for q and −q and for any positive multiple of q (no normalisation
@@ -140,14 +217,14 @@ def quat_to_rotvec(q) -> jax.Array:
     return scale * v
 
 
-@_host_or_jax
+@_host_or_jax(_host_error)
 def quat_error(q_ref, q) -> jax.Array:
     """log(q_ref⁻¹ ⊗ q) (..., 3) [rad]: the rotation from q_ref to q as a rotation vector in
     q_ref's body frame; sign-invariant in both, NaN-free (also its gradients) when q = q_ref."""
     return quat_to_rotvec(quat_multiply(quat_inverse(q_ref), q))
 
 
-@_host_or_jax
+@_host_or_jax(_host_mean)
 def quat_mean(q) -> jax.Array:
     """Chordal L2 mean of unit quaternions (..., K, 4) → (..., 4): the principal eigenvector
     of Σ q qᵀ over the normalised quaternions (Markley et al. 2007; SciPy's ``Rotation.mean``),
