@@ -150,6 +150,29 @@ def _bunny_drop_beside_primitives(drop):
     return scene, scene.default_params(sliding_friction=float(drop.params.contact.sliding_friction[0]))
 
 
+def _two_meshes_apart():
+    """{label: (scene, state, params)} of two 10 cm spheres made from a mesh (an icosphere's
+    signed-distance grid: :func:`~dano.fields.mesh_field`, 2,000 samples each, 1 kg), dropped
+    1 m apart and sliding away from each other, never touching: with every pair (their
+    DANO-DANO pair skips both fields' queries while apart) and with their ground pairs only."""
+    import trimesh
+
+    from .fields import mesh_field
+    from .sim.scenes import initial_state
+
+    asset = build(mesh_field(trimesh.creation.icosphere(subdivisions=3, radius=0.1), resolution=32), mass=1.0,
+                  num_samples=2000, mesh_resolution=0, name="sphere")
+    objs = [DanoObject("a", asset, (0, 0, 0.5)), DanoObject("b", asset, (1.0, 0, 0.5))]
+    out = {}
+    for label, contacts in (("two_meshes_apart", None), ("two_meshes_ground_pairs_only", [("a", "ground"),
+                                                                                           ("b", "ground")])):
+        scene = compose(objs, dt=0.01, contacts=contacts)
+        state = initial_state(scene, {"a": ((0, 0, 0.5), (1, 0, 0, 0)), "b": ((1.0, 0, 0.5), (1, 0, 0, 0))},
+                              {"a": ((-0.3, 0, 0), (0, 0, 0)), "b": ((0.3, 0, 0), (0, 0, 0))})
+        out[label] = (scene, state, scene.default_params())
+    return out
+
+
 def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) -> dict:
     """Simulation speed (CPU or GPU, float64), all measured in this one run (the default
     step counts keep every timing above 0.2 s on the 2-core CPU):
@@ -167,7 +190,11 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     * ``bunny_drop_untouched_primitives``: the same drop composed with a box, a capsule and a
       sphere it never reaches (:data:`UNTOUCHED_PRIMITIVES`; a user's walls and posts), whose
       pairs skip their samples (``ratio_untouched_primitives_over_drop_time``);
-    * these six are timed round after round (``repeats`` rounds, each round one run of each),
+    * ``two_meshes_apart``: two mesh-made DANOs that never touch, with their DANO-DANO pair
+      (which skips both fields' queries while apart), and ``two_meshes_ground_pairs_only``
+      the same without it (``ratio_dano_pair_apart_over_ground_pairs_only_time``: 4.8 before
+      the skip, 2026-11-29);
+    * these eight are timed round after round (``repeats`` rounds, each round one run of each),
       so that a change in the machine's load falls on all alike; the two ratios are medians
       over the rounds of the ratio within each round;
     * ``sphere_hits_bunny``: the scene of that name (a 10 kg ball rolls into the bunny): a
@@ -201,6 +228,7 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     # the same drop with the Newton systems solved by LAPACK: what the step costs when XLA
     # cannot compile the rollout into one kernel (NewtonConfig.linear_solver)
     lapack = NewtonConfig(linear_solver="lapack")
+    pair = _two_meshes_apart()
     # timed round after round, so that the machine's load falls on all of them alike
     stats, rounds = _time_interleaved({
         "bunny_drop": lambda: jax.block_until_ready(rollout_arrays(sc, s0, None, p, steps)),
@@ -210,6 +238,8 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
         "bunny_drop_untouched_primitives": lambda: jax.block_until_ready(
             rollout_arrays(far, s0, None, far_params, steps)),
         "mujoco_c_convex_hull": lambda: mujoco.rollout.rollout(m, d, state0[None], nstep=mujoco_steps),
+        **{label: (lambda a=args: jax.block_until_ready(rollout_arrays(a[0], a[1], None, a[2], steps)))
+           for label, args in pair.items()},
     }, repeats)
     for name, r in stats.items():
         n = mujoco_steps if name == "mujoco_c_convex_hull" else steps
@@ -233,6 +263,8 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
 
     out["ratio_untouched_primitives_over_drop_time"] = statistics.median(
         a / b for a, b in zip(rounds["bunny_drop_untouched_primitives"], rounds["bunny_drop"]))
+    out["ratio_dano_pair_apart_over_ground_pairs_only_time"] = statistics.median(
+        a / b for a, b in zip(rounds["two_meshes_apart"], rounds["two_meshes_ground_pairs_only"]))
 
     hits = load_scene("sphere-hits-bunny")
     out["sphere_hits_bunny"] = _steps_per_second(

@@ -67,5 +67,32 @@ class DanoPairKind:
         return PairGeometry(0.5 * total, chi, normal, *centroid_rates(weight, depth, grad, moves, points, chi), weight,
                             depth, grad, moves, points, cat(-na, nb), *world_frame(chi.dtype), inp["xa"])
 
+    def apart(self, inp):
+        """() bool: True where neither DANO's samples can reach the other's field: each body's
+        position, in the other's object frame, lies farther from that field's box (outside of
+        which its density is zero: ``bounds()``) than its samples' extent plus one sample
+        radius. Every sample then sees density 0 (depth −1), every occupancy and its slope are
+        0. Conservative: False says nothing. (A NeRF's floaters lie inside its box.)"""
+        sa, sb = inp["sa"], inp["sb"]
+        return (_beyond(sb.field_box, inp["Rb"].T @ (inp["xa"] - inp["xb"]) + sb.com, sa.extent + sa.radius)
+                & _beyond(sa.field_box, inp["Ra"].T @ (inp["xb"] - inp["xa"]) + sa.com, sb.extent + sb.radius))
+
+    def separated(self, inp) -> dict:
+        """The aggregates of :meth:`geometry` where :meth:`apart` holds (ψ = 0, its rates 0, χ
+        halfway between the bodies, the normal along their offset: the values, and
+        derivatives, :meth:`geometry` gives there), without querying either field
+        (:func:`~dano.contact.base.skip_separated`)."""
+        xa, xb = inp["xa"], inp["xb"]
+        up = jnp.array([0.0, 0.0, 1.0], dtype=xa.dtype)
+        return dict(psi=jnp.zeros((), xa.dtype), chi=0.5 * (xa + xb), normal=unit(xa - xb, up),
+                    psi_rate=jnp.zeros(6, xa.dtype), moment_rate=jnp.zeros((3, 6), xa.dtype))
+
+
+def _beyond(box, centre, reach):
+    """Whether the ball of radius ``reach`` [m] about ``centre`` (3,) lies outside ``box``
+    (2, 3) (lower and upper corners; an unbounded box: never)."""
+    gap = jnp.maximum(jnp.maximum(box[0] - centre, centre - box[1]), 0.0)
+    return jnp.sum(gap * gap) > reach * reach
+
 
 register_pair_kind(DanoPairKind())

@@ -43,7 +43,9 @@ class Samples:
     extent: (D,) the largest distance of a sample from the body origin [m] (0 without
     samples): every sample lies in the ball of that radius about the body's position, which
     lets a pair kind tell cheaply that no sample can touch the other body
-    (:func:`~dano.contact.base.skip_separated`).
+    (:func:`~dano.contact.base.skip_separated`); field_box: (D, 2, 3) the lower and upper
+    corners of the box, object frame [m], outside of which each DANO's density field is zero
+    (its ``bounds()``; ±inf without a field), which lets a DANO–DANO pair tell the same.
     """
 
     points: jax.Array
@@ -55,6 +57,7 @@ class Samples:
     com: jax.Array
     rho_ref: jax.Array
     extent: jax.Array
+    field_box: jax.Array
 
     def take(self, idx) -> "Samples":
         """The samples of DANOs ``idx`` (a static sequence of indices), leading axis len(idx)."""
@@ -64,10 +67,11 @@ class Samples:
         return jax.tree_util.tree_map(lambda x: x[idx], self)
 
     @staticmethod
-    def stack(points, normals, weights, radius, com, rho_ref) -> "Samples":
+    def stack(points, normals, weights, radius, com, rho_ref, field_box=None) -> "Samples":
         """From per-DANO lists of (N_k, 3) points and normals and (N_k,) weights (NumPy):
         each DANO's put in :func:`spatial_order`, all padded to the largest N_k rounded up
-        to a multiple of :data:`SAMPLE_BLOCK`."""
+        to a multiple of :data:`SAMPLE_BLOCK`. field_box: per DANO its field's (2, 3)
+        ``bounds()`` or None (no field: an unbounded box), or None for all."""
         orders = [spatial_order(np.asarray(p)) for p in points]
         points = [np.asarray(p)[o] for p, o in zip(points, orders)]
         normals = [np.asarray(v)[o] for v, o in zip(normals, orders)]
@@ -87,7 +91,10 @@ class Samples:
         WP = np.concatenate([P * W[:, None, :], W[:, None, :]], axis=1)
         WPP = np.stack([x * x, y * y, z * z, x * y, x * z, y * z], axis=1) * W[:, None, :]
         extent = np.array([np.max(np.linalg.norm(p, axis=1), initial=0.0) for p in points])
+        unbounded = np.array([[-np.inf] * 3, [np.inf] * 3])
+        boxes = [None] * len(points) if field_box is None else list(field_box)
+        box = np.array([unbounded if b is None else np.asarray(b, dtype=np.float64).reshape(2, 3) for b in boxes])
         f = jax.device_put  # (as jnp.asarray, without compiling a small program per shape)
         return Samples(f(P), f(Nn), f(W), f(WP), f(WPP), f(np.asarray(radius, dtype=np.float64)),
                        f(np.asarray(com, dtype=np.float64).reshape(-1, 3)), f(np.asarray(rho_ref, dtype=np.float64)),
-                       f(extent.reshape(len(points))))
+                       f(extent.reshape(len(points))), f(box.reshape(len(points), 2, 3)))

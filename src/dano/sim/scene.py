@@ -650,11 +650,13 @@ def compose(
         raise DanoError(f"no contact pair kind registered for {sorted(missing_kinds)}")
 
     data = [contact_samples(o) for o in objects]
-    samples = Samples.stack([d[0] for d in data], [d[1] for d in data], [d[2] for d in data],
-                            [d[3] for d in data], [o.asset.center_of_mass for o in objects], [d[4] for d in data])
     # the fields that DANO-DANO pairs query (the others stay out of the scene's arrays, so that
     # objects of the same structure share compiled programs whatever their fields' grids)
     queried = {i for p in pairs if p.kind == "dano" for i in (p.a, p.b)}
+    boxes = [o.asset.field.bounds() if i in queried else None for i, o in enumerate(objects)]
+    samples = Samples.stack([d[0] for d in data], [d[1] for d in data], [d[2] for d in data],
+                            [d[3] for d in data], [o.asset.center_of_mass for o in objects], [d[4] for d in data],
+                            boxes)
     fields = tuple(o.asset.field if i in queried else None for i, o in enumerate(objects))
     base_mass = np.array([mj_model.body_mass[b] / o.asset.alpha for b, o in zip(body_ids, objects)])
     base_inertia = np.array([mj_model.body_inertia[b] / o.asset.alpha for b, o in zip(body_ids, objects)])
