@@ -311,6 +311,19 @@ def test_plain_mujoco_slides_read_a_substep_apart_have_their_starts_fitted(share
     made = mujoco_c_slides(tmp_path / "toy", mesh=shared / "meshes" / "bunny_lowpoly.obj", num_samples=500)
     recorded = problem_from_toml(made["toml"])[0]
     assert (recorded.fit_velocity, recorded.start_velocity) == ("", "first frames")
+    # four slides (another seed) as recorded: their first frames disagree with the next four by 6 %
+    # of the speed, their second frames by more (the contact settling after the launch): not a first
+    # frame that is off (flagged before the second frame's comparison, measured: 0.477 [0.447, 0.509]
+    # against 0.491 [0.477, 0.505] for 0.5)
+    four = mujoco_c_slides(tmp_path / "four", mesh=shared / "meshes" / "bunny_lowpoly.obj", num_samples=500,
+                           slides=4, seed=2)
+    four_problem = problem_from_toml(four["toml"])[0]
+    gap, _, typical = start_velocity_disagreement(four_problem.observations, four_problem.segments, None, "xyz")
+    later = start_velocity_disagreement(four_problem.observations, four_problem.segments, None, "xyz", shift=1)
+    assert 0.05 < gap / typical < 0.15 and later[0] > gap, (gap, typical, later)
+    assert (four_problem.fit_velocity, four_problem.start_velocity) == ("", "first frames")
+    _lag_every_frame_but_the_first(four["csv"])
+    assert problem_from_toml(four["toml"])[0].start_velocity == "next frames"
     _lag_every_frame_but_the_first(made["csv"])
     problem = problem_from_toml(made["toml"])[0]
     assert (problem.fit_velocity, problem.start_velocity) == ("xyz", "next frames")

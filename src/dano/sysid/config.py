@@ -326,8 +326,9 @@ class OptionsConfig:
     first frame's pose and finite differences of the first three frames; ``"next frames"``, at a recording's first
     frame (and the first after missing ones), the parabola through the four frames after it (position and velocity:
     for a first frame that is off); ``"auto"``: ``"next frames"`` where the first three frames' velocities disagree
-    with it by more than 5 % of the typical speed and more than the noise explains (said in the result's notes),
-    else ``"first frames"``."""
+    with it by more than 5 % of the typical speed and more than the noise explains (from 5 to 15 %, only where the
+    second frame's disagree 1.5 times less: the first frame stands out) (said in the result's notes), else
+    ``"first frames"``."""
     window: int = 0
     """> 0: multiple shooting, windows of this many frame intervals (>= 2); 0: one shot per trajectory."""
     auto_windows: bool = False
