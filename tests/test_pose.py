@@ -206,6 +206,8 @@ def test_bad_shapes_are_refused():
         pose.rotate(np.array([1.0, 0, 0, 0]), np.zeros(4))
     with pytest.raises(DanoError, match="quaternions must be finite and non-zero, got 1 that are not"):
         pose.quat_to_matrix(np.array([[1.0, 0, 0, 0], [0.0, 0, 0, 0]]))
+    with pytest.raises(DanoError, match="quaternions must be finite and non-zero"):
+        pose.normalize_quat(np.array([np.nan, 0, 0, 1.0]))
     with pytest.raises(DanoError, match="at least 3 poses"):
         pose.velocity_from_poses(np.arange(2.0), np.tile([0, 0, 0, 1.0, 0, 0, 0], (2, 1)), degree=2)
     with pytest.raises(DanoError, match="increasing times"):

@@ -163,15 +163,34 @@ def test_separated_dano_pairs_change_no_state(two_cubes):
     _compare(out, ("visited",))
 
 
-@pytest.mark.parametrize("kind", ["box", "capsule", "sphere", "dano"])
-def test_apart_is_conservative_and_separated_gives_the_geometrys_aggregates(scenes, two_cubes, kind):
+@pytest.fixture(scope="module")
+def two_scanned_bunnies(shared):
+    """Two DANOs made from the shared data's decimated Stanford bunny (a scanned object's mesh,
+    not made here; the paper's NeRF level sets are not watertight, so no field is made from
+    them), scaled to 10 cm: a signed-distance grid field whose ``bounds()`` the pair's test
+    relies on."""
+    import trimesh
+
+    from dano.fields import mesh_field
+
+    mesh = trimesh.load(shared / "meshes" / "bunny_lowpoly.obj", force="mesh")
+    mesh.apply_scale(0.1 / float(np.max(mesh.extents)))
+    asset = build(mesh_field(mesh, resolution=32), mass=0.3, num_samples=600, mesh_resolution=0, name="bunny")
+    obj = [DanoObject("bunny", asset, (0, 0, 0.1)), DanoObject("other", asset, (0.25, 0, 0.1))]
+    return {"skipped": compose(obj, dt=0.005)}
+
+
+@pytest.mark.parametrize("kind, where", [("box", "scenes"), ("capsule", "scenes"), ("sphere", "scenes"),
+                                         ("dano", "two_cubes"), ("dano", "two_scanned_bunnies")])
+def test_apart_is_conservative_and_separated_gives_the_geometrys_aggregates(request, kind, where):
     """``apart`` says True only where every sample lies outside the geom, or the other DANO's
-    field (ψ = 0, every depth < 0); there ``separated`` gives the aggregates and the forward-
-    and reverse-mode derivatives of the full geometry; random poses from touching to far."""
+    field (ψ = 0, every depth < 0: on a scanned mesh's field too); there ``separated`` gives the
+    aggregates and the forward- and reverse-mode derivatives of the full geometry; random poses
+    from touching to far."""
     from dano.sim.dynamics import model_with_alpha
     from dano._mjx import mjx
 
-    scene = (two_cubes if kind == "dano" else scenes)["skipped"]
+    scene = request.getfixturevalue(where)["skipped"]
     group = next(g for g in scene.groups if g.kind == kind)
     params = scene.default_params()
     m = model_with_alpha(scene, params.alpha)

@@ -61,12 +61,19 @@ def _rotation(q: np.ndarray):
     DanoError for a quaternion of zero (or non-finite) norm."""
     from scipy.spatial.transform import Rotation
 
-    _check(q, 4, "quaternion")
-    norms = np.linalg.norm(q, axis=-1)
-    if not np.all(np.isfinite(norms) & (norms > 0)):
-        raise DanoError("quaternions must be finite and non-zero, got "
-                        f"{np.count_nonzero(~(np.isfinite(norms) & (norms > 0)))} that are not")
+    _norms(q)
     return Rotation.from_quat(q, scalar_first=True)
+
+
+def _norms(q: np.ndarray) -> np.ndarray:
+    """‖q‖ (..., 1) of quaternions q (..., 4). Raises DanoError for a wrong shape or a
+    quaternion of zero (or non-finite) norm (the host path's inputs: never a silent NaN)."""
+    _check(q, 4, "quaternion")
+    norms = np.linalg.norm(q, axis=-1, keepdims=True)
+    bad = ~(np.isfinite(norms) & (norms > 0))
+    if np.any(bad):
+        raise DanoError(f"quaternions must be finite and non-zero, got {np.count_nonzero(bad)} that are not")
+    return norms
 
 
 def _host_broadcast(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -76,8 +83,7 @@ def _host_broadcast(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def _host_normalize(q):
-    _check(q, 4, "quaternion")
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return q / _norms(q)
 
 
 def _host_multiply(q1, q2):
@@ -85,8 +91,7 @@ def _host_multiply(q1, q2):
     _check(q1, 4, "quaternion")
     _check(q2, 4, "quaternion")
     q1, q2 = _host_broadcast(q1, q2)
-    norms = np.linalg.norm(q1, axis=-1, keepdims=True) * np.linalg.norm(q2, axis=-1, keepdims=True)
-    return (_rotation(q1) * _rotation(q2)).as_quat(canonical=False, scalar_first=True) * norms
+    return (_rotation(q1) * _rotation(q2)).as_quat(canonical=False, scalar_first=True) * _norms(q1) * _norms(q2)
 
 
 def _host_inverse(q):
@@ -100,7 +105,7 @@ def _host_matrix(q):
 
 def _host_rotate(q, v):
     _check(v, 3, "vector")
-    _check(q, 4, "quaternion")
+    _check(q, 4, "quaternion")  # (before broadcasting: its message names the quaternion)
     q, v = _host_broadcast(q, v)
     return _rotation(q).apply(v)
 
