@@ -10,7 +10,7 @@ is minimised by iLQR, then λ ← λ + μc (λ ≥ 0 for inequalities) and μ �
 largest violation is below tolerance (Howell, Jackson & Manchester, "ALTRO", IROS 2019).
 
 Inner loop (iLQR): dynamics linearised by forward-mode AD (``jax.jacfwd``, over the
-horizon a stage at a time: :data:`STAGE_BATCH`), the cost's second-order expansion by AD, constraint terms Gauss–Newton;
+horizon a stage at a time on the CPU: :data:`STAGE_BATCH`), the cost's second-order expansion by AD, constraint terms Gauss–Newton;
 Riccati backward pass with state regularisation ρ (Tassa, Erez & Todorov, IROS 2012),
 raised when Q_uu is not positive definite; forward pass with a backtracking line search
 on the merit L (accepted when the actual decrease is at least 1e-4 of the predicted
@@ -137,14 +137,16 @@ class Solution:
     restarts: tuple = dataclasses.field(default=(), metadata=dict(static=True))
 
 
-#: stages linearised at once in the expansion (jax.lax.map's batch_size). One: on the 2-core
+#: stages linearised at once in the expansion on the CPU (jax.lax.map's batch_size). One: on the 2-core
 #: CPU (2026-11-29, the command line, warm cache, side by side) an iteration took 2x less time
 #: than with 16 on push-sphere (0.15 against 0.33 s), 1.4x on push-panda (18.5 against 25.4 s
-#: for 43 iterations) and 3.9x on `push --object` Spot with 5000 samples (0.42 against
+#: for 43 iterations) and 3.9x on `push --object` Spot with 5000 samples (0.44 against
 #: 1.70 s), at equal memory. (Not profiled further: a vmapped batch's Newton loops run to its
 #: slowest stage, and its conditionals compute both branches.) A plain scan over the stages
 #: (lax.map without a batch size) took 1.24 s per iteration on the Spot push.
 STAGE_BATCH = 1
+#: the same on other backends (a GPU): 16 as before, where one stage at a time was not measured
+ACCELERATOR_STAGE_BATCH = 16
 
 LOG_KEYS = ("iteration", "outer", "cost", "merit", "max_violation", "step", "penalty", "regularization", "gradient")
 
@@ -216,10 +218,10 @@ class _Compiled:
                 lzz = lzz + Jg.T @ (Ig[:, None] * Jg) + mu * Jh.T @ Jh
                 return F, lz, lzz
 
-            # stages in batches of STAGE_BATCH (lax.map over vmapped batches), the horizon padded
+            # stages in batches (lax.map over vmapped batches; STAGE_BATCH), the horizon padded
             # with copies of its last stage where they do not divide it (lax.map would trace and
             # compile a remainder batch a second time)
-            count = -(-T // STAGE_BATCH)
+            count = -(-T // (STAGE_BATCH if jax.default_backend() == "cpu" else ACCELERATOR_STAGE_BATCH))
             size = -(-T // count)
             pad = lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], size * count - T, axis=0)])  # noqa: E731
             F, lz, lzz = jax.lax.map(lambda a: stage(*a), tuple(pad(a) for a in (X[:-1], U, ts, lam.inequality,
