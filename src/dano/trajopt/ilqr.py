@@ -10,7 +10,8 @@ is minimised by iLQR, then λ ← λ + μc (λ ≥ 0 for inequalities) and μ �
 largest violation is below tolerance (Howell, Jackson & Manchester, "ALTRO", IROS 2019).
 
 Inner loop (iLQR): dynamics linearised by forward-mode AD (``jax.jacfwd``, over the
-horizon a stage at a time on the CPU: :data:`STAGE_BATCH`), the cost's second-order expansion by AD, constraint terms Gauss–Newton;
+horizon a stage at a time on the CPU: :data:`STAGE_BATCH`), the cost's second-order
+expansion by AD, constraint terms Gauss–Newton;
 Riccati backward pass with state regularisation ρ (Tassa, Erez & Todorov, IROS 2012),
 raised when Q_uu is not positive definite; forward pass with a backtracking line search
 on the merit L (accepted when the actual decrease is at least 1e-4 of the predicted
@@ -137,8 +138,8 @@ class Solution:
     restarts: tuple = dataclasses.field(default=(), metadata=dict(static=True))
 
 
-#: stages linearised at once in the expansion on the CPU (jax.lax.map's batch_size). One: on the 2-core
-#: CPU (2026-11-29, the command line, warm cache, side by side) an iteration took 2x less time
+#: stages linearised at once in the expansion on the CPU (jax.lax.map's batch_size). One: on
+#: the 2-core CPU (2026-11-29, the command line, warm cache, side by side) an iteration took 2x less time
 #: than with 16 on push-sphere (0.15 against 0.33 s), 1.4x on push-panda (18.5 against 25.4 s
 #: for 43 iterations) and 3.9x on `push --object` Spot with 5000 samples (0.44 against
 #: 1.70 s), at equal memory. (Not profiled further: a vmapped batch's Newton loops run to its
