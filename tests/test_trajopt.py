@@ -47,6 +47,28 @@ def test_first_iteration_is_the_analytic_lqr_solution():
     np.testing.assert_allclose(np.asarray(sol.states), np.asarray(rollout(pr, x0, sol.controls)), atol=1e-12)
 
 
+def test_expansion_in_batches_equals_one_stage_at_a_time(monkeypatch):
+    """The expansion linearises the stages one at a time on the CPU and in vmapped batches of
+    16 elsewhere (dano.trajopt.ilqr.STAGE_BATCH / ACCELERATOR_STAGE_BATCH), the horizon padded
+    where 16 does not divide it: both give the same linearisation, constraint terms included."""
+    from dano.trajopt import ilqr
+
+    T = 37  # 3 batches of 13 with 2 padded stages
+    pr = _swing_up(5.0, T)
+    fns = _compiled(pr)
+    rng = np.random.default_rng(1)
+    X, U = jnp.asarray(rng.normal(size=(T + 1, 2))), jnp.asarray(rng.normal(size=(T, 1)))
+    lam = ilqr.Multipliers(*(jnp.asarray(rng.uniform(0.0, 1.0, s)) for s in fns.sizes(X[0], U, None)))
+    out = {}
+    for batch in (1, 16):
+        monkeypatch.setattr(ilqr, "STAGE_BATCH", batch)
+        expand = lambda *a: fns.raw["expand"](*a)  # noqa: E731 - a new function: traced again, reading STAGE_BATCH
+        out[batch] = jax.jit(expand)(X, U, lam, jnp.asarray(10.0), None)
+    for one, batched in zip(out[1], out[16]):
+        assert one.shape == batched.shape
+        np.testing.assert_allclose(np.asarray(one), np.asarray(batched), rtol=1e-12, atol=1e-12)
+
+
 H = 0.05
 
 

@@ -88,10 +88,14 @@ def _host_normalize(q):
 
 def _host_multiply(q1, q2):
     # the Hamilton product of q1 and q2 as given (SciPy composes the normalised ones)
+    from scipy.spatial.transform import Rotation
+
     _check(q1, 4, "quaternion")
     _check(q2, 4, "quaternion")
     q1, q2 = _host_broadcast(q1, q2)
-    return (_rotation(q1) * _rotation(q2)).as_quat(canonical=False, scalar_first=True) * _norms(q1) * _norms(q2)
+    n1, n2 = _norms(q1), _norms(q2)  # (each checked once: _rotation would check them again)
+    r1, r2 = Rotation.from_quat(q1, scalar_first=True), Rotation.from_quat(q2, scalar_first=True)
+    return (r1 * r2).as_quat(canonical=False, scalar_first=True) * n1 * n2
 
 
 def _host_inverse(q):
