@@ -845,3 +845,50 @@ def test_a_withheld_standard_error_is_told_apart_from_an_undetermined_one():
     assert _withheld_with_reason("standard_errors.v0[0]:spot:x", short)
     singular = result(sliding_friction="identified")  # converged, JᵀJ singular: no reason given
     assert not _withheld_with_reason("sliding_friction_std", singular)
+
+
+def test_segments_in_turn_give_the_vmapped_residual_and_jacobian(box_setup, monkeypatch):
+    """Rolled out one after the other (the thresholds lowered so that the problem decides for
+    the loop), three windows padded to a batch of four give the vmapped residual, Jacobian
+    and fitted trajectories; the padded copy is skipped, not compared."""
+    import dano.sysid.problem as sp
+    _, scene, z = box_setup
+    t, poses = analytic_slide(0.45, z=z)
+    make = lambda: SysIdProblem(scene, [Observation(time=t, poses={"box": poses})],  # noqa: E731
+                                [FitParameter("sliding_friction", 0.3, 0, 1)], substeps=4, window=10,
+                                fit_velocity="xy")
+    vmapped, in_turn = make(), make()
+    assert len(vmapped.segments) == 3 and vmapped._structure.layout.batches[0].count == 4
+    theta = vmapped.initial() + 0.02 * np.sin(np.arange(vmapped.num_parameters))
+    want = vmapped.jacobian_blocks(theta)
+    assert vmapped._in_turn == {1: False}  # one slide's windows: no waste worth a loop
+    monkeypatch.setattr(sp, "IN_TURN_WASTE", 1.0)
+    monkeypatch.setattr(sp, "IN_TURN_WORK", 0)
+    in_turn.jacobian_blocks(theta)
+    assert in_turn._in_turn == {1: True}
+    got = in_turn.jacobian_blocks(theta)
+    np.testing.assert_allclose(got.residuals, want.residuals, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got.dense(), want.dense(), rtol=1e-7, atol=1e-9)
+    for a, b in zip(in_turn.fitted(theta), vmapped.fitted(theta)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+
+
+def test_the_segment_loop_is_chosen_by_newton_iteration_waste():
+    """segments_in_turn: the vmapped loops' iterations (every segment of a batch runs its
+    slowest one's count, padded copies included) over what the real segments need."""
+    from dano.sysid.problem import IN_TURN_WORK, segments_in_turn
+    steps = IN_TURN_WORK  # enough work at one iteration a step per segment
+    one = [np.ones((1, steps), int)]
+    assert not segments_in_turn(one, [(0,)])  # one segment: no waste
+    uniform = [np.full((4, steps), 2)]
+    assert not segments_in_turn(uniform, [(0, 1, 2, 3)])
+    spread = np.ones((4, steps), int)
+    spread[np.arange(steps) % 4, np.arange(steps)] = 6  # each step one segment takes 6: 4·6 against 9
+    assert segments_in_turn([spread], [(0, 1, 2, 3)])
+    assert not segments_in_turn([spread[:, : steps // 10]], [(0, 1, 2, 3)])  # too short to pay for a compile
+    padded = np.ones((4, steps), int)  # three real segments and a copy: 4 against 3 a step
+    assert not segments_in_turn([padded], [(0, 1, 2)])
+    padded[:, ::2] = 3  # 4·3 against 3·3 at half the steps: (4 + 12) / (3 + 9) = 1.33
+    assert not segments_in_turn([padded], [(0, 1, 2)])
+    padded[0, ::2] = 9  # (4 + 36) / (3 + 9 + 3 + 3) = 2.2
+    assert segments_in_turn([padded], [(0, 1, 2)])

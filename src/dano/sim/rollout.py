@@ -102,17 +102,19 @@ def _inputs(scene: Scene, data, controls, qfrc, steps: int, xp=jnp):
 
 
 def rollout_arrays(scene: Scene, state0, controls, params: SimParams, steps: int, qfrc=None, *,
-                   overlaps: bool = True, newton: NewtonConfig = NewtonConfig()):
+                   overlaps: bool = True, newton: NewtonConfig = NewtonConfig(), iterations: bool = False):
     """The jitted, differentiable core of :func:`rollout`: returns (qpos (T+1, nq),
     qvel (T+1, nv), psi (T+1, P)) as JAX arrays. state0: a :class:`State` or MJX Data;
     controls (T, nu) or None (hold the data's ctrl: zeros for a State); qfrc (T, nv) or None
     (hold its qfrc_applied); overlaps=False: psi None (the final state's contact geometry
-    not evaluated: :func:`scan_steps`); newton: the step's solver settings. Use it inside
+    not evaluated: :func:`scan_steps`); newton: the step's solver settings; iterations=True:
+    the step's Newton iterations (T,) int appended to the tuple. Use it inside
     ``jax.jacfwd``."""
     data = as_data(scene, state0)
     ctrl, f = _inputs(scene, data, controls, qfrc, steps)
-    _, qpos, qvel, psi, _ = scan_steps(scene, params, data, ctrl, f, newton, overlaps)
-    return qpos, qvel, (psi if overlaps else None)
+    _, qpos, qvel, psi, its = scan_steps(scene, params, data, ctrl, f, newton, overlaps)
+    out = (qpos, qvel, (psi if overlaps else None))
+    return out + (its,) if iterations else out
 
 
 #: :func:`rollout` runs in chunks of at most this many steps: a loop whose trip count is an

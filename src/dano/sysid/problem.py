@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import threading
 from dataclasses import dataclass, field
 from typing import NamedTuple, Sequence
 
@@ -837,6 +838,11 @@ class ResidualLayout:
     #: whether some time stamps jitter: frames compared with the rollout interpolated to their
     #: own times (the data's ``shift``, :func:`frame_shifts`), rolled out ``substeps`` steps further
     jittered: bool = False
+    #: whether each batch's segments are rolled out one after the other (a loop; padded copies
+    #: skipped) instead of vmapped: where their Newton iteration counts differ much from step
+    #: to step, a vmapped loop runs every segment for its slowest one's count
+    #: (:func:`segments_in_turn`)
+    in_turn: bool = False
 
 
 def _layout_mesh(layout: ResidualLayout, *_):
@@ -866,8 +872,9 @@ def _with_parameters(scene: Scene, base_params: SimParams, parameters, theta) ->
 def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParams, data: dict, theta_g, blocks,
                      with_frames: bool = False):
     """The identification residual, a pure JAX function of its arguments: every batch's
-    segments rolled out (vmapped) for the batch's padded length, each segment's residuals
-    frame by frame, padded frames and segments included (their entries are meaningless:
+    segments rolled out (vmapped, or one after the other: ``layout.in_turn``, where padded
+    segments are skipped and their entries zero) for the batch's padded length, each segment's
+    residuals frame by frame, padded frames and segments included (their entries are meaningless:
     :attr:`SysIdProblem.keep` selects the real ones). ``data``: :attr:`SysIdProblem.data`.
     theta_g: (P + G,) θ's global entries: the identified parameters, then the ground's (G = 0,
     1 or 3); blocks: per batch (count, tracked DANOs, len(fit_axes)), each segment's nuisance
@@ -876,7 +883,8 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
     many devices (``shard_map``; every device rolls out its own segments, the residuals are
     gathered). with_frames (static): also return the simulated qpos at every frame, per batch
     (count, frames, nq), padded frames included, the tracked DANOs' poses in the observations'
-    frame (the fitted trajectories the residual compares, :meth:`SysIdProblem.fitted`)."""
+    frame (the fitted trajectories the residual compares, :meth:`SysIdProblem.fitted`), and
+    each step's Newton iterations, per batch (count, steps) int (:func:`segments_in_turn`)."""
     params = _with_parameters(scene, base_params, layout.parameters, theta_g)
     sim_scene = scene
     if layout.fit_ground:
@@ -886,7 +894,7 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
     pos_axes = jnp.asarray(layout.pos_axes, dtype=jnp.int32)
     wpos, wjoint, axes, substeps = data["wpos"], data["wjoint"], layout.fit_axes, layout.substeps
     mesh = _layout_mesh(layout)
-    out, fitted = [], []
+    out, fitted, iterations = [], [], []
     for b, batch in enumerate(layout.batches):
         qadr, dadr, jadr, settle = batch.qadr, batch.dadr, batch.jadr, batch.settle
         wrot = data["wrot"][b]
@@ -899,9 +907,9 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
             if layout.jittered:  # the last frames may fall after their place: a frame interval more
                 ctrl = jnp.concatenate([ctrl, jnp.repeat(ctrl[-1:], substeps, axis=0)])
                 qfrc = jnp.concatenate([qfrc, jnp.repeat(qfrc[-1:], substeps, axis=0)])
-            qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params,
-                                        batch.steps + (substeps if layout.jittered else 0), qfrc,
-                                        overlaps=False, newton=FORWARD_ONLY)
+            qpos, _, _, its = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params,
+                                             batch.steps + (substeps if layout.jittered else 0), qfrc,
+                                             overlaps=False, newton=FORWARD_ONLY, iterations=True)
             # states at frames 0..F-1
             states = _at_frames(qpos, settle, substeps, (batch.steps - settle) // substeps + 1, shift,
                                 tuple(a + 3 for a in qadr))
@@ -921,17 +929,25 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
             if layout.fit_ground:  # back in the observations' frame
                 for a in qadr:
                     states = states.at[:, a : a + 7].set(_poses_from_table(states[:, a : a + 7], height, R))
-            return jnp.concatenate(res), states
+            return jnp.concatenate(res), states, its[: batch.steps]
 
         d = data["batches"][b]
         args = [blocks[b], d["qpos0"], d["qvel0"], d["ctrl"], d["qfrc"], d["obs_pose"], d["obs_joint"]]
         args += [d["shift"]] if layout.jittered else []
-        r = sharding.split_rows(one, mesh, (0,) * len(args))(*args)
+        fn = one
+        if layout.in_turn:  # a loop over the segments; a padded copy's entries are zeros
+            args = [d["real"]] + args
+
+            def fn(real, *row, one=one):
+                return jax.lax.cond(real, lambda: one(*row), lambda: jax.tree_util.tree_map(
+                    jnp.zeros_like, jax.eval_shape(one, *row)))
+        r = sharding.split_rows(fn, mesh, (0,) * len(args), 1 if layout.in_turn else None)(*args)
         if with_frames:
-            r, states = r
+            r, states, its = r
             fitted.append(states)
+            iterations.append(its)
         out.append(r.ravel())
-    return (jnp.concatenate(out), tuple(fitted)) if with_frames else jnp.concatenate(out)
+    return (jnp.concatenate(out), tuple(fitted), tuple(iterations)) if with_frames else jnp.concatenate(out)
 
 
 def _run(fn, *args) -> np.ndarray:
@@ -949,9 +965,10 @@ COMPILE_SECONDS = _compiled.COMPILE_SECONDS
 # processes when the compilation cache is on (dano._compiled)
 def _residuals_and_jacobian(layout, scene, base_params, data, theta_g, blocks):
     """(forward-mode Jacobian (m_padded, P + G + Σ block sizes), (residual, fitted frames per
-    batch)) of :func:`padded_residuals`, with respect to θ's global entries and one offset δ_b
-    per batch added to every segment's block of that batch. A segment's residuals depend on no
-    other segment's block, so its rows of the δ_b columns are its derivatives with respect to
+    batch, Newton iterations per batch: :func:`segments_in_turn`)) of :func:`padded_residuals`,
+    with respect to θ's global entries and one offset δ_b per batch added to every segment's
+    block of that batch. A segment's residuals depend on no other segment's block, so its
+    rows of the δ_b columns are its derivatives with respect to
     its own block (:meth:`SysIdProblem.jacobian_blocks` keeps them as its block's columns):
     the rollouts carry P + G + Σ block tangents, not all of θ's, whatever the segment count.
     One trace, the primal computed once with the tangents (tracing the rollout is most of a
@@ -962,9 +979,9 @@ def _residuals_and_jacobian(layout, scene, base_params, data, theta_g, blocks):
 
     def r(x):
         shifted = tuple(b + x[s : s + n].reshape(b.shape[1:]) for b, s, n in zip(blocks, starts, sizes))
-        res, states = padded_residuals(layout, scene, base_params, data, x[: theta_g.shape[0]], shifted,
-                                       with_frames=True)
-        return res, (res, states)
+        res, states, its = padded_residuals(layout, scene, base_params, data, x[: theta_g.shape[0]], shifted,
+                                            with_frames=True)
+        return res, (res, states, its)
 
     local = jnp.concatenate([theta_g, jnp.zeros(sum(sizes), theta_g.dtype)])
     return jax.jacfwd(r, has_aux=True)(local)
@@ -972,6 +989,36 @@ def _residuals_and_jacobian(layout, scene, base_params, data, theta_g, blocks):
 
 _residuals_and_jacobian_jit = cached_jit(_residuals_and_jacobian, static_argnums=(0,), mesh=_layout_mesh)
 _residuals_only_jit = cached_jit(padded_residuals, static_argnums=(0,), mesh=_layout_mesh)  # finite differences
+
+
+#: held while a problem decides whether its segments run in turn (one decision, whichever
+#: thread asks first: :meth:`SysIdProblem._segments_in_turn`)
+_DECIDING = threading.RLock()
+
+#: the least Newton-iteration waste (:func:`segments_in_turn`) at which, on a CPU, the
+#: Jacobian rolls a problem's segments out one after the other instead of vmapped
+IN_TURN_WASTE = 2.0
+#: and the least Newton iterations its real segments need (Σ over segments and steps): below
+#: it a Jacobian is short and the loop's own compilation would not pay for itself
+IN_TURN_WORK = 5000
+
+
+def segments_in_turn(iterations, members) -> bool:
+    """Whether the Jacobian should roll the segments out one after the other, from the Newton
+    iterations of a vmapped call: iterations, per batch (count, steps) int (the padded
+    segments, copies of a real one, included); members, per batch, its real segments. The
+    waste is what the vmapped loops run, every segment of a batch each step for its slowest
+    segment's iterations, Σ_b count_b·Σ_t max_s it, over what the real segments need alone,
+    Σ_b Σ_s Σ_t it: 1 for one segment, larger the more the counts differ from step to step.
+    True on a CPU where the waste is at least :data:`IN_TURN_WASTE` and the real segments
+    need at least :data:`IN_TURN_WORK` iterations (a vmap's lanes run in parallel elsewhere:
+    False). Deterministic (iteration counts, not timings), so an identification's answer
+    does not depend on the machine's load."""
+    if jax.default_backend() != "cpu":
+        return False
+    ran = sum(it.shape[0] * it.max(axis=0).sum() for it in iterations)
+    needed = sum(it[: len(m)].sum() for it, m in zip(iterations, members))
+    return bool(needed >= IN_TURN_WORK and ran >= IN_TURN_WASTE * needed)
 
 
 #: leading binary digits kept of a batch's longest segment's frame intervals (within 25 %,
@@ -1650,7 +1697,7 @@ class SysIdProblem:
             frames = steps // self.substeps + 1
             # (host arrays put on the device: jnp.asarray compiled a small program per shape)
             arrays.append({k: jax.device_put(np.stack([_pad(d[k], k, frames, settle + steps) for _, d, _ in items]))
-                           for k in items[0][1]})
+                           for k in items[0][1]} | {"real": jax.device_put(np.arange(len(items)) < real)})
             cols = self._columns(qadr, jadr)
             intervals = [st // self.substeps for _, _, st in items[:real]] + [0] * (len(items) - real)
             keep.append(offset + _valid_residuals(intervals, frames - 1, cols))
@@ -1772,12 +1819,36 @@ class SysIdProblem:
         matrix): what solvers of many segments factor block by block."""
         return self._blocks_and_frames(theta)[0]
 
+    @functools.cached_property
+    def _in_turn(self) -> dict:
+        """{shards: whether the Jacobian rolls the segments out one after the other}
+        (:meth:`_segments_in_turn`)."""
+        return {}
+
+    def _segments_in_turn(self, st: "_Structure") -> bool:
+        """Whether this problem's Jacobian rolls its segments out one after the other
+        (:func:`segments_in_turn`), decided once per device split from the iterations of the
+        vmapped Jacobian at the initial θ: the same decision whichever of the threads that
+        run local starts side by side asks first. No batch of two segments or more, or not
+        a CPU: vmapped, without that call."""
+        with _DECIDING:
+            if st.layout.shards not in self._in_turn:
+                turn = False
+                if jax.default_backend() == "cpu" and any(len(m) > 1 for m in st.members):
+                    theta_g, blocks = self.split_theta(np.asarray(self.initial(), dtype=np.float64), st)
+                    its = _run(_residuals_and_jacobian_jit, st.layout, self.scene, self.base_params, st.data,
+                               *jax.device_put((theta_g, blocks)))[1][2]
+                    turn = segments_in_turn(its, st.members)
+                self._in_turn[st.layout.shards] = turn
+            return self._in_turn[st.layout.shards]
+
     def _blocks_and_frames(self, theta):
         st = self._split_segments()
         theta = np.asarray(theta, dtype=np.float64)
         theta_g, blocks = self.split_theta(theta, st)
-        Jl, (r, states) = _run(_residuals_and_jacobian_jit, st.layout, self.scene, self.base_params, st.data,
-                               *jax.device_put((theta_g, blocks)))
+        layout = dataclasses.replace(st.layout, in_turn=True) if self._segments_in_turn(st) else st.layout
+        Jl, (r, states, _) = _run(_residuals_and_jacobian_jit, layout, self.scene, self.base_params, st.data,
+                                  *jax.device_put((theta_g, blocks)))
         # each segment's rows: the global columns as they are, its batch's δ columns for its block,
         # then its start prior's rows (r_i = w_i·θ[index_i]: w_i in the entry's column)
         prior = self.start_prior_rows
