@@ -1835,20 +1835,32 @@ class SysIdProblem:
             if st.layout.shards not in self._in_turn:
                 turn = False
                 if jax.default_backend() == "cpu" and any(len(m) > 1 for m in st.members):
-                    theta_g, blocks = self.split_theta(np.asarray(self.initial(), dtype=np.float64), st)
-                    its = _run(_residuals_and_jacobian_jit, st.layout, self.scene, self.base_params, st.data,
-                               *jax.device_put((theta_g, blocks)))[1][2]
-                    turn = segments_in_turn(its, st.members)
+                    theta = np.asarray(self.initial(), dtype=np.float64)
+                    out = _run(_residuals_and_jacobian_jit, st.layout, self.scene, self.base_params, st.data,
+                               *jax.device_put(self.split_theta(theta, st)))
+                    turn = segments_in_turn(out[1][2], st.members)
+                    if not turn:  # the first Jacobian asked for is usually the initial θ's (a local start's)
+                        self._in_turn_probe[st.layout.shards] = (theta.tobytes(), out)
                 self._in_turn[st.layout.shards] = turn
             return self._in_turn[st.layout.shards]
+
+    @functools.cached_property
+    def _in_turn_probe(self) -> dict:
+        """{shards: (θ's bytes, the vmapped program's output there)} of the call that decided
+        :meth:`_segments_in_turn`, kept for the next Jacobian if it asks for the same θ."""
+        return {}
 
     def _blocks_and_frames(self, theta):
         st = self._split_segments()
         theta = np.asarray(theta, dtype=np.float64)
         theta_g, blocks = self.split_theta(theta, st)
         layout = dataclasses.replace(st.layout, in_turn=True) if self._segments_in_turn(st) else st.layout
-        Jl, (r, states, _) = _run(_residuals_and_jacobian_jit, layout, self.scene, self.base_params, st.data,
-                                  *jax.device_put((theta_g, blocks)))
+        probe = self._in_turn_probe.pop(st.layout.shards, None)
+        if probe is not None and probe[0] == theta.tobytes():
+            Jl, (r, states, _) = probe[1]
+        else:
+            Jl, (r, states, _) = _run(_residuals_and_jacobian_jit, layout, self.scene, self.base_params, st.data,
+                                      *jax.device_put((theta_g, blocks)))
         # each segment's rows: the global columns as they are, its batch's δ columns for its block,
         # then its start prior's rows (r_i = w_i·θ[index_i]: w_i in the entry's column)
         prior = self.start_prior_rows
