@@ -173,12 +173,48 @@ def scan_costs(problem: SysIdProblem, points: np.ndarray) -> np.ndarray:
     initial values), through the problem's vmapped, compiled residual
     (:meth:`SysIdProblem.batch_residuals`); non-finite costs (diverging rollouts) are returned
     as inf. Returns (K,)."""
+    return _scan(problem, points)[0]
+
+
+def _scan(problem: SysIdProblem, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(:func:`scan_costs`, (K, trajectories) bool: whether a trajectory's residuals are
+    non-finite at the point: its rollout diverged)."""
     x0 = problem.initial()
     thetas = np.repeat(x0[None], len(points), axis=0)
     thetas[:, : points.shape[1]] = points
+    r = problem.batch_residuals(thetas)
     with np.errstate(over="ignore", invalid="ignore"):  # (a diverging rollout's cost: inf, said above)
-        c = 0.5 * np.sum(problem.batch_residuals(thetas) ** 2, axis=1)
-    return np.where(np.isfinite(c), c, np.inf)
+        c = 0.5 * np.sum(r**2, axis=1)
+        bad = ~np.isfinite(r) | (np.abs(r) > DIVERGED_RESIDUAL)
+    obs = problem.residual_observations()
+    diverged = np.zeros((len(points), len(problem.observations)), dtype=bool)
+    for k in range(len(problem.observations)):
+        diverged[:, k] = bad[:, obs == k].any(axis=1)
+    return np.where(np.isfinite(c), c, np.inf), diverged
+
+
+#: a weighted residual entry above this counts as a diverged rollout in the scan's report
+#: (a trajectory thrown kilometres off: finite, yet no fit); the cost still counts it as it is
+DIVERGED_RESIDUAL = 1e6
+
+
+def _divergence_warning(problem: SysIdProblem, points: np.ndarray, diverged: np.ndarray) -> list[str]:
+    """A warning where the rollouts of some trajectories diverged at some scan points: the
+    identification then rests on the rest of the box, and the usual cause, a time step too
+    coarse for the impacts, is the user's to fix. ``diverged``: :func:`_scan`'s (K, trajectories)."""
+    at = diverged.any(axis=1)
+    if not at.any():
+        return []
+    labels = [p.label for p in problem.parameters]
+    shown = ", ".join("(" + ", ".join(f"{v:.3g}" for v in points[i]) + ")" for i in np.flatnonzero(at)[:4])
+    which = np.flatnonzero(diverged.any(axis=0))
+    names = [problem.observations[k].name or f"trajectory {k}" for k in which]
+    return [f"the simulation diverged (non-finite or runaway residuals) at {int(at.sum())} of {len(points)} scan "
+            f"points, e.g. ({', '.join(labels)}) = {shown}{' …' if at.sum() > 4 else ''}, in {len(which)} of "
+            f"{len(problem.observations)} trajectories ({', '.join(names[:5])}"
+            f"{f' and {len(names) - 5} more' if len(names) > 5 else ''}): the identification rests on the rest of "
+            "the box. A time step too coarse for the impacts is the usual cause: lower the scene's dt and raise "
+            "[options].substeps to match (the frame interval is dt × substeps)"]
 
 
 def _profiles(labels, points: np.ndarray, costs: np.ndarray, bins: int) -> dict:
@@ -566,7 +602,7 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
     guess = problem.initial()[:n]
     # the local solves' program compiles (or loads) while the scan's runs
     warmed = in_background(lambda: _evaluate(problem, guess, local["jacobian"])) if not local["horizons"] else None
-    costs_all = scan_costs(problem, np.vstack([points, guess[None]]))  # the given guess is a candidate too
+    costs_all, diverged = _scan(problem, np.vstack([points, guess[None]]))  # the given guess is a candidate too
     costs = costs_all[:-1]
     scan_time = _minus_compiling(t0, started)
     order = _basin_starts(np.vstack([points, guess[None]]), costs_all, lo, hi, scan, starts)
@@ -607,7 +643,8 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
         "profile": _profiles([p.label for p in problem.parameters], points, costs, bins=max(scan, 8)),
         "wall_time_s": scan_time,
     }
-    best.warnings = best.warnings + _disagreement(problem, best, results, float(np.min(costs)))
+    best.warnings = best.warnings + _disagreement(problem, best, results, float(np.min(costs))) \
+        + _divergence_warning(problem, np.vstack([points, guess[None]]), diverged)
     return best
 
 
