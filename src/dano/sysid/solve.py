@@ -177,8 +177,8 @@ def scan_costs(problem: SysIdProblem, points: np.ndarray) -> np.ndarray:
 
 
 def _scan(problem: SysIdProblem, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(:func:`scan_costs`, (K, trajectories) bool: whether a trajectory's residuals are
-    non-finite at the point: its rollout diverged)."""
+    """(:func:`scan_costs`, (K, trajectories) bool: whether a trajectory's residuals at the
+    point are non-finite or above :data:`DIVERGED_RESIDUAL`: its rollout diverged)."""
     x0 = problem.initial()
     thetas = np.repeat(x0[None], len(points), axis=0)
     thetas[:, : points.shape[1]] = points
