@@ -608,7 +608,9 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
               "initial = 0.5", "lower = 0.0", "upper = 2.0",
               "", "[options]                        # all optional; the defaults shown"
               + (", but for those a tracked video's route sets" if tracked is not None else ""),
-              f"{'' if substeps > 1 else '# '}substeps = {substeps}",
+              f"{'' if substeps > 1 else '# '}substeps = {substeps}".ljust(35)
+              + "# tosses, drops, bounces: dt a few ms (2.5 ms for a 0.2 m, 0.7 kg",
+              "                                   # tumbling object: docs/own-object.md §4), substeps to match",
               '# fit_velocity = "auto"            # nuisance: each start\'s velocity along these axes;',
               '                                   # auto: "xyz" where the frames\' noise makes finite differences poor',
               '                                   # or the first frame disagrees with the next ones',
