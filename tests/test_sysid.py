@@ -910,7 +910,7 @@ def test_a_scan_whose_rollouts_diverge_says_where_and_what_to_change(box_setup):
     assert _divergence_warning(problem, points, diverged) == []
     diverged[1, 2] = diverged[2, 0] = diverged[2, 2] = True
     (warning,) = _divergence_warning(problem, points, diverged)
-    assert "at 2 of 3 scan points" in warning and "(sliding_friction) = (0.5), (1)" in warning
+    assert "at 2 of the 3 parameter points the scan evaluated" in warning and "(sliding_friction) = (0.5), (1)" in warning
     assert "in 2 of 3 trajectories (slide_a.csv, slide_c.csv)" in warning and "slide_b" not in warning
     assert "[options].substeps" in warning
 

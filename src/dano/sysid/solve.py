@@ -209,8 +209,8 @@ def _divergence_warning(problem: SysIdProblem, points: np.ndarray, diverged: np.
     shown = ", ".join("(" + ", ".join(f"{v:.3g}" for v in points[i]) + ")" for i in np.flatnonzero(at)[:4])
     which = np.flatnonzero(diverged.any(axis=0))
     names = [problem.observations[k].name or f"trajectory {k}" for k in which]
-    return [f"the simulation diverged (non-finite or runaway residuals) at {int(at.sum())} of {len(points)} scan "
-            f"points, e.g. ({', '.join(labels)}) = {shown}{' …' if at.sum() > 4 else ''}, in {len(which)} of "
+    return [f"the simulation diverged (non-finite or runaway residuals) at {int(at.sum())} of the {len(points)} "
+            f"parameter points the scan evaluated (the initial guess among them), e.g. ({', '.join(labels)}) = {shown}{' …' if at.sum() > 4 else ''}, in {len(which)} of "
             f"{len(problem.observations)} trajectories ({', '.join(names[:5])}"
             f"{f' and {len(names) - 5} more' if len(names) > 5 else ''}): the identification rests on the rest of "
             "the box. A time step too coarse for the impacts is the usual cause: lower the scene's dt and raise "
