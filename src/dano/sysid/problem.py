@@ -1831,6 +1831,9 @@ class SysIdProblem:
         vmapped Jacobian at the initial θ: the same decision whichever of the threads that
         run local starts side by side asks first. No batch of two segments or more, or not
         a CPU: vmapped, without that call."""
+        decided = self._in_turn.get(st.layout.shards)
+        if decided is not None:  # (without the lock: another problem may hold it while it decides)
+            return decided
         with _DECIDING:
             if st.layout.shards not in self._in_turn:
                 turn = False
