@@ -80,7 +80,7 @@ def step():
         qpos, qvel, params = case
         p = setup.params.replace(contact=ContactParams(**{k: jnp.asarray([v]) for k, v in params.items()}))
         v, info, pr = compiled(make_data(sc, jnp.asarray(qpos), jnp.asarray(qvel)), p,
-                               NewtonConfig(second_try=second_try))
+                               NewtonConfig(second_try=second_try, failure_substeps=1))
         residual = jax.jit(lambda x: _residual(seen["models"], seen["h"], pr, x))
         return np.asarray(v), info, residual
 

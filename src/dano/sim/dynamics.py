@@ -39,7 +39,7 @@ from ..contact.base import batch_all, pose_linearised_geometry, prepare_pair, sk
 from .._compiled import under_trace
 from ..errors import DanoError
 from ..pose import normalize_quat, quat_multiply, rotvec_to_quat
-from .implicit import ImplicitProblem, NewtonConfig, contact_force, resolve_linear_solver, solve_velocity
+from .implicit import DEFAULT_FAILURE_SUBSTEPS, MAX_TURN_CHANGE, ImplicitProblem, NewtonConfig, contact_force, resolve_linear_solver, solve_velocity
 from .scene import Scene, SimParams, cast_floats
 
 
@@ -62,12 +62,16 @@ class StepInfo:
     """Diagnostics of one step: psi (P,) overlap of each contact pair at the step's start
     (mass units, ``scene.pair_names`` order); newton_iterations (): of both tries where the
     solve had a second (:attr:`~dano.sim.NewtonConfig.second_try`; up to 2·``max_iterations``,
-    :func:`~dano.sim.implicit.iteration_limit`); newton_residual (): final residual of the
-    velocity equation relative to the step's impulses."""
+    :func:`~dano.sim.implicit.iteration_limit`), of the substeps too where it had them;
+    newton_residual (): final residual of the velocity equation relative to the step's
+    impulses (the last substep's); substeps () int: 1, or
+    :attr:`~dano.sim.NewtonConfig.failure_substeps` where the whole step failed and was
+    taken again in that many substeps."""
 
     psi: jax.Array
     newton_iterations: jax.Array
     newton_residual: jax.Array
+    substeps: jax.Array = 1
 
 
 def make_data(scene: Scene, qpos=None, qvel=None, *, act=None, ctrl=None, time: float = 0.0):
@@ -280,8 +284,59 @@ def merge_groups(scene, models, *columns):
 def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig = NewtonConfig()):
     """:func:`step`, also returning its :class:`StepInfo`."""
     newton = resolve_linear_solver(newton, scene, 1)  # ("auto": the unrolled LU on a GPU, LAPACK on the CPU)
+    n = failure_substeps(newton)
+    if n <= 1 or not scene.groups:
+        d, info, _ = _attempt(scene, params, data, newton, scene.dt)
+        return d, info
+    lengths = jnp.asarray([scene.dt] + [scene.dt / n] * n, data.qvel.dtype)
+
+    def trip(carry):
+        # trip 0: the whole step from ``data``; where it failed, trips 1..n: its substeps from
+        # ``data`` on (under vmap the loop runs while any member needs it, the others' carries
+        # kept as they are by the loop's batching)
+        k, state, failed, iterations, info = carry
+        d_new, info_new, bad = _attempt(scene, params, data.replace(**state), newton, lengths[k])
+        keep = (k > 0) | ~bad
+        d = jax.tree_util.tree_map(lambda a, b: jnp.where(keep, a, b), _stepped(d_new), state)
+        psi = jnp.where(k == 0, info_new.psi, info.psi)
+        info = dataclasses.replace(info_new, psi=psi, newton_iterations=iterations + info_new.newton_iterations)
+        return k + 1, d, jnp.where(k == 0, bad, failed), iterations + info_new.newton_iterations, info
+
+    def more(carry):
+        k, _, failed, _, _ = carry
+        return (k == 0) | ((k <= n) & failed)
+
+    zero = jnp.zeros((), data.qvel.dtype)
+    info0 = StepInfo(jnp.zeros((len(scene.pairs),), data.qpos.dtype), zero, zero, jnp.ones((), jnp.int32))
+    start = tied((0, _stepped(data), jnp.zeros((), bool), zero, info0), data.qpos, data.qvel, params)
+    _, state, failed, _, info = jax.lax.while_loop(more, trip, start)
+    return data.replace(**state), dataclasses.replace(info, substeps=jnp.where(failed, n, 1).astype(jnp.int32))
+
+
+#: the fields of MJX Data a step changes (the others are computed from them or set by the caller)
+STEPPED_FIELDS = ("time", "qpos", "qvel", "act", "qacc", "act_dot", "qacc_warmstart", "history", "plugin_state")
+
+
+def _stepped(d) -> dict:
+    return {n: getattr(d, n) for n in STEPPED_FIELDS if hasattr(d, n)}
+
+
+def failure_substeps(newton: NewtonConfig) -> int:
+    """The substeps a failed step is taken again in (:attr:`NewtonConfig.failure_substeps`;
+    None resolved: 4 where the step is differentiated in forward mode only, 1 otherwise)."""
+    if newton.failure_substeps is not None:
+        return newton.failure_substeps
+    return 1 if newton.reverse_mode else DEFAULT_FAILURE_SUBSTEPS
+
+
+def _attempt(scene: Scene, params: SimParams, data, newton: NewtonConfig, h):
+    """One step of length ``h`` [s] (a float, or a traced scalar) from MJX ``data``: (Data,
+    :class:`StepInfo`, failed () bool: the solve did not converge, or the step changes a
+    pair's rotation over it by more than :data:`MAX_TURN_CHANGE`,
+    :attr:`NewtonConfig.failure_substeps`)."""
     m = model_with_params(scene, params)
-    h = scene.dt
+    if not isinstance(h, float):  # (the substeps of a failed step: MJX's stages read the model's time step)
+        m = m.replace(opt=m.opt.replace(timestep=jnp.asarray(h, m.opt.timestep.dtype)))
     user_qfrc = data.qfrc_applied
     d = mjx.fwd_position(m, data)
     geos, jacs = contact_geometry(scene, params, m, d, newton.geometry_tangents)
@@ -302,6 +357,7 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig =
     # scene's dtype, so a float32 scene runs in float32 whatever JAX's mode
     dtype = data.qvel.dtype
     Mh = (mjx.full_m(m, d) + h * jnp.diag(m.dof_damping)).astype(dtype)
+    failed = jnp.zeros((), bool)
     if scene.groups:
         problem = ImplicitProblem(Mh, d.qvel, jnp.zeros_like(d.qvel, dtype), jacs, states, gparams, idle)
         if scene.has_constraints:
@@ -309,6 +365,8 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig =
         else:
             d = mjx.fwd_acceleration(m, d)
             v_next, diag = solve_velocity(models, newton, h, dataclasses.replace(problem, f=d.qfrc_smooth.astype(dtype)))
+        spun = _turn(jacs, v_next - d.qvel.astype(dtype), h) > MAX_TURN_CHANGE
+        failed = jax.lax.stop_gradient((diag[2] == 0) | spun)
     else:
         d = mjx.fwd_acceleration(m, d)
         f = d.qfrc_smooth
@@ -316,7 +374,7 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig =
             d = mjx.solve(m, d)
             f = f + d.qfrc_constraint
         v_next = d.qvel + jnp.linalg.solve(Mh, h * f.astype(dtype))
-        diag = jnp.asarray([1.0, 0.0], d.qvel.dtype)
+        diag = jnp.asarray([1.0, 0.0, 1.0], d.qvel.dtype)
     qacc = (v_next - d.qvel) / h
     d = mjx.euler(m, d.replace(qacc=qacc))
     d = d.replace(qpos=_rotate_quaternions(scene, data.qpos, v_next, h, d.qpos))
@@ -324,7 +382,13 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig =
     # same structure and dtypes as the input (MJX makes some integer fields int32 in
     # make_data but int64 in its stages under 64-bit mode), so that steps chain in a scan
     d = jax.tree_util.tree_map(lambda new, old: new.astype(old.dtype), d, data)
-    return d, StepInfo(_psi(scene, geos, d.qpos.dtype), diag[0], diag[1])
+    return d, StepInfo(_psi(scene, geos, d.qpos.dtype), diag[0], diag[1], jnp.ones((), jnp.int32)), failed
+
+
+def _turn(jacs, v, h):
+    """The largest rotation of a contact pair over a step of ``h`` [s] at velocity v (nv,) [rad]."""
+    turns = [jnp.max(jnp.linalg.norm(jnp.einsum("gvk,v->gk", J, v)[:, 3:], axis=1)) for J in jacs]
+    return h * functools.reduce(jnp.maximum, turns)
 
 
 def tied(carry, *inputs):
@@ -383,7 +447,7 @@ def _constraint_passes(m, d, user_qfrc, newton: NewtonConfig, h: float, models, 
         return jax.lax.cond(first | changed, lambda: one_pass(d_in, Q), lambda: carry), None
 
     first = jnp.arange(newton.constraint_passes) == 0
-    init = tied((d, jnp.zeros_like(d.qvel, dtype), d.qvel.astype(dtype), jnp.zeros((2,), dtype)),
+    init = tied((d, jnp.zeros_like(d.qvel, dtype), d.qvel.astype(dtype), jnp.zeros((3,), dtype)),
                 d.qpos, d.qvel, d.qfrc_smooth, problem)  # (one round of the scan's rules: see tied)
     (d, _, v, diag), _ = jax.lax.scan(body, init, first)
     return d, v, diag

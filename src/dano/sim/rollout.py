@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import warnings
 
 import jax
@@ -213,6 +215,8 @@ def rollout(
     starts = range(0, steps, size)
     parts, iters = [], []
     newton = resolve_linear_solver(newton, scene, steps)  # on the whole rollout, not a chunk
+    # never differentiated here: forward-only steps, whose failed steps are taken again in substeps
+    newton = dataclasses.replace(newton, reverse_mode=False)
     for k, start in enumerate(starts):
         active = min(size, steps - start)
         data, qpos, qvel, psi, it = _scan_steps_compiled(scene, params, data, _chunk(ctrl, start, active),
