@@ -13,7 +13,7 @@ from .. import sharding
 from ..contact import ContactParams
 from ..pose import quat_to_matrix, random_quats
 from ..sim import make_data, scan_steps
-from ..sim.implicit import iteration_limit
+from ..sim.implicit import NewtonConfig, iteration_limit
 from ..sim.energy import mechanical_energy
 from ..sim.rollout import first_divergence
 from ..sim.scenes import load_scene
@@ -53,7 +53,8 @@ def random_drops(scene, drops: int, seed: int = 0, height=(0.3, 1.5), max_speed:
 
 
 def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
-                 batch: int | None = None, contact_model: str = "centroid") -> dict:
+                 batch: int | None = None, contact_model: str = "centroid",
+                 newton: NewtonConfig = NewtonConfig()) -> dict:
     """Energy check of the contact solve: ``drops`` random paper-bunny drops (see
     :func:`random_drops`, h = 0.01 s, ``duration`` s, unactuated, vmapped in batches),
     counting runs that become non-finite, diverge (speed > 1000 or an overlap above half
@@ -65,7 +66,9 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
     contact_model: of the bunny/ground pair. batch: drops per vmapped call (default 50 for
     the centroid model; 1, unbatched, for per_sample, whose gathering of the samples in
     reach only pays off outside ``jax.vmap``); a batched call is split over the devices in
-    use (:mod:`dano.sharding`; the batch rounded up to a multiple of their number)."""
+    use (:mod:`dano.sharding`; the batch rounded up to a multiple of their number). newton:
+    the step's solver settings (``NewtonConfig(reverse_mode=False)``: the forward-only step of
+    ``dano simulate`` and the identification, whose failed steps are taken again in substeps)."""
 
     setup = load_scene("bunny-drop", contact_model=contact_model)
     sc, base = setup.scene, setup.params
@@ -75,7 +78,7 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
     def one(q, v, p):
         d = make_data(sc, q, v)
         _, qpos, qvel, psi, iters = scan_steps(sc, base.replace(contact=p), d, jnp.zeros((steps, sc.nu), sc.dtype),
-                                               jnp.zeros((steps, sc.nv), sc.dtype))
+                                               jnp.zeros((steps, sc.nv), sc.dtype), newton)
         return qpos, qvel, psi, iters
 
     if batch is None:
@@ -98,7 +101,7 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
         pad = lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], batch - n, axis=0)]) if n < batch else x  # noqa: E731
         p = jax.tree_util.tree_map(lambda x: pad(x[sl]), cparams)
         qpos, qvel, psi, iters = (np.asarray(a)[:n] for a in run(pad(qpos0[sl]), pad(qvel0[sl]), p))
-        limit = iteration_limit(sc)
+        limit = iteration_limit(sc, newton)
         out["unconverged_steps"] += int(np.sum(iters >= limit))
         out["max_newton_iterations"] = max(out["max_newton_iterations"], int(iters.max()))
         E = mechanical_energy(sc, qpos, qvel)
