@@ -185,6 +185,9 @@ def rollout(
     step number) if the state becomes non-finite, a speed exceeds ``max_speed`` [m/s or
     rad/s] or an overlap exceeds half the DANO's mass (bodies passed through each other).
     For gradients use :func:`rollout_arrays` (or :func:`~dano.sim.dynamics.step`) under JAX.
+    The steps are forward-only (``newton`` with ``reverse_mode=False``): a step whose Newton
+    solve fails is taken again in substeps (:attr:`~dano.sim.NewtonConfig.failure_substeps`,
+    4 unless ``newton`` sets it).
     progress: optional ``progress(done, total, description)``, called after each chunk.
     The rollout runs in chunks of up to :data:`CHUNK` steps (with progress, a twentieth of
     the run, at least :data:`PROGRESS_CHUNK`), each continuing from the last one's Data, their
