@@ -919,16 +919,18 @@ def test_a_scan_whose_rollouts_diverge_says_where_and_what_to_change(box_setup):
 def test_tumbling_mujoco_tosses_at_a_coarse_step_no_longer_diverge(shared, tmp_path):
     """A user's own data from another engine: MuJoCo C tosses of the shared Spot mesh (0.2 m,
     0.7 kg), tumbling onto the ground, recorded at 100 Hz and simulated at the frame interval
-    (dt = 0.01 s). Without the failed steps' substeps (NewtonConfig.failure_substeps = 1) some
-    of dano's rollouts from the identification's own starts run away (measured 2026-11-29: 4
-    of these 8 at friction 0; the scan's warning then names them); with them (the
-    identification's default) none does at friction 0, 0.4 or 1, and the scan's costs are
-    finite."""
+    (dt = 0.01 s). With single steps some of dano's rollouts from the identification's own
+    starts run away (measured 2026-11-29: 4 of these 8 at friction 0) and the scan's warning
+    names them; with the failed steps' substeps (NewtonConfig.failure_substeps) none does at
+    friction 0, 0.4 or 1. identify finds the divergence in its scan and identifies with the
+    substeps, saying so; rollout (dano simulate) simulates a run that diverged once more
+    with them, warning."""
     import trimesh
 
     from dano.experiments.mujoco_c import _XML
     from dano.fields import mesh_field
-    from dano.sim import NewtonConfig
+    from dano.errors import DanoWarning
+    from dano.sim import NewtonConfig, rollout
     from dano.sim.rollout import rollout_arrays
     from dano.sysid.solve import _divergence_warning, _scan
     mesh = trimesh.load(shared / "meshes" / "spot.obj", process=False, force="mesh")
@@ -956,15 +958,19 @@ def test_tumbling_mujoco_tosses_at_a_coarse_step_no_longer_diverge(shared, tmp_p
         obs.append(Observation(time=np.arange(101) * 0.01, poses={"toy": np.array(rows)}, name=f"toss_{k}.csv"))
     asset = build(mesh_field(tmp_path / "toy.obj"), mass=0.7, num_samples=2000, seed=0, name="toy")
     scene = compose([DanoObject("toy", asset, (0, 0, 0.5))], dt=0.01)
-    problem = SysIdProblem(scene, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)])
+    single = SysIdProblem(scene, obs, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)])
     points = np.array([[0.0], [0.4], [1.0]])
+    _, diverged = _scan(single, points)
+    (warning,) = _divergence_warning(single, points, diverged)
+    names = [f"toss_{k}.csv" for k in np.flatnonzero(diverged.any(axis=0))]
+    assert names and all(n in warning for n in names) and "[options].substeps" in warning
+    problem = single.with_failure_substeps(4)
     costs, diverged = _scan(problem, points)
     assert not diverged.any() and np.isfinite(costs).all()
-    assert _divergence_warning(problem, points, diverged) == []
     params = problem.sim_params(np.r_[0.0])
-    off = NewtonConfig(reverse_mode=False, failure_substeps=1)
     runaway = {}
-    for name, newton in (("off", off), ("on", NewtonConfig(reverse_mode=False))):
+    for name, newton in (("off", NewtonConfig(reverse_mode=False, failure_substeps=1)),
+                         ("on", NewtonConfig(reverse_mode=False))):
         runaway[name] = []
         for seg in problem.segments:
             data, _ = problem._segment_data(seg)
@@ -973,3 +979,11 @@ def test_tumbling_mujoco_tosses_at_a_coarse_step_no_longer_diverge(shared, tmp_p
             runaway[name].append(not (np.all(np.abs(np.asarray(qpos)) < 1e3) and np.all(np.isfinite(qvel))))
     print("runaway tosses at friction 0, substeps off / on:", sum(runaway["off"]), sum(runaway["on"]))
     assert sum(runaway["off"]) >= 1 and not any(runaway["on"])
+    k = runaway["off"].index(True)
+    data, _ = problem._segment_data(problem.segments[k])
+    with pytest.warns(DanoWarning, match="with single steps: simulated again with each step whose Newton solve"):
+        traj = rollout(scene, State(jnp.asarray(data["qpos0"]), jnp.asarray(data["qvel0"])), params=params, steps=100)
+    assert np.all(np.isfinite(traj.qpos))
+    result = identify(single, scan=3, starts=1, profile_points=0)
+    assert any("taken again in 4 substeps" in n for n in result.notes), result.notes
+    assert not any("diverged" in w for w in result.warnings) and np.isfinite(result.estimates).all()

@@ -16,10 +16,11 @@ ctrl, qfrc_applied, xfrc_applied and solver warm start):
    by the same rotation, q ⊗ exp(h·ω/2), written so that its derivative is also right at
    ω = 0 (MJX's normalises ω first: its derivative there is zero, not h/2).
 
-Where the step is differentiated in forward mode only (``NewtonConfig.reverse_mode`` False:
-the identification's rollouts, :func:`~dano.sim.rollout`), a step whose solve of 4 fails (not
-converged, or a contact pair's rotation over the step changed by more than half a radian) is
-taken again from its start in substeps (:attr:`~dano.sim.NewtonConfig.failure_substeps`).
+Where the step is differentiated in forward mode only (``NewtonConfig.reverse_mode`` False),
+a step whose solve of 4 fails (not converged, or a contact pair's rotation over the step
+changed by more than half a radian) is taken again from its start in substeps
+(:attr:`~dano.sim.NewtonConfig.failure_substeps`; :func:`~dano.sim.rollout` and the
+identification turn them on where their rollouts diverge).
 
 The returned ``Data`` keeps the caller's ``qfrc_applied`` (the contact force is not left
 in it) and carries act, time and the constraint solver's warm start to the next step.

@@ -92,10 +92,12 @@ class NewtonConfig:
 
     failure_substeps: int | None = None
     """A step whose Newton solve fails is taken again from its start as this many substeps of ``dt / n`` (each
-    kept as it ends); 1: never; None: :data:`DEFAULT_FAILURE_SUBSTEPS` where :attr:`reverse_mode` is False (the
-    identification's rollouts, :func:`~dano.sim.rollout`, ``dano simulate``), 1 where it is True (the default of
-    :func:`~dano.sim.step` and :func:`~dano.sim.rollout_arrays`): the substeps are trips of a ``while_loop``, which
-    JAX cannot differentiate in reverse mode; a value above 1 with ``reverse_mode=True`` raises DanoError. Failed:
+    kept as it ends); 1: never; None: :data:`DEFAULT_FAILURE_SUBSTEPS` where :attr:`reverse_mode` is False, 1 where
+    it is True (the default of :func:`~dano.sim.step` and :func:`~dano.sim.rollout_arrays`): the substeps are trips
+    of a ``while_loop``, which JAX cannot differentiate in reverse mode; a value above 1 with ``reverse_mode=True``
+    raises DanoError. :func:`~dano.sim.rollout` (``dano simulate``) and :func:`~dano.sysid.identify` run without
+    them and turn them on where their rollouts diverge: the loop costs compile time (``dano sysid soap`` cold
+    about 3-5 s more) and 2-12 % per step. Failed:
     not converged in its iterations (both tries'), or converged to a velocity that changes a contact pair's rotation
     over the step by more than :data:`MAX_TURN_CHANGE` (a spurious root, or an impact the step is too long to
     resolve: a light object's thin part hit at 2.5 m/s spun it up from 4.6 to 322 rad/s in one 10 ms step, and its

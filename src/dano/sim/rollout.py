@@ -14,9 +14,9 @@ from .._compiled import cached_jit
 from .._jax_setup import rollout_compiler_options
 from ..errors import DanoError, DanoWarning
 from ..trajectory import Trajectory
-from .implicit import NewtonConfig, resolve_linear_solver
+from .implicit import DEFAULT_FAILURE_SUBSTEPS, NewtonConfig, resolve_linear_solver
 from .scene import Scene, SimParams
-from .dynamics import State, as_data, check_quaternions, overlaps, step_with_info, tied
+from .dynamics import State, as_data, check_quaternions, failure_substeps, overlaps, step_with_info, tied
 
 
 class SimulationDiverged(DanoError):
@@ -185,9 +185,10 @@ def rollout(
     step number) if the state becomes non-finite, a speed exceeds ``max_speed`` [m/s or
     rad/s] or an overlap exceeds half the DANO's mass (bodies passed through each other).
     For gradients use :func:`rollout_arrays` (or :func:`~dano.sim.dynamics.step`) under JAX.
-    The steps are forward-only (``newton`` with ``reverse_mode=False``): a step whose Newton
-    solve fails is taken again in substeps (:attr:`~dano.sim.NewtonConfig.failure_substeps`,
-    4 unless ``newton`` sets it).
+    A run that diverges, where ``newton`` leaves ``failure_substeps`` None, is simulated once
+    more with each step whose Newton solve fails taken again in substeps
+    (:attr:`~dano.sim.NewtonConfig.failure_substeps`; a DanoWarning says so) and kept if that
+    one does not diverge: a second program, compiled only where it is needed.
     progress: optional ``progress(done, total, description)``, called after each chunk.
     The rollout runs in chunks of up to :data:`CHUNK` steps (with progress, a twentieth of
     the run, at least :data:`PROGRESS_CHUNK`), each continuing from the last one's Data, their
@@ -214,12 +215,39 @@ def rollout(
     ctrl = None if controls is None else _as_array(controls, (steps, scene.nu), "controls", dt)
     f = None if qfrc is None else _as_array(qfrc, (steps, scene.nv), "qfrc", dt)
     ctrl, f = (np.asarray(x) for x in _inputs(scene, data, ctrl, f, steps, np))
+    newton = resolve_linear_solver(newton, scene, steps)  # on the whole rollout, not a chunk
+    time = np.arange(steps + 1) * scene.dt
+    qpos, qvel, psi, it, final = _chunked(scene, params, data, ctrl, f, steps, newton, progress)
+    k, _ = first_divergence(scene, params, qpos, qvel, psi, max_speed)
+    if k is not None and newton.failure_substeps is None and failure_substeps(newton) == 1:  # once more, in substeps
+        again = _chunked(scene, params, data, ctrl, f, steps, dataclasses.replace(newton, reverse_mode=False),
+                         progress)
+        if first_divergence(scene, params, *again[:3], max_speed)[0] is None:
+            warnings.warn(f"the simulation diverged at step {k} (t = {time[k]:.4g} s) with single steps: simulated "
+                          f"again with each step whose Newton solve failed taken in {DEFAULT_FAILURE_SUBSTEPS} "
+                          "substeps (docs/simulation.md, 'Substeps where a step fails')", DanoWarning, stacklevel=2)
+            qpos, qvel, psi, it, final = again
+    for line in deep_start_lines(scene, params, psi[0]):
+        warnings.warn(line, DanoWarning, stacklevel=2)
+    _check_divergence(scene, params, time, qpos, qvel, psi, max_speed)
+    return Trajectory(
+        time=time, qpos=qpos, qvel=qvel, psi=psi, body_names=scene.body_names, dano_names=scene.dano_names,
+        qpos_adr=scene.qpos_adr, dof_adr=scene.dof_adr, pair_names=scene.pair_names,
+        metadata={"scene": scene.name, "dt": scene.dt, "params": params_to_dict(scene, params),
+                  "contact_models": {p.name: p.model.name for p in scene.pairs},
+                  "newton_iterations": {"max": int(it.max()), "mean": float(it.mean())}},
+        final_data=final,
+    )
+
+
+def _chunked(scene: Scene, params: SimParams, data, ctrl: np.ndarray, f: np.ndarray, steps: int,
+             newton: NewtonConfig, progress):
+    """:func:`rollout`'s loop over chunks: (qpos (T+1, nq), qvel (T+1, nv), psi (T+1, P),
+    Newton iterations (T,), the final Data or None where it stopped early at a non-finite
+    state, the rest then NaN)."""
     size = CHUNK if progress is None else min(CHUNK, max(PROGRESS_CHUNK, -(-steps // 20)))
     starts = range(0, steps, size)
     parts, iters = [], []
-    newton = resolve_linear_solver(newton, scene, steps)  # on the whole rollout, not a chunk
-    # never differentiated here: forward-only steps, whose failed steps are taken again in substeps
-    newton = dataclasses.replace(newton, reverse_mode=False)
     for k, start in enumerate(starts):
         active = min(size, steps - start)
         data, qpos, qvel, psi, it = _scan_steps_compiled(scene, params, data, _chunk(ctrl, start, active),
@@ -236,19 +264,7 @@ def rollout(
     if len(qpos) < steps + 1:  # stopped early; pad with NaN so that the check finds the step
         fill = lambda a: np.concatenate([a, np.full((steps + 1 - len(a),) + a.shape[1:], np.nan)])  # noqa: E731
         qpos, qvel, psi = fill(qpos), fill(qvel), fill(psi)
-    time = np.arange(steps + 1) * scene.dt
-    for line in deep_start_lines(scene, params, psi[0]):
-        warnings.warn(line, DanoWarning, stacklevel=2)
-    _check_divergence(scene, params, time, qpos, qvel, psi, max_speed)
-    it = np.concatenate(iters)[:steps]
-    return Trajectory(
-        time=time, qpos=qpos, qvel=qvel, psi=psi, body_names=scene.body_names, dano_names=scene.dano_names,
-        qpos_adr=scene.qpos_adr, dof_adr=scene.dof_adr, pair_names=scene.pair_names,
-        metadata={"scene": scene.name, "dt": scene.dt, "params": params_to_dict(scene, params),
-                  "contact_models": {p.name: p.model.name for p in scene.pairs},
-                  "newton_iterations": {"max": int(it.max()), "mean": float(it.mean())}},
-        final_data=data if len(parts) == len(starts) else None,
-    )
+    return qpos, qvel, psi, np.concatenate(iters)[:steps], data if len(parts) == len(starts) else None
 
 
 #: a pair whose overlap at the start exceeds this many times its resting overlap m·g/k is

@@ -644,7 +644,13 @@ SEGMENT_NUISANCE_PREFIXES = ("v0[", "w0[", "p0[", "r0[")
 #: the residuals' rollouts: their Jacobians are forward-mode (per-sample contact's fallback
 #: then costs nothing in the tangents of a batch's trajectories that do not overflow;
 #: :attr:`~dano.sim.implicit.NewtonConfig.reverse_mode`)
-FORWARD_ONLY = NewtonConfig(reverse_mode=False)
+FORWARD_ONLY = NewtonConfig(reverse_mode=False, failure_substeps=1)
+
+
+def forward_only(failure_substeps: int = 1) -> NewtonConfig:
+    """The rollouts' step settings: forward-mode derivatives only, a failed step taken
+    again in ``failure_substeps`` substeps (1: never)."""
+    return dataclasses.replace(FORWARD_ONLY, failure_substeps=failure_substeps)
 
 
 def _with_offsets(qpos0, qvel0, block, qadr, dadr, axes):
@@ -843,6 +849,9 @@ class ResidualLayout:
     #: to step, a vmapped loop runs every segment for its slowest one's count
     #: (:func:`segments_in_turn`)
     in_turn: bool = False
+    #: the substeps a rollout step whose Newton solve fails is taken again in
+    #: (:attr:`SysIdProblem.failure_substeps`, :attr:`~dano.sim.NewtonConfig.failure_substeps`)
+    failure_substeps: int = 1
 
 
 def _layout_mesh(layout: ResidualLayout, *_):
@@ -909,7 +918,8 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
                 qfrc = jnp.concatenate([qfrc, jnp.repeat(qfrc[-1:], substeps, axis=0)])
             qpos, _, _, its = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params,
                                              batch.steps + (substeps if layout.jittered else 0), qfrc,
-                                             overlaps=False, newton=FORWARD_ONLY, iterations=True)
+                                             overlaps=False, newton=forward_only(layout.failure_substeps),
+                                             iterations=True)
             # states at frames 0..F-1
             states = _at_frames(qpos, settle, substeps, (batch.steps - settle) // substeps + 1, shift,
                                 tuple(a + 3 for a in qadr))
@@ -1269,6 +1279,11 @@ class SysIdProblem:
     where the first frames disagree with the motion after them along the weighed axes
     (:func:`stray_start_velocities`; said in :attr:`notes`, and then ``fit_velocity="auto"``
     fits the start velocities too), else "first frames" (resolved here).
+    failure_substeps: the substeps a rollout step whose Newton solve fails is taken again in
+    (:attr:`~dano.sim.NewtonConfig.failure_substeps`); 1 (the default): never, a program
+    without the substeps' loop. :func:`~dano.sysid.identify` identifies again with
+    :data:`~dano.sim.implicit.DEFAULT_FAILURE_SUBSTEPS` where its scan's rollouts diverge
+    (:meth:`with_failure_substeps`).
     Raises DanoError for inconsistent input (see :func:`_check_observation`), unknown
     parameters, bounds that exclude the initial guess, or fewer residuals than parameters.
     """
@@ -1289,6 +1304,7 @@ class SysIdProblem:
     notes: tuple[str, ...] = ()
     start_prior: bool = True
     start_velocity: str = "auto"
+    failure_substeps: int = 1
 
     def __post_init__(self):
         def put(name, value):  # normalised fields of the frozen specification
@@ -1308,6 +1324,10 @@ class SysIdProblem:
                                   for o in self.observations))
         if self.fit_tilt and not self.fit_ground:
             raise DanoError("fit_tilt needs fit_ground: the tilt is the ground plane's, fitted with its height")
+        if isinstance(self.failure_substeps, bool) or not isinstance(self.failure_substeps, (int, np.integer)) \
+                or self.failure_substeps < 1:
+            raise DanoError(f"failure_substeps must be an integer >= 1, got {self.failure_substeps!r}")
+        put("failure_substeps", int(self.failure_substeps))
         if not self.observations:
             raise DanoError("no observed trajectories given")
         if self.fit_ground:
@@ -1423,6 +1443,11 @@ class SysIdProblem:
         """The same problem on the first ``fraction`` of every trajectory (at least 3 frames)."""
         obs = [o.frames(0, max(3, int(np.ceil(fraction * o.num_frames)))) for o in self.observations]
         return dataclasses.replace(self, observations=tuple(obs))
+
+    def with_failure_substeps(self, n: int) -> "SysIdProblem":
+        """The same problem whose rollouts take a step whose Newton solve fails again in ``n``
+        substeps (a layout of its own: compiled anew)."""
+        return dataclasses.replace(self, failure_substeps=n)
 
     def with_initial(self, theta) -> "SysIdProblem":
         """The same problem with the global parameters' initial guesses set from θ (its
@@ -1713,7 +1738,7 @@ class SysIdProblem:
                                                      for p in self.parameters),
             fit_axes=self.fit_axes, pos_axes=self._pos_axes(), rotation=self._rotation_weighted(),
             joints=self.weights.joints > 0, substeps=self.substeps, fit_ground=self.fit_ground,
-            fit_tilt=self.fit_tilt, shards=shards, jittered=self._jittered)
+            fit_tilt=self.fit_tilt, shards=shards, jittered=self._jittered, failure_substeps=self.failure_substeps)
         data = {"batches": tuple(arrays), "wrot": tuple(wrot),
                 "wpos": jax.device_put(np.sqrt(np.asarray(self.weights.position, dtype=np.float64))[
                     np.asarray(layout.pos_axes, dtype=int)]),
@@ -2035,7 +2060,7 @@ class SysIdProblem:
             extra = self.substeps if self._jittered else 0  # (as padded_residuals rolls out)
             ctrl, qfrc = (jnp.asarray(_pad(np.asarray(data[k]), k, 0, longest + extra)) for k in ("ctrl", "qfrc"))
             qpos, _, _ = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params, longest + extra, qfrc,
-                                        overlaps=False, newton=FORWARD_ONLY)
+                                        overlaps=False, newton=forward_only(self.failure_substeps))
             shift = jnp.asarray(data["shift"]) if self._jittered else None
             qpos = _at_frames(jnp.asarray(qpos), settle, self.substeps, steps // self.substeps + 1, shift,
                               tuple(a + 3 for a in qadr))

@@ -35,6 +35,7 @@ from ..errors import DanoError
 from . import uncertainty as unc
 from .._compiled import compile_seconds
 from .._threads import in_background, or_error, side_by_side
+from ..sim.implicit import DEFAULT_FAILURE_SUBSTEPS
 from .problem import NOISE_FLOOR, SysIdProblem, noisy_start_velocities, stray_start_velocities
 
 
@@ -235,6 +236,15 @@ def _profiles(labels, points: np.ndarray, costs: np.ndarray, bins: int) -> dict:
     return prof
 
 
+class _DivergedInScan(Exception):
+    """Raised by the scan where some rollout diverged with single steps (``summary``: where),
+    caught by :func:`identify`, which identifies again with the failed steps' substeps."""
+
+    def __init__(self, summary: str):
+        super().__init__(summary)
+        self.summary = summary
+
+
 def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int | None = None,
              xtol: float = 1e-8, ftol: float | None = None, gtol: float = 1e-8,
              horizons: tuple[float, ...] = (), scan: int | None = None, starts: int = 2,
@@ -307,8 +317,19 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     if scan is None:
         scan = default_scan(n_global) if n_global else 0
     started = time.time()
-    result = _identify(problem, jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol,
-                       horizons=horizons, scan=scan, starts=starts)
+    try:
+        result = _identify(problem, jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol,
+                           gtol=gtol, horizons=horizons, scan=scan, starts=starts)
+        retried = None
+    except _DivergedInScan as e:  # once: with the failed steps' substeps, a program of its own
+        problem, retried = problem.with_failure_substeps(DEFAULT_FAILURE_SUBSTEPS), e.summary
+        result = _identify(problem, jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol,
+                           gtol=gtol, horizons=horizons, scan=scan, starts=starts)
+    if retried:
+        result.notes.append(
+            f"the rollouts diverged {retried} with single steps: identified with each step whose Newton solve "
+            f"failed taken again in {DEFAULT_FAILURE_SUBSTEPS} substeps (docs/simulation.md, 'Substeps where a "
+            "step fails')")
     local = dict(jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
     result = segment_restarts(problem, result, level=level, **local)
     if profile_points and n_global:
@@ -603,6 +624,9 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
     # the local solves' program compiles (or loads) while the scan's runs
     warmed = in_background(lambda: _evaluate(problem, guess, local["jacobian"])) if not local["horizons"] else None
     costs_all, diverged = _scan(problem, np.vstack([points, guess[None]]))  # the given guess is a candidate too
+    if diverged.any() and problem.failure_substeps == 1:  # (a warm-up in a thread finishes on its own)
+        raise _DivergedInScan(f"at {int(diverged.any(axis=1).sum())} of the {len(diverged)} points the scan "
+                              f"evaluated, in {int(diverged.any(axis=0).sum())} of {diverged.shape[1]} trajectories")
     costs = costs_all[:-1]
     scan_time = _minus_compiling(t0, started)
     order = _basin_starts(np.vstack([points, guess[None]]), costs_all, lo, hi, scan, starts)
