@@ -325,11 +325,6 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         problem, retried = problem.with_failure_substeps(DEFAULT_FAILURE_SUBSTEPS), e.summary
         result = _identify(problem, jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol,
                            gtol=gtol, horizons=horizons, scan=scan, starts=starts)
-    if retried:
-        result.notes.append(
-            f"the rollouts diverged {retried} with single steps: identified with each step whose Newton solve "
-            f"failed taken again in {DEFAULT_FAILURE_SUBSTEPS} substeps (docs/simulation.md, 'Substeps where a "
-            "step fails')")
     local = dict(jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
     result = segment_restarts(problem, result, level=level, **local)
     if profile_points and n_global:
@@ -337,6 +332,11 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     else:
         result.noise = _noise_and_misfit(problem, result)
     result.notes = list(problem.notes) + result.notes
+    if retried:
+        result.notes.append(
+            f"the rollouts diverged {retried} with single steps: identified with each step whose Newton solve "
+            f"failed taken again in {DEFAULT_FAILURE_SUBSTEPS} substeps (docs/simulation.md, 'Substeps where a "
+            "step fails')")
     result.warnings = list(dict.fromkeys(result.warnings))  # each said once, in order
     if noise_rms is not None and result.rms_residual > 2 * noise_rms:
         result.warnings.append(
