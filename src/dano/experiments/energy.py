@@ -67,8 +67,8 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
     the centroid model; 1, unbatched, for per_sample, whose gathering of the samples in
     reach only pays off outside ``jax.vmap``); a batched call is split over the devices in
     use (:mod:`dano.sharding`; the batch rounded up to a multiple of their number). newton:
-    the step's solver settings (``NewtonConfig(reverse_mode=False)``: the forward-only step of
-    ``dano simulate`` and the identification, whose failed steps are taken again in substeps)."""
+    the step's solver settings (``NewtonConfig(reverse_mode=False)``: forward-only steps, each
+    whose Newton solve fails taken again in substeps, docs/simulation.md)."""
 
     setup = load_scene("bunny-drop", contact_model=contact_model)
     sc, base = setup.scene, setup.params

@@ -45,7 +45,8 @@ from ..contact.base import batch_all, pose_linearised_geometry, prepare_pair, sk
 from .._compiled import under_trace
 from ..errors import DanoError
 from ..pose import normalize_quat, quat_multiply, rotvec_to_quat
-from .implicit import DEFAULT_FAILURE_SUBSTEPS, MAX_TURN_CHANGE, ImplicitProblem, NewtonConfig, contact_force, resolve_linear_solver, solve_velocity
+from .implicit import (DEFAULT_FAILURE_SUBSTEPS, MAX_TURN_CHANGE, ImplicitProblem, NewtonConfig, contact_force,
+                       resolve_linear_solver, solve_velocity)
 from .scene import Scene, SimParams, cast_floats
 
 

@@ -101,9 +101,9 @@ class NewtonConfig:
     not converged in its iterations (both tries'), or converged to a velocity that changes a contact pair's rotation
     over the step by more than :data:`MAX_TURN_CHANGE` (a spurious root, or an impact the step is too long to
     resolve: a light object's thin part hit at 2.5 m/s spun it up from 4.6 to 322 rad/s in one 10 ms step, and its
-    free flight then diverged). The loop runs one trip where the step does not fail (the same program: it compiles
-    no larger); under ``jax.vmap`` it runs the substeps for the whole batch at a step where one member needs them,
-    keeping only that member's result (docs/simulation.md)."""
+    free flight then diverged). The loop runs one trip where the step does not fail (one copy of the step in the
+    program, its length an argument); under ``jax.vmap`` it runs the substeps for the whole batch at a step where one
+    member needs them, keeping only that member's result (docs/simulation.md)."""
 
     def __post_init__(self):
         if self.geometry_tangents not in ("direct", "pose"):

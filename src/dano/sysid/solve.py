@@ -260,8 +260,11 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     initial guess only). The local solver then starts from at most ``starts`` of the scan's
     points and the given guess, lowest cost first, each with no lower point near it (one
     start per basin the scan resolves: :func:`_basin_starts`; scan points moved off the
-    bounds by 2 % of the box), and the lowest final cost wins.
-    The result's ``scan`` holds the points, their costs, the starts and the cost profile along
+    bounds by 2 % of the box), and the lowest final cost wins. Where a rollout of the scan
+    diverges and the problem takes single steps (``SysIdProblem.failure_substeps`` 1, the
+    default), the identification starts again with each step whose Newton solve fails taken
+    in :data:`~dano.sim.implicit.DEFAULT_FAILURE_SUBSTEPS` substeps (a program of its own),
+    and a note says so. The result's ``scan`` holds the points, their costs, the starts and the cost profile along
     each parameter. A segment that the answer fits far worse than the median segment has its
     nuisance block re-scanned and the solve continued (:func:`segment_restarts`; the
     result's ``segment_scan``).
