@@ -331,3 +331,4 @@ def test_simulate_json_reports_the_run_and_its_compile_time(tmp_path, capsys):
     traj = load_trajectory(tmp_path / "t.npz")
     np.testing.assert_allclose(report["objects"]["bunny"]["final_center_of_mass"], traj.dano_pose("bunny")[0][-1])
     assert report["final_overlap"] == {"bunny/ground": float(traj.psi[-1, 0])}
+    assert report["failure_substeps"] == 1 == traj.metadata["failure_substeps"]  # nothing diverged

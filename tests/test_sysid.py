@@ -983,7 +983,7 @@ def test_tumbling_mujoco_tosses_at_a_coarse_step_no_longer_diverge(shared, tmp_p
     data, _ = problem._segment_data(problem.segments[k])
     with pytest.warns(DanoWarning, match="with single steps: simulated again with each step whose Newton solve"):
         traj = rollout(scene, State(jnp.asarray(data["qpos0"]), jnp.asarray(data["qvel0"])), params=params, steps=100)
-    assert np.all(np.isfinite(traj.qpos))
+    assert np.all(np.isfinite(traj.qpos)) and traj.metadata["failure_substeps"] == 4
     result = identify(single, scan=3, starts=1, profile_points=8)
     assert any("taken again in 4 substeps" in n for n in result.notes), result.notes
     assert not any("diverged" in w for w in result.warnings) and np.isfinite(result.estimates).all()

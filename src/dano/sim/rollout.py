@@ -187,7 +187,8 @@ def rollout(
     A run that diverges, where ``newton`` leaves ``failure_substeps`` None, is simulated once
     more with each step whose Newton solve fails taken again in substeps
     (:attr:`~dano.sim.NewtonConfig.failure_substeps`; a DanoWarning says so) and kept if that
-    one does not diverge: a second program, compiled only where it is needed.
+    one does not diverge: a second program, compiled only where it is needed. The trajectory's
+    ``metadata["failure_substeps"]`` says which ran: 1 (single steps) or the substeps' count.
     progress: optional ``progress(done, total, description)``, called after each chunk.
     The rollout runs in chunks of up to :data:`CHUNK` steps (with progress, a twentieth of
     the run, at least :data:`PROGRESS_CHUNK`), each continuing from the last one's Data, their
@@ -218,10 +219,12 @@ def rollout(
     time = np.arange(steps + 1) * scene.dt
     qpos, qvel, psi, it, final = _chunked(scene, params, data, ctrl, f, steps, newton, progress)
     k, _ = first_divergence(scene, params, qpos, qvel, psi, max_speed)
-    if k is not None and newton.failure_substeps is None and failure_substeps(newton) == 1:  # once more, in substeps
+    substeps = failure_substeps(newton)
+    if k is not None and newton.failure_substeps is None and substeps == 1:  # once more, in substeps
         again = _chunked(scene, params, data, ctrl, f, steps, dataclasses.replace(newton, reverse_mode=False),
                          progress)
         if first_divergence(scene, params, *again[:3], max_speed)[0] is None:
+            substeps = DEFAULT_FAILURE_SUBSTEPS
             warnings.warn(f"the simulation diverged at step {k} (t = {time[k]:.4g} s) with single steps: simulated "
                           f"again with each step whose Newton solve failed taken in {DEFAULT_FAILURE_SUBSTEPS} "
                           "substeps (docs/simulation.md, 'Substeps where a step fails')", DanoWarning, stacklevel=2)
@@ -234,7 +237,8 @@ def rollout(
         qpos_adr=scene.qpos_adr, dof_adr=scene.dof_adr, pair_names=scene.pair_names,
         metadata={"scene": scene.name, "dt": scene.dt, "params": params_to_dict(scene, params),
                   "contact_models": {p.name: p.model.name for p in scene.pairs},
-                  "newton_iterations": {"max": int(it.max()), "mean": float(it.mean())}},
+                  "newton_iterations": {"max": int(it.max()), "mean": float(it.mean())},
+                  "failure_substeps": substeps},
         final_data=final,
     )
 
