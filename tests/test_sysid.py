@@ -103,6 +103,9 @@ def test_windows_and_fd_jacobians(box_setup):
     c = identify(whole, jacobian="fd", scan=0, profile_points=0)
     assert abs(b.estimates[0] / 0.45 - 1) < 0.005
     assert abs(c.estimates[0] / b.estimates[0] - 1) < 1e-3
+    # nothing diverged: single steps, and the problem they came from is the one given
+    assert b.failure_substeps == 1 and b.as_dict()["failure_substeps"] == 1
+    assert whole.with_failure_substeps(b.failure_substeps) is whole
     windows = SysIdProblem(scene, [obs], fit, substeps=4, window=15, fit_velocity="xy")
     assert [(s.start, s.frames) for s in windows.segments] == [(0, 16), (15, 15)]
     a = identify(windows)
@@ -986,4 +989,5 @@ def test_tumbling_mujoco_tosses_at_a_coarse_step_no_longer_diverge(shared, tmp_p
     assert np.all(np.isfinite(traj.qpos)) and traj.metadata["failure_substeps"] == 4
     result = identify(single, scan=3, starts=1, profile_points=8)
     assert any("taken again in 4 substeps" in n for n in result.notes), result.notes
+    assert result.failure_substeps == 4 and single.with_failure_substeps(4).failure_substeps == 4
     assert not any("diverged" in w for w in result.warnings) and np.isfinite(result.estimates).all()

@@ -301,22 +301,22 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig =
         # trip 0: the whole step from ``data``; where it failed, trips 1..n: its substeps from
         # ``data`` on (under vmap the loop runs while any member needs it, the others' carries
         # kept as they are by the loop's batching)
-        k, state, failed, iterations, info = carry
+        k, state, failed, info = carry
         d_new, info_new, bad = _attempt(scene, params, data.replace(**state), newton, lengths[k])
         keep = (k > 0) | ~bad
         d = jax.tree_util.tree_map(lambda a, b: jnp.where(keep, a, b), _stepped(d_new), state)
-        psi = jnp.where(k == 0, info_new.psi, info.psi)
-        info = dataclasses.replace(info_new, psi=psi, newton_iterations=iterations + info_new.newton_iterations)
-        return k + 1, d, jnp.where(k == 0, bad, failed), iterations + info_new.newton_iterations, info
+        info = dataclasses.replace(info_new, psi=jnp.where(k == 0, info_new.psi, info.psi),
+                                   newton_iterations=info.newton_iterations + info_new.newton_iterations)
+        return k + 1, d, jnp.where(k == 0, bad, failed), info
 
     def more(carry):
-        k, _, failed, _, _ = carry
+        k, _, failed, _ = carry
         return (k == 0) | ((k <= n) & failed)
 
     zero = jnp.zeros((), data.qvel.dtype)
     info0 = StepInfo(jnp.zeros((len(scene.pairs),), data.qpos.dtype), zero, zero, jnp.ones((), jnp.int32))
-    start = tied((0, _stepped(data), jnp.zeros((), bool), zero, info0), data.qpos, data.qvel, params)
-    _, state, failed, _, info = jax.lax.while_loop(more, trip, start)
+    start = tied((0, _stepped(data), jnp.zeros((), bool), info0), data.qpos, data.qvel, params)
+    _, state, failed, info = jax.lax.while_loop(more, trip, start)
     return data.replace(**state), dataclasses.replace(info, substeps=jnp.where(failed, n, 1).astype(jnp.int32))
 
 

@@ -535,32 +535,7 @@ def solve_velocity(models: tuple, opts: NewtonConfig, h, pr: ImplicitProblem):
     a traced scalar (the failed step's substeps, :attr:`NewtonConfig.failure_substeps`).
     Differentiable (forward and, unless ``opts.reverse_mode`` is False, reverse mode)
     through the implicit function theorem."""
-    if isinstance(h, float):  # a constant in the program (as fast as before the substeps, 2026-11-29)
-        return _solve_velocity_fixed(models, opts, h, pr)
     return _solve_velocity(models, opts, jnp.asarray(h, pr.v0.dtype), pr)
-
-
-def _velocity_jvp(models, opts, h, pr, dh, dpr):
-    """The tangent of :func:`solve_velocity`'s root (implicit function theorem); dh: h's
-    tangent, or None for a constant h."""
-    v, info = _newton_plain(models, opts, h, pr)
-    _, D = contact_force_and_jacobian(models, _undifferentiated(pr), v)
-    if dh is None:
-        _, dG = jax.jvp(lambda p: _residual(models, h, p, v, opts.reverse_mode), (pr,), (dpr,))
-    else:
-        _, dG = jax.jvp(lambda h_, p: _residual(models, h_, p, v, opts.reverse_mode), (h, pr), (dh, dpr))
-    dv = -jnp.linalg.solve(pr.Mh - h * D, dG)
-    return (v, info), (dv, jnp.zeros_like(info))
-
-
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
-def _solve_velocity_fixed(models: tuple, opts: NewtonConfig, h: float, pr: ImplicitProblem):
-    return _newton(models, opts, h, pr)
-
-
-@_solve_velocity_fixed.defjvp
-def _solve_velocity_fixed_jvp(models, opts, h, primals, tangents):
-    return _velocity_jvp(models, opts, h, primals[0], None, tangents[0])
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1))
@@ -571,4 +546,8 @@ def _solve_velocity(models: tuple, opts: NewtonConfig, h, pr: ImplicitProblem):
 @_solve_velocity.defjvp
 def _solve_velocity_jvp(models, opts, primals, tangents):
     (h, pr), (dh, dpr) = primals, tangents
-    return _velocity_jvp(models, opts, h, pr, dh, dpr)
+    v, info = _newton_plain(models, opts, h, pr)
+    _, D = contact_force_and_jacobian(models, _undifferentiated(pr), v)
+    _, dG = jax.jvp(lambda h_, p: _residual(models, h_, p, v, opts.reverse_mode), (h, pr), (dh, dpr))
+    dv = -jnp.linalg.solve(pr.Mh - h * D, dG)
+    return (v, info), (dv, jnp.zeros_like(info))

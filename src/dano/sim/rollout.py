@@ -222,7 +222,7 @@ def rollout(
     substeps = failure_substeps(newton)
     if k is not None and newton.failure_substeps is None and substeps == 1:  # once more, in substeps
         again = _chunked(scene, params, data, ctrl, f, steps, dataclasses.replace(newton, reverse_mode=False),
-                         progress)
+                         progress, "simulating again in substeps")
         if first_divergence(scene, params, *again[:3], max_speed)[0] is None:
             substeps = DEFAULT_FAILURE_SUBSTEPS
             warnings.warn(f"the simulation diverged at step {k} (t = {time[k]:.4g} s) with single steps: simulated "
@@ -244,10 +244,10 @@ def rollout(
 
 
 def _chunked(scene: Scene, params: SimParams, data, ctrl: np.ndarray, f: np.ndarray, steps: int,
-             newton: NewtonConfig, progress):
+             newton: NewtonConfig, progress, description: str = "simulating"):
     """:func:`rollout`'s loop over chunks: (qpos (T+1, nq), qvel (T+1, nv), psi (T+1, P),
     Newton iterations (T,), the final Data or None where it stopped early at a non-finite
-    state, the rest then NaN)."""
+    state, the rest then NaN); ``progress(done, total, description)`` after each chunk."""
     size = CHUNK if progress is None else min(CHUNK, max(PROGRESS_CHUNK, -(-steps // 20)))
     starts = range(0, steps, size)
     parts, iters = [], []
@@ -260,7 +260,7 @@ def _chunked(scene: Scene, params: SimParams, data, ctrl: np.ndarray, f: np.ndar
         parts.append(arrs if k == 0 else [x[1:] for x in arrs])
         iters.append(np.asarray(it)[:active])
         if progress is not None:
-            progress(start + active, steps, "simulating")
+            progress(start + active, steps, description)
         if not (np.all(np.isfinite(arrs[0])) and np.all(np.isfinite(arrs[1]))):
             break  # diverged: the check below finds the step
     qpos, qvel, psi = (np.concatenate([p[i] for p in parts])[: steps + 1] for i in range(3))

@@ -641,16 +641,12 @@ def _to_table(qpos0, qvel0, qadr, dadr, height, R):
 #: label prefixes of the per-segment nuisance parameters (:attr:`SysIdProblem.labels`)
 SEGMENT_NUISANCE_PREFIXES = ("v0[", "w0[", "p0[", "r0[")
 
-#: the residuals' rollouts: their Jacobians are forward-mode (per-sample contact's fallback
-#: then costs nothing in the tangents of a batch's trajectories that do not overflow;
-#: :attr:`~dano.sim.implicit.NewtonConfig.reverse_mode`)
-FORWARD_ONLY = NewtonConfig(reverse_mode=False, failure_substeps=1)
-
-
 def forward_only(failure_substeps: int = 1) -> NewtonConfig:
-    """The rollouts' step settings: forward-mode derivatives only, a failed step taken
-    again in ``failure_substeps`` substeps (1: never)."""
-    return dataclasses.replace(FORWARD_ONLY, failure_substeps=failure_substeps)
+    """The residuals' rollouts' step settings: forward-mode derivatives only (their Jacobians
+    are forward-mode; per-sample contact's fallback then costs nothing in the tangents of a
+    batch's trajectories that do not overflow: :attr:`~dano.sim.implicit.NewtonConfig.reverse_mode`),
+    a step whose Newton solve fails taken again in ``failure_substeps`` substeps (1: never)."""
+    return NewtonConfig(reverse_mode=False, failure_substeps=failure_substeps)
 
 
 def _with_offsets(qpos0, qvel0, block, qadr, dadr, axes):
@@ -1446,8 +1442,9 @@ class SysIdProblem:
 
     def with_failure_substeps(self, n: int) -> "SysIdProblem":
         """The same problem whose rollouts take a step whose Newton solve fails again in ``n``
-        substeps (a layout of its own: compiled anew)."""
-        return dataclasses.replace(self, failure_substeps=n)
+        substeps (a layout of its own: compiled anew); itself where it already does (e.g.
+        ``problem.with_failure_substeps(result.failure_substeps)`` after :func:`identify`)."""
+        return self if n == self.failure_substeps else dataclasses.replace(self, failure_substeps=n)
 
     def with_initial(self, theta) -> "SysIdProblem":
         """The same problem with the global parameters' initial guesses set from θ (its
@@ -2028,7 +2025,7 @@ class SysIdProblem:
 
     def residual_function(self):
         """(θ) -> residual vector (m,), a pure JAX function (jit/jacfwd it; forward mode only
-        with per-sample contact, :data:`FORWARD_ONLY`): :func:`padded_residuals`
+        with per-sample contact, :func:`forward_only`): :func:`padded_residuals`
         on this problem's layout and data, padded entries dropped. Residuals are ordered by
         batch, then segment, then block (per tracked DANO its position axes with non-zero weight
         [m·√w] and its rotation vector [rad·√w], then each joint), each block frame by frame

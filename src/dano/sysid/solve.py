@@ -61,7 +61,10 @@ class SysIdResult:
     global parameter "identified", "at bound", "flat" or "rough"; profiles: the cost profile
     through the estimate along each global parameter; verification: restarts from lower
     points the checks found; segment_scan: the re-scan of segments fitted far worse than the
-    others (:func:`segment_restarts`), None where no segment was.
+    others (:func:`segment_restarts`), None where no segment was; failure_substeps: the
+    substeps the rollouts took each step whose Newton solve failed in (1: single steps; more
+    where :func:`identify` turned them on because its scan's rollouts diverged; simulate the
+    answer with ``problem.with_failure_substeps(result.failure_substeps)``).
     """
 
     labels: list
@@ -91,6 +94,7 @@ class SysIdResult:
     verification: dict | None = None
     notes: list = field(default_factory=list)
     segment_scan: dict | None = None
+    failure_substeps: int = 1
     jacobian_matrix: np.ndarray | None = field(default=None, repr=False)
 
     def as_dict(self) -> dict:
@@ -120,6 +124,7 @@ class SysIdResult:
             "verification": self.verification,
             "segment_scan": self.segment_scan,
             "notes": list(self.notes),
+            "failure_substeps": self.failure_substeps,
         }
 
 
@@ -340,6 +345,7 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
             f"the rollouts diverged {retried} with single steps: identified with each step whose Newton solve "
             f"failed taken again in {DEFAULT_FAILURE_SUBSTEPS} substeps (docs/simulation.md, 'Substeps where a "
             "step fails')")
+    result.failure_substeps = problem.failure_substeps
     result.warnings = list(dict.fromkeys(result.warnings))  # each said once, in order
     if noise_rms is not None and result.rms_residual > 2 * noise_rms:
         result.warnings.append(
