@@ -80,3 +80,64 @@ def test_failure_substeps_defaults_and_refusals():
         NewtonConfig(failure_substeps=4)
     with pytest.raises(DanoError, match="failure_substeps must be an integer >= 1"):
         NewtonConfig(failure_substeps=0, reverse_mode=False)
+
+
+def test_a_run_whose_steps_fail_without_diverging_is_simulated_again_in_substeps():
+    """Analytic physics: an unactuated drop cannot gain energy. Drop 762 of the energy check's
+    seed 1 (random pose, spin and paper-range parameters) has steps whose solve fails without
+    the run diverging; kept as they are (single steps), its energy rises (measured: to 26x
+    its start). rollout counts the failed steps, simulates the run again with each failed step
+    taken in substeps, warns, and the energy no longer rises."""
+    import jax.tree_util as jtu
+
+    from dano.errors import DanoWarning
+    from dano.experiments.energy import random_drops
+    from dano.sim.energy import mechanical_energy
+    setup = load_scene("bunny-drop")
+    sc = setup.scene
+    qpos0, qvel0, cparams = random_drops(sc, 1000, seed=1)
+    params = setup.params.replace(contact=jtu.tree_map(lambda x: x[762], cparams))
+    state = State(np.asarray(qpos0[762]), np.asarray(qvel0[762]))
+    single = rollout(sc, state, params=params, steps=300, newton=NewtonConfig(failure_substeps=1))
+    assert single.metadata["failure_substeps"] == 1 and single.metadata["failed_steps"] > 0
+    energy = mechanical_energy(sc, single.qpos, single.qvel)
+    assert energy.max() > 1.5 * energy[0]
+    with pytest.warns(DanoWarning, match="steps whose Newton solve failed"):
+        again = rollout(sc, state, params=params, steps=300)
+    assert again.metadata["failure_substeps"] == DEFAULT_FAILURE_SUBSTEPS
+    assert again.metadata["failed_steps"] >= 1  # (the steps it took in substeps)
+    energy = mechanical_energy(sc, again.qpos, again.qvel)
+    assert energy.max() <= 1.01 * energy[0]
+    # the same run up to its first failed step (step 66, measured; the loop's traced step length rounds differently)
+    np.testing.assert_allclose(again.qpos[:66], single.qpos[:66], rtol=0, atol=1e-9)
+    assert not np.allclose(again.qpos[68], single.qpos[68], rtol=0, atol=1e-3)
+
+
+def test_an_identification_whose_steps_fail_at_its_answer_continues_in_substeps():
+    """The energy check's drop 762 (seed 1) observed at 100 Hz as the substeps simulate it
+    (the energy kept), its sliding friction identified with single steps (the default) from
+    the truth without a scan: there two steps fail without diverging (the energy rises 26x),
+    and a local solve from there would move to 0.513 where none fails. identify sees the
+    failed steps at its initial guess, identifies with the substeps, says so, and lands on
+    the truth. (With its scan the fit starts at 0.643, where no step fails, and ends at 0.547
+    without failed steps: a limit of the switch, docs/simulation.md.)"""
+    import jax.tree_util as jtu
+
+    from dano.experiments.energy import random_drops
+    from dano.sysid import FitParameter, Observation, SysIdProblem, identify
+    setup = load_scene("bunny-drop")
+    sc = setup.scene
+    qpos0, qvel0, cparams = random_drops(sc, 1000, seed=1)
+    params = setup.params.replace(contact=jtu.tree_map(lambda x: x[762], cparams))
+    truth = float(np.asarray(params.contact.sliding_friction).ravel()[0])
+    state = State(np.asarray(qpos0[762]), np.asarray(qvel0[762]))
+    observed = rollout(sc, state, params=params, steps=120, newton=NewtonConfig(reverse_mode=False))
+    assert observed.metadata["failed_steps"] >= 1  # (taken in substeps)
+    obs = Observation(time=observed.time, poses={sc.dano_names[0]: observed.qpos}, qvel0=observed.qvel[0])
+    problem = SysIdProblem(sc, [obs], [FitParameter("sliding_friction", truth, 0.0, 1.0)], base_params=params)
+    assert problem.failure_substeps == 1 and problem.failed_steps(np.r_[truth]).sum() >= 1
+    result = identify(problem, scan=0, profile_points=0)
+    assert result.failure_substeps == 4
+    assert any("trajectories at the initial guess with single steps" in n and "taken again in 4 substeps" in n
+               for n in result.notes), result.notes
+    assert abs(result.estimates[0] - truth) < 1e-6 and result.rms_residual < 1e-8

@@ -925,9 +925,10 @@ def test_tumbling_mujoco_tosses_at_a_coarse_step_no_longer_diverge(shared, tmp_p
     (dt = 0.01 s). With single steps some of dano's rollouts from the identification's own
     starts run away (measured 2026-11-29: 4 of these 8 at friction 0) and the scan's warning
     names them; with the failed steps' substeps (NewtonConfig.failure_substeps) none does at
-    friction 0, 0.4 or 1. identify finds the divergence in its scan and identifies with the
-    substeps, saying so; rollout (dano simulate) simulates a run that diverged once more
-    with them, warning."""
+    friction 0, 0.4 or 1. identify finds steps that fail at its answer and rollouts that
+    diverge in its scan, and identifies again with the substeps, saying so; without a scan it
+    identifies with them where its initial guess diverges; rollout (dano simulate) simulates
+    a run that diverged once more with them, warning."""
     import trimesh
 
     from dano.experiments.mujoco_c import _XML
@@ -991,3 +992,8 @@ def test_tumbling_mujoco_tosses_at_a_coarse_step_no_longer_diverge(shared, tmp_p
     assert any("taken again in 4 substeps" in n for n in result.notes), result.notes
     assert result.failure_substeps == 4 and single.with_failure_substeps(4).failure_substeps == 4
     assert not any("diverged" in w for w in result.warnings) and np.isfinite(result.estimates).all()
+    # without a scan: the single steps diverge at the initial guess (0.3): identified with the substeps
+    assert single.failed_steps(np.r_[0.0]).sum() >= 1
+    local = identify(single, scan=0, profile_points=0)
+    assert local.failure_substeps == 4 and np.isfinite(local.estimates).all()
+    assert any("diverged at the initial guess with single steps" in n for n in local.notes), local.notes

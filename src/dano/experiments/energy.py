@@ -62,7 +62,9 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
     than 1 % (``energy_rises``; the five worst in ``worst_runs``, the first 20 non-finite
     drops by index in ``nonfinite_drops``); ``max_energy_ratio`` is the largest max_t E(t)/E(0);
     ``unconverged_steps``: steps whose Newton solve used all its iterations (both tries' where
-    it has a second, :attr:`~dano.sim.NewtonConfig.second_try`).
+    it has a second, :attr:`~dano.sim.NewtonConfig.second_try`); ``failed_steps``: steps that
+    failed (not converged, or a pair turned too far: :attr:`~dano.sim.dynamics.StepInfo.failed`,
+    taken again in substeps where ``newton`` allows them), ``failed_drops`` the drops that had one.
     contact_model: of the bunny/ground pair. batch: drops per vmapped call (default 50 for
     the centroid model; 1, unbatched, for per_sample, whose gathering of the samples in
     reach only pays off outside ``jax.vmap``); a batched call is split over the devices in
@@ -77,9 +79,10 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
 
     def one(q, v, p):
         d = make_data(sc, q, v)
-        _, qpos, qvel, psi, iters = scan_steps(sc, base.replace(contact=p), d, jnp.zeros((steps, sc.nu), sc.dtype),
-                                               jnp.zeros((steps, sc.nv), sc.dtype), newton)
-        return qpos, qvel, psi, iters
+        _, qpos, qvel, psi, iters, failed = scan_steps(sc, base.replace(contact=p), d,
+                                                       jnp.zeros((steps, sc.nu), sc.dtype),
+                                                       jnp.zeros((steps, sc.nv), sc.dtype), newton, failures=True)
+        return qpos, qvel, psi, iters, failed
 
     if batch is None:
         batch = 1 if contact_model == "per_sample" else 50
@@ -91,18 +94,20 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
         run = sharding.sharded_vmap(one)
     out = {"drops": drops, "nonfinite": 0, "diverged": 0, "energy_rises": 0, "max_energy_ratio": 0.0,
            "seed": seed, "steps": steps, "dt": sc.dt, "contact_model": contact_model,
-           "unconverged_steps": 0, "max_newton_iterations": 0, "batch": batch,
+           "unconverged_steps": 0, "failed_steps": 0, "max_newton_iterations": 0, "batch": batch,
            "devices": 1 if batch == 1 else sharding.shards_for(batch)}
     t0 = time.perf_counter()
-    worst, nonfinite = [], []
+    worst, nonfinite, failed_runs = [], [], []
     for start in range(0, drops, batch):
         sl = slice(start, min(start + batch, drops))
         n = sl.stop - sl.start
         pad = lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], batch - n, axis=0)]) if n < batch else x  # noqa: E731
         p = jax.tree_util.tree_map(lambda x: pad(x[sl]), cparams)
-        qpos, qvel, psi, iters = (np.asarray(a)[:n] for a in run(pad(qpos0[sl]), pad(qvel0[sl]), p))
+        qpos, qvel, psi, iters, failed = (np.asarray(a)[:n] for a in run(pad(qpos0[sl]), pad(qvel0[sl]), p))
         limit = iteration_limit(sc, newton)
         out["unconverged_steps"] += int(np.sum(iters >= limit))
+        out["failed_steps"] += int(failed.sum())
+        failed_runs.extend(start + i for i in np.flatnonzero(failed.any(axis=1)))
         out["max_newton_iterations"] = max(out["max_newton_iterations"], int(iters.max()))
         E = mechanical_energy(sc, qpos, qvel)
         for i in range(n):
@@ -122,4 +127,5 @@ def energy_check(drops: int = 1000, seed: int = 0, duration: float = 3.0,
     out["env_steps_per_s"] = drops * steps / out["wall_time_s"]
     out["worst_runs"] = [{"drop": i, "energy_ratio": r} for r, i in sorted(worst, reverse=True)[:5]]
     out["nonfinite_drops"] = nonfinite[:20]
+    out["failed_drops"] = [int(i) for i in failed_runs]
     return out

@@ -73,12 +73,16 @@ class StepInfo:
     newton_residual (): final residual of the velocity equation relative to the step's
     impulses (the last substep's); substeps () int: 1, or
     :attr:`~dano.sim.NewtonConfig.failure_substeps` where the whole step failed and was
-    taken again in that many substeps."""
+    taken again in that many substeps; failed () bool: the whole step's solve failed (not
+    converged in its iterations, or a contact pair turned by more than
+    :data:`~dano.sim.implicit.MAX_TURN_CHANGE` over the step), whether or not it was taken
+    again in substeps (with single steps the failed step is kept as it is)."""
 
     psi: jax.Array
     newton_iterations: jax.Array
     newton_residual: jax.Array
     substeps: jax.Array = 1
+    failed: jax.Array = False
 
 
 def make_data(scene: Scene, qpos=None, qvel=None, *, act=None, ctrl=None, time: float = 0.0):
@@ -293,8 +297,7 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig =
     newton = resolve_linear_solver(newton, scene, 1)  # ("auto": the unrolled LU on a GPU, LAPACK on the CPU)
     n = failure_substeps(newton)
     if n <= 1 or not scene.groups:
-        d, info, _ = _attempt(scene, params, data, newton, scene.dt)
-        return d, info
+        return _attempt(scene, params, data, newton, scene.dt)
     lengths = jnp.asarray([scene.dt] + [scene.dt / n] * n, data.qvel.dtype)
 
     def trip(carry):
@@ -302,7 +305,8 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig =
         # ``data`` on (under vmap the loop runs while any member needs it, the others' carries
         # kept as they are by the loop's batching)
         k, state, failed, info = carry
-        d_new, info_new, bad = _attempt(scene, params, data.replace(**state), newton, lengths[k])
+        d_new, info_new = _attempt(scene, params, data.replace(**state), newton, lengths[k])
+        bad = info_new.failed
         keep = (k > 0) | ~bad
         d = jax.tree_util.tree_map(lambda a, b: jnp.where(keep, a, b), _stepped(d_new), state)
         info = dataclasses.replace(info_new, psi=jnp.where(k == 0, info_new.psi, info.psi),
@@ -314,10 +318,12 @@ def step_with_info(scene: Scene, params: SimParams, data, newton: NewtonConfig =
         return (k == 0) | ((k <= n) & failed)
 
     zero = jnp.zeros((), data.qvel.dtype)
-    info0 = StepInfo(jnp.zeros((len(scene.pairs),), data.qpos.dtype), zero, zero, jnp.ones((), jnp.int32))
+    info0 = StepInfo(jnp.zeros((len(scene.pairs),), data.qpos.dtype), zero, zero, jnp.ones((), jnp.int32),
+                     jnp.zeros((), bool))
     start = tied((0, _stepped(data), jnp.zeros((), bool), info0), data.qpos, data.qvel, params)
     _, state, failed, info = jax.lax.while_loop(more, trip, start)
-    return data.replace(**state), dataclasses.replace(info, substeps=jnp.where(failed, n, 1).astype(jnp.int32))
+    return data.replace(**state), dataclasses.replace(info, substeps=jnp.where(failed, n, 1).astype(jnp.int32),
+                                                      failed=failed)
 
 
 #: the fields of MJX Data a step changes (the others are computed from them or set by the caller)
@@ -338,7 +344,7 @@ def failure_substeps(newton: NewtonConfig) -> int:
 
 def _attempt(scene: Scene, params: SimParams, data, newton: NewtonConfig, h):
     """One step of length ``h`` [s] (a float, or a traced scalar) from MJX ``data``: (Data,
-    :class:`StepInfo`, failed () bool: the solve did not converge, or the step changes a
+    :class:`StepInfo`, its ``failed``: the solve did not converge, or the step changes a
     pair's rotation over it by more than :data:`MAX_TURN_CHANGE`,
     :attr:`NewtonConfig.failure_substeps`)."""
     m = model_with_params(scene, params)
@@ -389,7 +395,7 @@ def _attempt(scene: Scene, params: SimParams, data, newton: NewtonConfig, h):
     # same structure and dtypes as the input (MJX makes some integer fields int32 in
     # make_data but int64 in its stages under 64-bit mode), so that steps chain in a scan
     d = jax.tree_util.tree_map(lambda new, old: new.astype(old.dtype), d, data)
-    return d, StepInfo(_psi(scene, geos, d.qpos.dtype), diag[0], diag[1], jnp.ones((), jnp.int32)), failed
+    return d, StepInfo(_psi(scene, geos, d.qpos.dtype), diag[0], diag[1], jnp.ones((), jnp.int32), failed)
 
 
 def _turn(jacs, v, h):

@@ -52,36 +52,40 @@ def _scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: N
         d = data.replace(**state)
         d = d.replace(ctrl=ctrl.astype(d.ctrl.dtype), qfrc_applied=f.astype(d.qfrc_applied.dtype))
         d_next, info = step_with_info(scene, params, d, newton)
-        return carried(d_next), (d_next.qpos, d_next.qvel, info.psi, info.newton_iterations)
+        return carried(d_next), (d_next.qpos, d_next.qvel, info.psi, info.newton_iterations,
+                                 jnp.asarray(info.failed, bool))
 
     if active is None:
-        last, (qpos, qvel, psi, iters) = jax.lax.scan(lambda s, x: advance(s, *x), state0, (controls, qfrc))
+        last, (qpos, qvel, psi, iters, failed) = jax.lax.scan(lambda s, x: advance(s, *x), state0, (controls, qfrc))
     else:  # a loop of ``active`` steps (a value, not a shape) filling the first rows of the outputs
         def one_step(k, carry):
             state, outs = carry
-            state, (q, v, p, it) = advance(state, controls[k], qfrc[k])
-            new = (q, v, p.astype(q.dtype), it.astype(v.dtype))
+            state, (q, v, p, it, bad) = advance(state, controls[k], qfrc[k])
+            new = (q, v, p.astype(q.dtype), it.astype(v.dtype), bad)
             return state, tuple(o.at[k].set(x) for o, x in zip(outs, new))
 
         q0, v0 = state0["qpos"], state0["qvel"]
         rows = controls.shape[0]
         outs = (jnp.zeros((rows,) + q0.shape, q0.dtype), jnp.zeros((rows,) + v0.shape, v0.dtype),
-                jnp.zeros((rows, len(scene.pairs)), q0.dtype), jnp.zeros((rows,), v0.dtype))
-        last, (qpos, qvel, psi, iters) = jax.lax.fori_loop(0, active, one_step, (state0, outs))
+                jnp.zeros((rows, len(scene.pairs)), q0.dtype), jnp.zeros((rows,), v0.dtype),
+                jnp.zeros((rows,), bool))
+        last, (qpos, qvel, psi, iters, failed) = jax.lax.fori_loop(0, active, one_step, (state0, outs))
     d_last = data.replace(**last)
     if final_overlaps:  # (each step reported ψ at its start)
         psi = jnp.concatenate([psi, overlaps(scene, params, d_last)[None]])
-    return d_last, jnp.concatenate([data.qpos[None], qpos]), jnp.concatenate([data.qvel[None], qvel]), psi, iters
+    return (d_last, jnp.concatenate([data.qpos[None], qpos]), jnp.concatenate([data.qvel[None], qvel]), psi, iters,
+            failed)
 
 
 _scan_steps_compiled = cached_jit(_scan_steps, static_argnums=(5, 6), compiler_options=rollout_compiler_options)
 
 
 def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: NewtonConfig = NewtonConfig(),
-               final_overlaps: bool = True):
+               final_overlaps: bool = True, *, failures: bool = False):
     """T steps from MJX ``data`` with controls (T, nu) and applied generalized forces
     (T, nv) per step. Returns (final Data, qpos (T+1, nq), qvel (T+1, nv), psi (T+1, P),
-    Newton iterations (T,)); the final Data holds the state after the last step
+    Newton iterations (T,)), with ``failures=True`` also whether each step failed (T,) bool
+    (:attr:`~dano.sim.dynamics.StepInfo.failed`); the final Data holds the state after the last step
     (:data:`CARRIED_FIELDS`: time, qpos, qvel, act, warm start, ...) and ``data``'s other
     fields (xpos, contacts, ...: ``mjx.forward`` computes them for the final state);
     ``final_overlaps=False``: psi (T, P), without the final state's (its contact geometry is
@@ -91,7 +95,8 @@ def scan_steps(scene: Scene, params: SimParams, data, controls, qfrc, newton: Ne
     processes (:mod:`dano._compiled`). ``newton.linear_solver="auto"`` is resolved here for
     T steps (:func:`~dano.sim.implicit.resolve_linear_solver`)."""
     newton = resolve_linear_solver(newton, scene, controls.shape[0])
-    return _scan_steps_compiled(scene, params, data, controls, qfrc, newton, final_overlaps)
+    out = _scan_steps_compiled(scene, params, data, controls, qfrc, newton, final_overlaps)
+    return out if failures else out[:5]
 
 
 def _inputs(scene: Scene, data, controls, qfrc, steps: int, xp=jnp):
@@ -103,19 +108,21 @@ def _inputs(scene: Scene, data, controls, qfrc, steps: int, xp=jnp):
 
 
 def rollout_arrays(scene: Scene, state0, controls, params: SimParams, steps: int, qfrc=None, *,
-                   overlaps: bool = True, newton: NewtonConfig = NewtonConfig(), iterations: bool = False):
+                   overlaps: bool = True, newton: NewtonConfig = NewtonConfig(), iterations: bool = False,
+                   failures: bool = False):
     """The jitted, differentiable core of :func:`rollout`: returns (qpos (T+1, nq),
     qvel (T+1, nv), psi (T+1, P)) as JAX arrays. state0: a :class:`State` or MJX Data;
     controls (T, nu) or None (hold the data's ctrl: zeros for a State); qfrc (T, nv) or None
     (hold its qfrc_applied); overlaps=False: psi None (the final state's contact geometry
     not evaluated: :func:`scan_steps`); newton: the step's solver settings; iterations=True:
-    the step's Newton iterations (T,) int appended to the tuple. Use it inside
+    the step's Newton iterations (T,) int appended to the tuple; failures=True: then whether
+    each step failed (T,) bool (:attr:`~dano.sim.dynamics.StepInfo.failed`). Use it inside
     ``jax.jacfwd``."""
     data = as_data(scene, state0)
     ctrl, f = _inputs(scene, data, controls, qfrc, steps)
-    _, qpos, qvel, psi, its = scan_steps(scene, params, data, ctrl, f, newton, overlaps)
+    _, qpos, qvel, psi, its, failed = scan_steps(scene, params, data, ctrl, f, newton, overlaps, failures=True)
     out = (qpos, qvel, (psi if overlaps else None))
-    return out + (its,) if iterations else out
+    return out + (its,) * iterations + (failed,) * failures
 
 
 #: :func:`rollout` runs in chunks of at most this many steps: a loop whose trip count is an
@@ -184,11 +191,13 @@ def rollout(
     step number) if the state becomes non-finite, a speed exceeds ``max_speed`` [m/s or
     rad/s] or an overlap exceeds half the DANO's mass (bodies passed through each other).
     For gradients use :func:`rollout_arrays` (or :func:`~dano.sim.dynamics.step`) under JAX.
-    A run that diverges, where ``newton`` leaves ``failure_substeps`` None, is simulated once
-    more with each step whose Newton solve fails taken again in substeps
+    A run that diverges or has a failed step (:attr:`~dano.sim.dynamics.StepInfo.failed`),
+    where ``newton`` leaves ``failure_substeps`` None, is simulated once more with each step
+    whose Newton solve fails taken again in substeps
     (:attr:`~dano.sim.NewtonConfig.failure_substeps`; a DanoWarning says so) and kept if that
     one does not diverge: a second program, compiled only where it is needed. The trajectory's
-    ``metadata["failure_substeps"]`` says which ran: 1 (single steps) or the substeps' count.
+    ``metadata["failure_substeps"]`` says which ran: 1 (single steps) or the substeps' count;
+    ``metadata["failed_steps"]`` how many of its steps failed.
     progress: optional ``progress(done, total, description)``, called after each chunk.
     The rollout runs in chunks of up to :data:`CHUNK` steps (with progress, a twentieth of
     the run, at least :data:`PROGRESS_CHUNK`), each continuing from the last one's Data, their
@@ -217,18 +226,21 @@ def rollout(
     ctrl, f = (np.asarray(x) for x in _inputs(scene, data, ctrl, f, steps, np))
     newton = resolve_linear_solver(newton, scene, steps)  # on the whole rollout, not a chunk
     time = np.arange(steps + 1) * scene.dt
-    qpos, qvel, psi, it, final = _chunked(scene, params, data, ctrl, f, steps, newton, progress)
+    qpos, qvel, psi, it, failed, final = _chunked(scene, params, data, ctrl, f, steps, newton, progress)
     k, _ = first_divergence(scene, params, qpos, qvel, psi, max_speed)
     substeps = failure_substeps(newton)
-    if k is not None and newton.failure_substeps is None and substeps == 1:  # once more, in substeps
+    if (k is not None or failed.any()) and newton.failure_substeps is None and substeps == 1:  # again, in substeps
         again = _chunked(scene, params, data, ctrl, f, steps, dataclasses.replace(newton, reverse_mode=False),
                          progress, "simulating again in substeps")
         if first_divergence(scene, params, *again[:3], max_speed)[0] is None:
             substeps = DEFAULT_FAILURE_SUBSTEPS
-            warnings.warn(f"the simulation diverged at step {k} (t = {time[k]:.4g} s) with single steps: simulated "
-                          f"again with each step whose Newton solve failed taken in {DEFAULT_FAILURE_SUBSTEPS} "
-                          "substeps (docs/simulation.md, 'Substeps where a step fails')", DanoWarning, stacklevel=2)
-            qpos, qvel, psi, it, final = again
+            first = int(np.argmax(failed)) if k is None else k
+            what = (f"diverged at step {k}" if k is not None else
+                    f"had {int(failed.sum())} of {steps} steps whose Newton solve failed, the first at step {first}")
+            warnings.warn(f"the simulation {what} (t = {time[first]:.4g} s) with single steps: simulated again with "
+                          f"each step whose Newton solve failed taken in {DEFAULT_FAILURE_SUBSTEPS} substeps "
+                          "(docs/simulation.md, 'Substeps where a step fails')", DanoWarning, stacklevel=2)
+            qpos, qvel, psi, it, failed, final = again
     for line in deep_start_lines(scene, params, psi[0]):
         warnings.warn(line, DanoWarning, stacklevel=2)
     _check_divergence(scene, params, time, qpos, qvel, psi, max_speed)
@@ -238,7 +250,7 @@ def rollout(
         metadata={"scene": scene.name, "dt": scene.dt, "params": params_to_dict(scene, params),
                   "contact_models": {p.name: p.model.name for p in scene.pairs},
                   "newton_iterations": {"max": int(it.max()), "mean": float(it.mean())},
-                  "failure_substeps": substeps},
+                  "failure_substeps": substeps, "failed_steps": int(failed.sum())},
         final_data=final,
     )
 
@@ -246,19 +258,21 @@ def rollout(
 def _chunked(scene: Scene, params: SimParams, data, ctrl: np.ndarray, f: np.ndarray, steps: int,
              newton: NewtonConfig, progress, description: str = "simulating"):
     """:func:`rollout`'s loop over chunks: (qpos (T+1, nq), qvel (T+1, nv), psi (T+1, P),
-    Newton iterations (T,), the final Data or None where it stopped early at a non-finite
-    state, the rest then NaN); ``progress(done, total, description)`` after each chunk."""
+    Newton iterations (T,), failed steps (T,) bool, the final Data or None where it stopped
+    early at a non-finite state, the rest then NaN, the steps not taken not failed);
+    ``progress(done, total, description)`` after each chunk."""
     size = CHUNK if progress is None else min(CHUNK, max(PROGRESS_CHUNK, -(-steps // 20)))
     starts = range(0, steps, size)
-    parts, iters = [], []
+    parts, iters, fails = [], [], []
     for k, start in enumerate(starts):
         active = min(size, steps - start)
-        data, qpos, qvel, psi, it = _scan_steps_compiled(scene, params, data, _chunk(ctrl, start, active),
-                                                         _chunk(f, start, active), newton, True, np.int32(active))
+        data, qpos, qvel, psi, it, bad = _scan_steps_compiled(scene, params, data, _chunk(ctrl, start, active),
+                                                              _chunk(f, start, active), newton, True, np.int32(active))
         psi = np.asarray(psi)  # (CHUNK + 1, P): ψ at each step's start, the last row the final state's
         arrs = [np.asarray(qpos)[: active + 1], np.asarray(qvel)[: active + 1], np.concatenate([psi[:active], psi[-1:]])]
         parts.append(arrs if k == 0 else [x[1:] for x in arrs])
         iters.append(np.asarray(it)[:active])
+        fails.append(np.asarray(bad)[:active])
         if progress is not None:
             progress(start + active, steps, description)
         if not (np.all(np.isfinite(arrs[0])) and np.all(np.isfinite(arrs[1]))):
@@ -267,7 +281,9 @@ def _chunked(scene: Scene, params: SimParams, data, ctrl: np.ndarray, f: np.ndar
     if len(qpos) < steps + 1:  # stopped early; pad with NaN so that the check finds the step
         fill = lambda a: np.concatenate([a, np.full((steps + 1 - len(a),) + a.shape[1:], np.nan)])  # noqa: E731
         qpos, qvel, psi = fill(qpos), fill(qvel), fill(psi)
-    return qpos, qvel, psi, np.concatenate(iters)[:steps], data if len(parts) == len(starts) else None
+    failed = np.zeros(steps, bool)
+    failed[: sum(map(len, fails))] = np.concatenate(fails)
+    return qpos, qvel, psi, np.concatenate(iters)[:steps], failed, data if len(parts) == len(starts) else None
 
 
 #: a pair whose overlap at the start exceeds this many times its resting overlap m·g/k is

@@ -204,8 +204,10 @@ class SimulationRun:
         """The run in numbers (JSON-able): scene, steps, dt [s], duration [s], wall_time_s,
         compile_time_s, run_time_s (their difference), and per DANO its mass [kg], final
         centre of mass (world [m]) and final speed [m/s], per contact pair its final
-        overlap ψ, and failure_substeps: 1, or the substeps each step whose Newton solve failed
-        was taken again in where the run diverged with single steps (:func:`~dano.sim.rollout`)."""
+        overlap ψ, failure_substeps: 1, or the substeps each step whose Newton solve failed
+        was taken again in where the run diverged or had failed steps with single steps
+        (:func:`~dano.sim.rollout`), and failed_steps: how many steps failed (taken again in
+        substeps, or kept as they were)."""
         scene, traj = self.setup.scene, self.trajectory
         return {"scene": scene.name, "steps": len(traj.time) - 1, "dt": scene.dt, "duration": float(traj.time[-1]),
                 "wall_time_s": self.wall_time_s, "compile_time_s": self.compile_time_s,
@@ -214,7 +216,8 @@ class SimulationRun:
                                 "final_speed": float(np.linalg.norm(traj.qvel[-1, d : d + 3]))}
                             for n, a, d in zip(scene.dano_names, scene.assets, scene.dof_adr)},
                 "final_overlap": {p: float(x) for p, x in zip(scene.pair_names, traj.psi[-1])},
-                "failure_substeps": int(traj.metadata.get("failure_substeps", 1))}
+                "failure_substeps": int(traj.metadata.get("failure_substeps", 1)),
+                "failed_steps": int(traj.metadata.get("failed_steps", 0))}
 
 
 def setup_for(config: SimulateConfig) -> Setup:

@@ -875,7 +875,7 @@ def _with_parameters(scene: Scene, base_params: SimParams, parameters, theta) ->
 
 
 def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParams, data: dict, theta_g, blocks,
-                     with_frames: bool = False):
+                     with_frames: bool = False, with_failures: bool = False):
     """The identification residual, a pure JAX function of its arguments: every batch's
     segments rolled out (vmapped, or one after the other: ``layout.in_turn``, where padded
     segments are skipped and their entries zero) for the batch's padded length, each segment's
@@ -889,7 +889,10 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
     gathered). with_frames (static): also return the simulated qpos at every frame, per batch
     (count, frames, nq), padded frames included, the tracked DANOs' poses in the observations'
     frame (the fitted trajectories the residual compares, :meth:`SysIdProblem.fitted`), and
-    each step's Newton iterations, per batch (count, steps) int (:func:`segments_in_turn`)."""
+    each step's Newton iterations and whether it failed, per batch ((count, steps) int,
+    (count, steps) bool: :func:`segments_in_turn`, :meth:`SysIdProblem.failed_steps`).
+    with_failures (static, without frames): (residual, each batch's failed steps per segment
+    (count,) int)."""
     params = _with_parameters(scene, base_params, layout.parameters, theta_g)
     sim_scene = scene
     if layout.fit_ground:
@@ -912,10 +915,10 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
             if layout.jittered:  # the last frames may fall after their place: a frame interval more
                 ctrl = jnp.concatenate([ctrl, jnp.repeat(ctrl[-1:], substeps, axis=0)])
                 qfrc = jnp.concatenate([qfrc, jnp.repeat(qfrc[-1:], substeps, axis=0)])
-            qpos, _, _, its = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params,
-                                             batch.steps + (substeps if layout.jittered else 0), qfrc,
-                                             overlaps=False, newton=forward_only(layout.failure_substeps),
-                                             iterations=True)
+            qpos, _, _, its, failed = rollout_arrays(sim_scene, State(qpos0, qvel0), ctrl, params,
+                                                     batch.steps + (substeps if layout.jittered else 0), qfrc,
+                                                     overlaps=False, newton=forward_only(layout.failure_substeps),
+                                                     iterations=True, failures=True)
             # states at frames 0..F-1
             states = _at_frames(qpos, settle, substeps, (batch.steps - settle) // substeps + 1, shift,
                                 tuple(a + 3 for a in qadr))
@@ -930,12 +933,14 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
             if layout.joints:
                 for k, a in enumerate(jadr):
                     res.append(wjoint * (frames[:, a] - obs_joint[k, 1:]))
+            if with_failures:
+                return jnp.concatenate(res), jnp.sum(failed[: batch.steps]).astype(jnp.int32)
             if not with_frames:
                 return jnp.concatenate(res)
             if layout.fit_ground:  # back in the observations' frame
                 for a in qadr:
                     states = states.at[:, a : a + 7].set(_poses_from_table(states[:, a : a + 7], height, R))
-            return jnp.concatenate(res), states, its[: batch.steps]
+            return jnp.concatenate(res), states, (its[: batch.steps], failed[: batch.steps])
 
         d = data["batches"][b]
         args = [blocks[b], d["qpos0"], d["qvel0"], d["ctrl"], d["qfrc"], d["obs_pose"], d["obs_joint"]]
@@ -952,7 +957,12 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
             r, states, its = r
             fitted.append(states)
             iterations.append(its)
+        elif with_failures:
+            r, its = r
+            iterations.append(its)
         out.append(r.ravel())
+    if with_failures:
+        return jnp.concatenate(out), tuple(iterations)
     return (jnp.concatenate(out), tuple(fitted), tuple(iterations)) if with_frames else jnp.concatenate(out)
 
 
@@ -1000,6 +1010,9 @@ _residuals_only_jit = cached_jit(padded_residuals, static_argnums=(0,), mesh=_la
 #: held while a problem decides whether its segments run in turn (one decision, whichever
 #: thread asks first: :meth:`SysIdProblem._segments_in_turn`)
 _DECIDING = threading.RLock()
+#: the Jacobians whose failed steps a problem keeps (:meth:`SysIdProblem.failed_steps`), and its lock
+FAILED_SEEN = 8
+_SEEN = threading.Lock()
 
 #: the least Newton-iteration waste (:func:`segments_in_turn`) at which, on a CPU, the
 #: Jacobian rolls a problem's segments out one after the other instead of vmapped
@@ -1073,8 +1086,9 @@ def batch_chunk(layout: "ResidualLayout", rows: int) -> int | None:
 def _batch_residuals(layout, shards, chunk, scene, base_params, data, thetas_g, blocks):
     """Residuals (K, padded m) at K parameter vectors (their global entries (K, P + G) and
     nuisance blocks, per batch (K, count, ...)), the vectors split over ``shards`` devices
-    and each device's evaluated ``chunk`` at a time (None: all at once; :func:`batch_chunk`)."""
-    one = lambda th, bl: padded_residuals(layout, scene, base_params, data, th, bl)  # noqa: E731
+    and each device's evaluated ``chunk`` at a time (None: all at once; :func:`batch_chunk`),
+    and each batch's failed steps per segment (K, count) int."""
+    one = lambda th, bl: padded_residuals(layout, scene, base_params, data, th, bl, with_failures=True)  # noqa: E731
     return sharding.split_rows(one, sharding.mesh_of_size(shards), (0, 0), chunk)(thetas_g, blocks)
 
 
@@ -1863,7 +1877,7 @@ class SysIdProblem:
                     theta = np.asarray(self.initial(), dtype=np.float64)
                     out = _run(_residuals_and_jacobian_jit, st.layout, self.scene, self.base_params, st.data,
                                *jax.device_put(self.split_theta(theta, st)))
-                    turn = segments_in_turn(out[1][2], st.members)
+                    turn = segments_in_turn([its for its, _ in out[1][2]], st.members)
                     if not turn:  # the first Jacobian asked for is usually the initial θ's (a local start's)
                         self._in_turn_probe[st.layout.shards] = (theta.tobytes(), out)
                 self._in_turn[st.layout.shards] = turn
@@ -1882,10 +1896,15 @@ class SysIdProblem:
         layout = dataclasses.replace(st.layout, in_turn=True) if self._segments_in_turn(st) else st.layout
         probe = self._in_turn_probe.pop(st.layout.shards, None)
         if probe is not None and probe[0] == theta.tobytes():
-            Jl, (r, states, _) = probe[1]
+            Jl, (r, states, steps) = probe[1]
         else:
-            Jl, (r, states, _) = _run(_residuals_and_jacobian_jit, layout, self.scene, self.base_params, st.data,
-                                      *jax.device_put((theta_g, blocks)))
+            Jl, (r, states, steps) = _run(_residuals_and_jacobian_jit, layout, self.scene, self.base_params, st.data,
+                                          *jax.device_put((theta_g, blocks)))
+        failed = tuple(f for _, f in steps)
+        with _SEEN:  # (local starts run side by side in threads)
+            self._failed_seen[theta.tobytes()] = failed
+            while len(self._failed_seen) > FAILED_SEEN:
+                self._failed_seen.pop(next(iter(self._failed_seen)))
         # each segment's rows: the global columns as they are, its batch's δ columns for its block,
         # then its start prior's rows (r_i = w_i·θ[index_i]: w_i in the entry's column)
         prior = self.start_prior_rows
@@ -1901,7 +1920,15 @@ class SysIdProblem:
                                          axis=1))
             row, col = row + count * rows, col + size
         residuals = np.concatenate([r[st.keep], self._prior_residuals(theta)])
-        return JacobianBlocks(residuals, st.block_rows, st.block_columns, tuple(values), len(theta)), st, states
+        return (JacobianBlocks(residuals, st.block_rows, st.block_columns, tuple(values), len(theta)), st, states,
+                failed)
+
+    @functools.cached_property
+    def _failed_seen(self) -> dict:
+        """{θ's bytes: each batch's (count, steps) bool failed steps} of the last
+        :data:`FAILED_SEEN` Jacobians (:meth:`failed_steps` at a local solve's answer: its last
+        Jacobian's, no evaluation of its own)."""
+        return {}
 
     def fitted(self, theta) -> list[np.ndarray]:
         """Fitted qpos (frames, nq) of every segment at θ (n,), as :meth:`simulate` gives them
@@ -1909,9 +1936,26 @@ class SysIdProblem:
         frame, also when the ground is fitted), from the residual's own rollouts: the
         Jacobian's compiled program, so no rollout program of its own to compile; the same
         steps, batched as the residual batches them (equal to :meth:`simulate` to rounding)."""
-        _, st, states = self._blocks_and_frames(theta)
+        _, st, states, _ = self._blocks_and_frames(theta)
         where = {sid: (b, i) for b, m in enumerate(st.members) for i, sid in enumerate(m)}
         return [np.array(states[where[sid][0]][where[sid][1], : seg.frames]) for sid, seg in enumerate(self.segments)]
+
+    def failed_steps(self, theta) -> np.ndarray:
+        """(segments,) int: how many steps of each segment's rollout at θ (n,) failed (their
+        Newton solve did not converge, or a contact pair turned by more than
+        :data:`~dano.sim.implicit.MAX_TURN_CHANGE` over the step:
+        :attr:`~dano.sim.dynamics.StepInfo.failed`; taken again in substeps where
+        :attr:`failure_substeps` > 1, kept as they are otherwise). From the Jacobian's compiled
+        program, as :meth:`fitted`: no evaluation where one of the last Jacobians was at θ (a
+        local solve's last is at its answer), else one."""
+        theta = np.asarray(theta, dtype=np.float64)
+        with _SEEN:
+            failed = self._failed_seen.get(theta.tobytes())
+        if failed is None:
+            _, _, _, failed = self._blocks_and_frames(theta)
+        st = self._split_segments()
+        where = {sid: (b, i) for b, m in enumerate(st.members) for i, sid in enumerate(m)}
+        return np.array([int(np.sum(failed[where[sid][0]][where[sid][1]])) for sid in range(len(self.segments))])
 
     def residuals(self, theta) -> np.ndarray:
         """(m,) residual vector at θ (n,) (see :meth:`residuals_and_jacobian`: the same compiled
@@ -1932,23 +1976,30 @@ class SysIdProblem:
         """(m, n) forward-mode Jacobian of the residual at θ (see :meth:`residuals_and_jacobian`)."""
         return self.residuals_and_jacobian(theta)[1]
 
-    def batch_residuals(self, thetas) -> np.ndarray:
+    def batch_residuals(self, thetas, *, failures: bool = False):
         """(K, m) residual vectors at K parameter vectors (K, n), vmapped in batches of
         :data:`BATCH` (the last one padded: compiled once per structure); each batch's vectors
         are split over the devices in use (:mod:`dano.sharding`) and, on a CPU, run a chunk at a
-        time (:func:`batch_chunk`). Each vector's residuals are what it gives alone."""
+        time (:func:`batch_chunk`). Each vector's residuals are what it gives alone.
+        failures=True: also (K, segments) int, each segment's failed steps
+        (:meth:`failed_steps`) at each vector (the same program)."""
         thetas = np.asarray(thetas, dtype=np.float64)
         shards = sharding.shards_for(BATCH)
         size = sharding.padded_size(BATCH, shards)
-        out = []
+        where = [(b, i) for b, m in enumerate(self._structure.members) for i in range(len(m))]
+        order = [sid for m in self._structure.members for sid in m]
+        out, failed = [], np.zeros((len(thetas), len(self.segments)), dtype=int)
         for start in range(0, len(thetas), size):
             chunk = thetas[start : start + size]
             padded = np.concatenate([chunk, np.repeat(chunk[-1:], size - len(chunk), axis=0)])
-            r = _run(_batch_residuals_jit, self.layout, shards, batch_chunk(self.layout, size // shards),
-                     self.scene, self.base_params, self.data,
-                     *jax.device_put(self.split_theta(padded)))
+            r, counts = _run(_batch_residuals_jit, self.layout, shards, batch_chunk(self.layout, size // shards),
+                             self.scene, self.base_params, self.data,
+                             *jax.device_put(self.split_theta(padded)))
             out.append(np.concatenate([r[: len(chunk)][:, self.keep], self._prior_residuals(chunk)], axis=1))
-        return np.concatenate(out) if out else np.zeros((0, self.num_residuals))
+            for sid, (b, i) in zip(order, where):
+                failed[start : start + len(chunk), sid] = counts[b][: len(chunk), i]
+        residuals = np.concatenate(out) if out else np.zeros((0, self.num_residuals))
+        return (residuals, failed) if failures else residuals
 
     def _column_kinds(self, qadr, jadr) -> list[tuple[str, int, int]]:
         """Residual blocks of a segment as (kind, columns per frame, DANO index in the scene

@@ -35,7 +35,7 @@ from ..errors import DanoError
 from . import uncertainty as unc
 from .._compiled import compile_seconds
 from .._threads import in_background, or_error, side_by_side
-from ..sim.implicit import DEFAULT_FAILURE_SUBSTEPS
+from ..sim.implicit import DEFAULT_FAILURE_SUBSTEPS, MAX_TURN_CHANGE
 from .problem import NOISE_FLOOR, SysIdProblem, noisy_start_velocities, stray_start_velocities
 
 
@@ -182,21 +182,27 @@ def scan_costs(problem: SysIdProblem, points: np.ndarray) -> np.ndarray:
     return _scan(problem, points)[0]
 
 
-def _scan(problem: SysIdProblem, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _scan(problem: SysIdProblem, points: np.ndarray, failures: bool = False) -> tuple[np.ndarray, ...]:
     """(:func:`scan_costs`, (K, trajectories) bool: whether a trajectory's residuals at the
-    point are non-finite or above :data:`DIVERGED_RESIDUAL`: its rollout diverged)."""
+    point are non-finite or above :data:`DIVERGED_RESIDUAL`: its rollout diverged); with
+    ``failures`` also (K, trajectories) int: its rollouts' failed steps
+    (:meth:`~dano.sysid.SysIdProblem.failed_steps`)."""
     x0 = problem.initial()
     thetas = np.repeat(x0[None], len(points), axis=0)
     thetas[:, : points.shape[1]] = points
-    r = problem.batch_residuals(thetas)
+    r, failed_segments = problem.batch_residuals(thetas, failures=True)
     with np.errstate(over="ignore", invalid="ignore"):  # (a diverging rollout's cost: inf, said above)
         c = 0.5 * np.sum(r**2, axis=1)
         bad = ~np.isfinite(r) | (np.abs(r) > DIVERGED_RESIDUAL)
     obs = problem.residual_observations()
     diverged = np.zeros((len(points), len(problem.observations)), dtype=bool)
+    failed = np.zeros((len(points), len(problem.observations)), dtype=int)
     for k in range(len(problem.observations)):
         diverged[:, k] = bad[:, obs == k].any(axis=1)
-    return np.where(np.isfinite(c), c, np.inf), diverged
+    for sid, seg in enumerate(problem.segments):
+        failed[:, seg.obs] += failed_segments[:, sid]
+    out = (np.where(np.isfinite(c), c, np.inf), diverged)
+    return out + (failed,) if failures else out
 
 
 #: a weighted residual entry above this counts as a diverged rollout in the scan's report
@@ -241,13 +247,27 @@ def _profiles(labels, points: np.ndarray, costs: np.ndarray, bins: int) -> dict:
     return prof
 
 
-class _DivergedInScan(Exception):
-    """Raised by the scan where some rollout diverged with single steps (``summary``: where),
-    caught by :func:`identify`, which identifies again with the failed steps' substeps."""
+class _SingleStepsFail(Exception):
+    """Raised where rollouts with single steps diverge or have failed steps at the points a
+    local solve starts from (``summary``: what and where), caught by :func:`identify`, which
+    identifies again with the failed steps' substeps."""
 
     def __init__(self, summary: str):
         super().__init__(summary)
         self.summary = summary
+
+
+class _NonFiniteStart(DanoError):
+    """Raised by a local solve whose residuals are non-finite at its start: skipped among a
+    scan's starts; where the solve is the only one (no scan) and the problem takes single
+    steps, :func:`identify` identifies again with the failed steps' substeps."""
+
+
+def _failed_summary(failed: np.ndarray, trajectories: int, where: str) -> str:
+    """'had N failed steps in K of T trajectories at ...' from (trajectories,) failed-step counts."""
+    return (f"had {int(failed.sum())} failed steps (their Newton solve not converged, or a contact turning by more "
+            f"than {MAX_TURN_CHANGE} rad in a step) in {int((failed > 0).sum())} of {trajectories} trajectories "
+            f"{where}")
 
 
 def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int | None = None,
@@ -265,11 +285,15 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     initial guess only). The local solver then starts from at most ``starts`` of the scan's
     points and the given guess, lowest cost first, each with no lower point near it (one
     start per basin the scan resolves: :func:`_basin_starts`; scan points moved off the
-    bounds by 2 % of the box), and the lowest final cost wins. Where a rollout of the scan
-    diverges and the problem takes single steps (``SysIdProblem.failure_substeps`` 1, the
-    default), the identification starts again with each step whose Newton solve fails taken
-    in :data:`~dano.sim.implicit.DEFAULT_FAILURE_SUBSTEPS` substeps (a program of its own),
-    and a note says so. The result's ``scan`` holds the points, their costs, the starts and the cost profile along
+    bounds by 2 % of the box), and the lowest final cost wins. Where the problem takes single
+    steps (``SysIdProblem.failure_substeps`` 1, the default), the identification starts again
+    with each step whose Newton solve fails taken in
+    :data:`~dano.sim.implicit.DEFAULT_FAILURE_SUBSTEPS` substeps (a program of its own), and a
+    note says why, where its rollouts diverge at a point a local solve starts from, or steps
+    fail (:meth:`~dano.sysid.SysIdProblem.failed_steps`, AD Jacobians) at the scan's lowest
+    point, at the initial guess without a scan, or at the answer. Rollouts that diverge only
+    at other scan points are named in a warning. (A fit can still settle where no step fails
+    while steps fail nearer the truth: ``SysIdProblem(failure_substeps=4)`` takes them always.) The result's ``scan`` holds the points, their costs, the starts and the cost profile along
     each parameter. A segment that the answer fits far worse than the median segment has its
     nuisance block re-scanned and the solve continued (:func:`segment_restarts`; the
     result's ``segment_scan``).
@@ -325,14 +349,22 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     if scan is None:
         scan = default_scan(n_global) if n_global else 0
     started = time.time()
+    again = dict(jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol,
+                 horizons=horizons, scan=scan, starts=starts)
+    retried = None
     try:
-        result = _identify(problem, jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol,
-                           gtol=gtol, horizons=horizons, scan=scan, starts=starts)
-        retried = None
-    except _DivergedInScan as e:  # once: with the failed steps' substeps, a program of its own
-        problem, retried = problem.with_failure_substeps(DEFAULT_FAILURE_SUBSTEPS), e.summary
-        result = _identify(problem, jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol,
-                           gtol=gtol, horizons=horizons, scan=scan, starts=starts)
+        result = _identify(problem, **again)
+        failed = problem.failed_steps(result.estimates) if problem.failure_substeps == 1 and jacobian == "ad" \
+            else np.zeros(0, int)
+        if failed.any():  # (steps that fail at the answer without diverging)
+            per_trajectory = np.bincount([s.obs for s in problem.segments], failed, len(problem.observations))
+            raise _SingleStepsFail(_failed_summary(per_trajectory, len(problem.observations), "at the estimate"))
+    except (_SingleStepsFail, _NonFiniteStart) as e:
+        if problem.failure_substeps != 1:
+            raise
+        retried = e.summary if isinstance(e, _SingleStepsFail) else "diverged at the initial guess"
+        problem = problem.with_failure_substeps(DEFAULT_FAILURE_SUBSTEPS)  # once: a program of its own
+        result = _identify(problem, **again)
     local = dict(jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
     result = segment_restarts(problem, result, level=level, **local)
     if profile_points and n_global:
@@ -341,10 +373,9 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         result.noise = _noise_and_misfit(problem, result)
     result.notes = list(problem.notes) + result.notes
     if retried:
-        result.notes.append(
-            f"the rollouts diverged {retried} with single steps: identified with each step whose Newton solve "
-            f"failed taken again in {DEFAULT_FAILURE_SUBSTEPS} substeps (docs/simulation.md, 'Substeps where a "
-            "step fails')")
+        result.notes.append(f"the rollouts {retried} with single steps: identified with each step whose Newton "
+                            f"solve failed taken again in {DEFAULT_FAILURE_SUBSTEPS} substeps (docs/simulation.md, "
+                            "'Substeps where a step fails')")
     result.failure_substeps = problem.failure_substeps
     result.warnings = list(dict.fromkeys(result.warnings))  # each said once, in order
     if noise_rms is not None and result.rms_residual > 2 * noise_rms:
@@ -398,7 +429,7 @@ def _identify(problem: SysIdProblem, *, jacobian: str, max_iterations: int, xtol
                         for h, r in zip(horizons, stages)]
         return final
     return _local_solve(problem, problem.initial(), jacobian=jacobian, max_iterations=max_iterations, xtol=xtol,
-                        ftol=ftol, gtol=gtol)
+                        ftol=ftol, gtol=gtol, check_start=True)
 
 
 @dataclass(frozen=True)
@@ -499,10 +530,12 @@ def statistical_ftol(num_residuals: int, num_parameters: int) -> float:
 
 
 def _local_solve(problem: SysIdProblem, x0: np.ndarray, *, jacobian: str, max_iterations: int,
-                 xtol: float, ftol: float | None, gtol: float) -> SysIdResult:
+                 xtol: float, ftol: float | None, gtol: float, check_start: bool = False) -> SysIdResult:
     """Bounded least squares from ``x0`` (n,) with the problem's compiled residual and Jacobian
     (compiled on first use; that time is reported as compile_time_s); ftol None:
-    :func:`statistical_ftol`."""
+    :func:`statistical_ftol`. check_start: raise :class:`_SingleStepsFail` where the problem
+    takes single steps and steps fail at ``x0`` (AD Jacobians: their program's flags, no
+    evaluation of their own)."""
     lo, hi = problem.bounds()
     if ftol is None:
         ftol = statistical_ftol(problem.num_residuals, problem.num_parameters)
@@ -512,7 +545,13 @@ def _local_solve(problem: SysIdProblem, x0: np.ndarray, *, jacobian: str, max_it
     r0 = f.raw(x0)  # remembered: the solver's first evaluation reuses it
     compile_time = time.perf_counter() - t0
     if not np.all(np.isfinite(r0)):
-        raise DanoError("the simulation gives non-finite residuals at the initial guess; check the scene and data")
+        raise _NonFiniteStart("the simulation gives non-finite residuals at the initial guess; check the scene and "
+                              "data")
+    if check_start and jacobian == "ad" and problem.failure_substeps == 1:
+        failed = problem.failed_steps(x0)
+        if failed.any():
+            per_trajectory = np.bincount([s.obs for s in problem.segments], failed, len(problem.observations))
+            raise _SingleStepsFail(_failed_summary(per_trajectory, len(problem.observations), "at the initial guess"))
 
     fit = solve_least_squares(f.fun, x0, lo, hi, jacobian=f.jac, max_iterations=max_iterations, xtol=xtol, ftol=ftol,
                               gtol=gtol, initial_cost=0.5 * float(r0 @ r0))
@@ -632,15 +671,19 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
     guess = problem.initial()[:n]
     # the local solves' program compiles (or loads) while the scan's runs
     warmed = in_background(lambda: _evaluate(problem, guess, local["jacobian"])) if not local["horizons"] else None
-    costs_all, diverged = _scan(problem, np.vstack([points, guess[None]]))  # the given guess is a candidate too
-    if diverged.any() and problem.failure_substeps == 1:  # (a warm-up in a thread finishes on its own)
-        raise _DivergedInScan(f"at {int(diverged.any(axis=1).sum())} of the {len(diverged)} points the scan "
-                              f"evaluated, in {int(diverged.any(axis=0).sum())} of {diverged.shape[1]} trajectories")
+    costs_all, diverged, failed = _scan(problem, np.vstack([points, guess[None]]), failures=True)  # (the guess too)
     costs = costs_all[:-1]
     scan_time = _minus_compiling(t0, started)
     order = _basin_starts(np.vstack([points, guess[None]]), costs_all, lo, hi, scan, starts)
     if not order:
         raise DanoError("every point of the global scan gives a diverging simulation; check the bounds")
+    where = f"at the {len(order)} scan points the local solves would start from"
+    if problem.failure_substeps == 1 and diverged[order].any():  # (there the scan's costs are runaways')  # (a warm-up in a thread finishes on its own)
+        raise _SingleStepsFail(f"diverged in {int(diverged[order].any(axis=0).sum())} of {diverged.shape[1]} "
+                               f"trajectories {where}")
+    if problem.failure_substeps == 1 and failed[order[0]].any():  # (another start's answer is checked if it wins)
+        raise _SingleStepsFail(_failed_summary(failed[order[0]], failed.shape[1],
+                                               "at the scan's lowest point, where the first local solve starts"))
     inset = 0.02 * (hi - lo)  # a start on a bound may never leave it: moved inside
     candidates = [guess if i == len(points) else np.clip(points[i], lo + inset, hi - inset) for i in order]
     opts = {k: v for k, v in local.items() if k != "horizons"}
