@@ -902,7 +902,7 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
     pos_axes = jnp.asarray(layout.pos_axes, dtype=jnp.int32)
     wpos, wjoint, axes, substeps = data["wpos"], data["wjoint"], layout.fit_axes, layout.substeps
     mesh = _layout_mesh(layout)
-    out, fitted, iterations = [], [], []
+    out, fitted, iterations, failed_counts = [], [], [], []
     for b, batch in enumerate(layout.batches):
         qadr, dadr, jadr, settle = batch.qadr, batch.dadr, batch.jadr, batch.settle
         wrot = data["wrot"][b]
@@ -958,11 +958,11 @@ def padded_residuals(layout: ResidualLayout, scene: Scene, base_params: SimParam
             fitted.append(states)
             iterations.append(its)
         elif with_failures:
-            r, its = r
-            iterations.append(its)
+            r, counts = r
+            failed_counts.append(counts)
         out.append(r.ravel())
     if with_failures:
-        return jnp.concatenate(out), tuple(iterations)
+        return jnp.concatenate(out), tuple(failed_counts)
     return (jnp.concatenate(out), tuple(fitted), tuple(iterations)) if with_frames else jnp.concatenate(out)
 
 
@@ -1986,8 +1986,7 @@ class SysIdProblem:
         thetas = np.asarray(thetas, dtype=np.float64)
         shards = sharding.shards_for(BATCH)
         size = sharding.padded_size(BATCH, shards)
-        where = [(b, i) for b, m in enumerate(self._structure.members) for i in range(len(m))]
-        order = [sid for m in self._structure.members for sid in m]
+        place = [(sid, b, i) for b, m in enumerate(self._structure.members) for i, sid in enumerate(m)]
         out, failed = [], np.zeros((len(thetas), len(self.segments)), dtype=int)
         for start in range(0, len(thetas), size):
             chunk = thetas[start : start + size]
@@ -1996,7 +1995,7 @@ class SysIdProblem:
                              self.scene, self.base_params, self.data,
                              *jax.device_put(self.split_theta(padded)))
             out.append(np.concatenate([r[: len(chunk)][:, self.keep], self._prior_residuals(chunk)], axis=1))
-            for sid, (b, i) in zip(order, where):
+            for sid, b, i in place:
                 failed[start : start + len(chunk), sid] = counts[b][: len(chunk), i]
         residuals = np.concatenate(out) if out else np.zeros((0, self.num_residuals))
         return (residuals, failed) if failures else residuals

@@ -196,13 +196,10 @@ def _scan(problem: SysIdProblem, points: np.ndarray, failures: bool = False) -> 
         bad = ~np.isfinite(r) | (np.abs(r) > DIVERGED_RESIDUAL)
     obs = problem.residual_observations()
     diverged = np.zeros((len(points), len(problem.observations)), dtype=bool)
-    failed = np.zeros((len(points), len(problem.observations)), dtype=int)
     for k in range(len(problem.observations)):
         diverged[:, k] = bad[:, obs == k].any(axis=1)
-    for sid, seg in enumerate(problem.segments):
-        failed[:, seg.obs] += failed_segments[:, sid]
     out = (np.where(np.isfinite(c), c, np.inf), diverged)
-    return out + (failed,) if failures else out
+    return out + (_per_trajectory(problem, failed_segments),) if failures else out
 
 
 #: a weighted residual entry above this counts as a diverged rollout in the scan's report
@@ -263,6 +260,15 @@ class _NonFiniteStart(DanoError):
     steps, :func:`identify` identifies again with the failed steps' substeps."""
 
 
+def _per_trajectory(problem: SysIdProblem, per_segment: np.ndarray) -> np.ndarray:
+    """(..., trajectories) sums of (..., segments) counts (e.g. failed steps): a trajectory's
+    segments (windows, runs between missing frames) added."""
+    out = np.zeros(per_segment.shape[:-1] + (len(problem.observations),), dtype=per_segment.dtype)
+    for sid, seg in enumerate(problem.segments):
+        out[..., seg.obs] += per_segment[..., sid]
+    return out
+
+
 def _failed_summary(failed: np.ndarray, trajectories: int, where: str) -> str:
     """'had N failed steps in K of T trajectories at ...' from (trajectories,) failed-step counts."""
     return (f"had {int(failed.sum())} failed steps (their Newton solve not converged, or a contact turning by more "
@@ -293,7 +299,8 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     fail (:meth:`~dano.sysid.SysIdProblem.failed_steps`, AD Jacobians) at the scan's lowest
     point, at the initial guess without a scan, or at the answer. Rollouts that diverge only
     at other scan points are named in a warning. (A fit can still settle where no step fails
-    while steps fail nearer the truth: ``SysIdProblem(failure_substeps=4)`` takes them always.) The result's ``scan`` holds the points, their costs, the starts and the cost profile along
+    while steps fail nearer the truth: ``SysIdProblem(failure_substeps=4)`` takes them always.)
+    The result's ``scan`` holds the points, their costs, the starts and the cost profile along
     each parameter. A segment that the answer fits far worse than the median segment has its
     nuisance block re-scanned and the solve continued (:func:`segment_restarts`; the
     result's ``segment_scan``).
@@ -357,8 +364,8 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         failed = problem.failed_steps(result.estimates) if problem.failure_substeps == 1 and jacobian == "ad" \
             else np.zeros(0, int)
         if failed.any():  # (steps that fail at the answer without diverging)
-            per_trajectory = np.bincount([s.obs for s in problem.segments], failed, len(problem.observations))
-            raise _SingleStepsFail(_failed_summary(per_trajectory, len(problem.observations), "at the estimate"))
+            raise _SingleStepsFail(_failed_summary(_per_trajectory(problem, failed), len(problem.observations),
+                                                   "at the estimate"))
     except (_SingleStepsFail, _NonFiniteStart) as e:
         if problem.failure_substeps != 1:
             raise
@@ -550,8 +557,8 @@ def _local_solve(problem: SysIdProblem, x0: np.ndarray, *, jacobian: str, max_it
     if check_start and jacobian == "ad" and problem.failure_substeps == 1:
         failed = problem.failed_steps(x0)
         if failed.any():
-            per_trajectory = np.bincount([s.obs for s in problem.segments], failed, len(problem.observations))
-            raise _SingleStepsFail(_failed_summary(per_trajectory, len(problem.observations), "at the initial guess"))
+            raise _SingleStepsFail(_failed_summary(_per_trajectory(problem, failed), len(problem.observations),
+                                                   "at the initial guess"))
 
     fit = solve_least_squares(f.fun, x0, lo, hi, jacobian=f.jac, max_iterations=max_iterations, xtol=xtol, ftol=ftol,
                               gtol=gtol, initial_cost=0.5 * float(r0 @ r0))
@@ -678,7 +685,8 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
     if not order:
         raise DanoError("every point of the global scan gives a diverging simulation; check the bounds")
     where = f"at the {len(order)} scan points the local solves would start from"
-    if problem.failure_substeps == 1 and diverged[order].any():  # (there the scan's costs are runaways')  # (a warm-up in a thread finishes on its own)
+    # (there the scan's costs are runaways'; a warm-up in a thread finishes on its own)
+    if problem.failure_substeps == 1 and diverged[order].any():
         raise _SingleStepsFail(f"diverged in {int(diverged[order].any(axis=0).sum())} of {diverged.shape[1]} "
                                f"trajectories {where}")
     if problem.failure_substeps == 1 and failed[order[0]].any():  # (another start's answer is checked if it wins)
