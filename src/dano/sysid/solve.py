@@ -297,9 +297,12 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     :data:`~dano.sim.implicit.DEFAULT_FAILURE_SUBSTEPS` substeps (a program of its own), and a
     note says why, where its rollouts diverge at a point a local solve starts from, or steps
     fail (:meth:`~dano.sysid.SysIdProblem.failed_steps`, AD Jacobians) at the scan's lowest
-    point, at the initial guess without a scan, or at the answer. Rollouts that diverge only
-    at other scan points are named in a warning. (A fit can still settle where no step fails
-    while steps fail nearer the truth: ``SysIdProblem(failure_substeps=4)`` takes them always.)
+    point, at the initial guess without a scan, or at the answer, or where steps fail at
+    points of the verification's profiles inside the interval and the substeps move their
+    cost by more than the interval's threshold (:func:`_check_profiles`). Rollouts that
+    diverge only at other scan points are named in a warning. (Without the verification a fit
+    can still settle where no step fails while steps fail nearer the truth:
+    ``SysIdProblem(failure_substeps=4)`` takes them always.)
     The result's ``scan`` holds the points, their costs, the starts and the cost profile along
     each parameter. A segment that the answer fits far worse than the median segment has its
     nuisance block re-scanned and the solve continued (:func:`segment_restarts`; the
@@ -356,28 +359,30 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     if scan is None:
         scan = default_scan(n_global) if n_global else 0
     started = time.time()
-    again = dict(jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol,
-                 horizons=horizons, scan=scan, starts=starts)
-    retried = None
-    try:
-        result = _identify(problem, **again)
+    local = dict(jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
+
+    def solve(problem: SysIdProblem) -> SysIdResult:
+        result = _identify(problem, horizons=horizons, scan=scan, starts=starts, **local)
+        result = segment_restarts(problem, result, level=level, **local)
         failed = problem.failed_steps(result.estimates) if problem.failure_substeps == 1 and jacobian == "ad" \
             else np.zeros(0, int)
         if failed.any():  # (steps that fail at the answer without diverging)
             raise _SingleStepsFail(_failed_summary(_per_trajectory(problem, failed), len(problem.observations),
                                                    "at the estimate"))
+        if profile_points and n_global:
+            return _verify_and_assess(problem, result, profile_points, level, seed, local)
+        result.noise = _noise_and_misfit(problem, result)
+        return result
+
+    retried = None
+    try:
+        result = solve(problem)
     except (_SingleStepsFail, _NonFiniteStart) as e:
         if problem.failure_substeps != 1:
             raise
         retried = e.summary if isinstance(e, _SingleStepsFail) else "diverged at the initial guess"
         problem = problem.with_failure_substeps(DEFAULT_FAILURE_SUBSTEPS)  # once: a program of its own
-        result = _identify(problem, **again)
-    local = dict(jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
-    result = segment_restarts(problem, result, level=level, **local)
-    if profile_points and n_global:
-        result = _verify_and_assess(problem, result, profile_points, level, seed, local)
-    else:
-        result.noise = _noise_and_misfit(problem, result)
+        result = solve(problem)
     result.notes = list(problem.notes) + result.notes
     if retried:
         result.notes.append(f"the rollouts {retried} with single steps: identified with each step whose Newton "
@@ -1013,6 +1018,8 @@ def _verify_and_assess(problem: SysIdProblem, best: SysIdResult, points: int, le
         for i, w in redo.items():
             widths[i] = w
             profiles.pop(i)
+    if problem.failure_substeps == 1:
+        _check_profiles(problem, profiles, out, threshold)
     if record[0] < best.final_cost - 1e-9 * max(best.final_cost, 1e-300):  # checks exhausted: the point itself
         best = _at_point(problem, best, record[1])
     best.verification = {"restarts": restarts, "profile_points_evaluated": evaluated,
@@ -1022,6 +1029,28 @@ def _verify_and_assess(problem: SysIdProblem, best: SysIdResult, points: int, le
     _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, level_q)
     best.noise = _noise_and_misfit(problem, best)
     return best
+
+
+def _check_profiles(problem: SysIdProblem, profiles: dict, intervals: dict, threshold: float) -> None:
+    """Raise :class:`_SingleStepsFail` where single steps fail at points of the verification's
+    ``profiles`` inside their ``intervals`` ({index: (lower, upper, ...)}) and that matters:
+    taken again in substeps, a point's cost moves by more than the interval's cost
+    ``threshold``. (Those points' rollouts again, in a program of its own: only where a step
+    failed.)"""
+    inside = [(pr, (pr.values >= intervals[i][0]) & (pr.values <= intervals[i][1])) for i, pr in profiles.items()]
+    thetas = np.concatenate([pr.thetas[k & (pr.failed > 0)] for pr, k in inside])
+    if not len(thetas):
+        return
+    costs = np.concatenate([pr.costs[k & (pr.failed > 0)] for pr, k in inside])
+    R = problem.with_failure_substeps(DEFAULT_FAILURE_SUBSTEPS).batch_residuals(thetas)
+    with np.errstate(over="ignore", invalid="ignore"):
+        moved = np.abs(0.5 * np.sum(R**2, axis=1) - costs)
+    if not np.all(moved <= threshold):  # (a non-finite cost counts as moved)
+        biggest = float(np.max(np.where(np.isfinite(moved), moved, np.inf)))
+        raise _SingleStepsFail(
+            f"had failed steps at {len(thetas)} of the {sum(int(k.sum()) for _, k in inside)} points of the "
+            f"verification's profiles inside the interval (taken in substeps, the cost there moved by up to "
+            f"{biggest:.3g}, above the interval's threshold {threshold:.3g})")
 
 
 def _at_point(problem: SysIdProblem, result: SysIdResult, theta: np.ndarray) -> SysIdResult:

@@ -221,13 +221,15 @@ def residual_autocorrelation(problem: SysIdProblem, r: np.ndarray) -> float:
 class Profile:
     """A profile of the cost along global parameter ``index``: values (K,), costs (K,) (the
     lowest reached at each value), thetas (K, n) the parameter vectors where they were
-    reached, per_trajectory (K, trajectories) those costs split by trajectory."""
+    reached, per_trajectory (K, trajectories) those costs split by trajectory, failed (K,)
+    int the failed steps of their rollouts (:meth:`~dano.sysid.SysIdProblem.failed_steps`)."""
 
     index: int
     values: np.ndarray
     costs: np.ndarray
     thetas: np.ndarray
     per_trajectory: np.ndarray
+    failed: np.ndarray
 
 
 def profile(problem: SysIdProblem, theta: np.ndarray, jac: np.ndarray, index: int, lower: float, upper: float,
@@ -246,21 +248,23 @@ def profile(problem: SysIdProblem, theta: np.ndarray, jac: np.ndarray, index: in
     owner = problem.residual_observations()
     best_cost = np.full(points, np.inf)
     best_theta = thetas.copy()
-    best_res = None
+    best_res, best_failed = None, np.zeros(points, dtype=int)
     for step in range(steps + 1):
-        R = bounded_residuals(problem.batch_residuals(thetas))  # (a wild chord step's: capped)
+        R, failed = problem.batch_residuals(thetas, failures=True)
+        R = bounded_residuals(R)  # (a wild chord step's: capped)
         cost = 0.5 * np.sum(R**2, axis=1)
         gain = np.max(np.where(np.isfinite(best_cost), best_cost - cost, np.inf))
         better = cost < best_cost
         if best_res is None:
             best_res = np.zeros_like(R)
         best_cost[better], best_theta[better], best_res[better] = cost[better], thetas[better], R[better]
+        best_failed[better] = failed.sum(axis=1)[better]
         if step == steps or not len(others) or gain <= 1e-9 * np.min(best_cost):
             break  # converged (nuisances nearly linear: one step is often enough)
         thetas[:, others] = np.clip(thetas[:, others] - R @ pinv.T, lo[others], hi[others])
     per_traj = np.stack([0.5 * np.bincount(owner, weights=row**2, minlength=len(problem.observations))
                          for row in best_res])
-    return Profile(index, values, best_cost, best_theta, per_traj)
+    return Profile(index, values, best_cost, best_theta, per_traj, best_failed)
 
 
 def profile_interval(values: np.ndarray, costs: np.ndarray, threshold: float,
