@@ -431,7 +431,7 @@ def contactnets_identify(path, tosses: int = 10, start: float = 0.3, scan: int =
         "substeps": substeps, "contact_model": contact_model, "cost": result.final_cost,
         "wall_time_s": time.perf_counter() - t0, "compile_time_s": result.compile_time_s,
         "heldout_per_toss": held_err["per_toss"], "warnings": list(result.warnings),
-        "bootstrap": result.bootstrap,
+        "notes": list(result.notes), "failure_substeps": result.failure_substeps, "bootstrap": result.bootstrap,
     })
     return problem, result, report
 
