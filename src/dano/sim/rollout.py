@@ -232,15 +232,19 @@ def rollout(
     if (k is not None or failed.any()) and newton.failure_substeps is None and substeps == 1:  # again, in substeps
         again = _chunked(scene, params, data, ctrl, f, steps, dataclasses.replace(newton, reverse_mode=False),
                          progress, "simulating again in substeps")
+        first = int(np.argmax(failed)) if k is None else k
+        what = (f"the simulation diverged at step {k}" if k is not None else f"the simulation had {int(failed.sum())} "
+                f"of {steps} steps whose Newton solve failed, the first at step {first}")
+        what += f" (t = {time[first]:.4g} s) with single steps"
         if first_divergence(scene, params, *again[:3], max_speed)[0] is None:
             substeps = DEFAULT_FAILURE_SUBSTEPS
-            first = int(np.argmax(failed)) if k is None else k
-            what = (f"diverged at step {k}" if k is not None else
-                    f"had {int(failed.sum())} of {steps} steps whose Newton solve failed, the first at step {first}")
-            warnings.warn(f"the simulation {what} (t = {time[first]:.4g} s) with single steps: simulated again with "
-                          f"each step whose Newton solve failed taken in {DEFAULT_FAILURE_SUBSTEPS} substeps "
-                          "(docs/simulation.md, 'Substeps where a step fails')", DanoWarning, stacklevel=2)
+            warnings.warn(f"{what}: simulated again with each step whose Newton solve failed taken in "
+                          f"{DEFAULT_FAILURE_SUBSTEPS} substeps (docs/simulation.md, 'Substeps where a step fails')",
+                          DanoWarning, stacklevel=2)
             qpos, qvel, psi, it, failed, final = again
+        elif k is None:  # (a run that diverges either way is reported below)
+            warnings.warn(f"{what}; simulated again with each taken in {DEFAULT_FAILURE_SUBSTEPS} substeps, it "
+                          "diverged: the single steps' run is kept (reduce the time step)", DanoWarning, stacklevel=2)
     for line in deep_start_lines(scene, params, psi[0]):
         warnings.warn(line, DanoWarning, stacklevel=2)
     _check_divergence(scene, params, time, qpos, qvel, psi, max_speed)
