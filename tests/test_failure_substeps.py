@@ -113,7 +113,7 @@ def test_a_run_whose_steps_fail_without_diverging_is_simulated_again_in_substeps
     assert not np.allclose(again.qpos[68], single.qpos[68], rtol=0, atol=1e-3)
 
 
-def test_an_identification_whose_steps_fail_at_its_answer_continues_in_substeps():
+def test_an_identification_whose_steps_fail_near_its_answer_is_done_again_in_substeps():
     """The energy check's drop 762 (seed 1) observed at 100 Hz as the substeps simulate it
     (the energy kept), its sliding friction identified with single steps (the default) from
     the truth without a scan: there two steps fail without diverging (the energy rises 26x),

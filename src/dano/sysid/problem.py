@@ -814,6 +814,11 @@ class _Structure(NamedTuple):
     block_rows: tuple[np.ndarray, ...]  # per batch (count, rows + block) int: JacobianBlocks.rows
     block_columns: tuple[np.ndarray, ...]  # per batch (count, P + G + block) int: JacobianBlocks.columns
 
+    def slots(self) -> list:
+        """(batch, row in the batch) of each segment, in the segments' order: where its outputs are."""
+        where = {sid: (b, i) for b, m in enumerate(self.members) for i, sid in enumerate(m)}
+        return [where[sid] for sid in range(len(where))]
+
 
 @dataclass(frozen=True)
 class ResidualLayout:
@@ -1937,8 +1942,7 @@ class SysIdProblem:
         Jacobian's compiled program, so no rollout program of its own to compile; the same
         steps, batched as the residual batches them (equal to :meth:`simulate` to rounding)."""
         _, st, states, _ = self._blocks_and_frames(theta)
-        where = {sid: (b, i) for b, m in enumerate(st.members) for i, sid in enumerate(m)}
-        return [np.array(states[where[sid][0]][where[sid][1], : seg.frames]) for sid, seg in enumerate(self.segments)]
+        return [np.array(states[b][i, : seg.frames]) for seg, (b, i) in zip(self.segments, st.slots())]
 
     def failed_steps(self, theta) -> np.ndarray:
         """(segments,) int: how many steps of each segment's rollout at θ (n,) failed (their
@@ -1953,9 +1957,7 @@ class SysIdProblem:
             failed = self._failed_seen.get(theta.tobytes())
         if failed is None:
             _, _, _, failed = self._blocks_and_frames(theta)
-        st = self._split_segments()
-        where = {sid: (b, i) for b, m in enumerate(st.members) for i, sid in enumerate(m)}
-        return np.array([int(np.sum(failed[where[sid][0]][where[sid][1]])) for sid in range(len(self.segments))])
+        return np.array([int(np.sum(failed[b][i])) for b, i in self._split_segments().slots()])
 
     def residuals(self, theta) -> np.ndarray:
         """(m,) residual vector at θ (n,) (see :meth:`residuals_and_jacobian`: the same compiled
@@ -1986,7 +1988,7 @@ class SysIdProblem:
         thetas = np.asarray(thetas, dtype=np.float64)
         shards = sharding.shards_for(BATCH)
         size = sharding.padded_size(BATCH, shards)
-        place = [(sid, b, i) for b, m in enumerate(self._structure.members) for i, sid in enumerate(m)]
+        slots = self._structure.slots()
         out, failed = [], np.zeros((len(thetas), len(self.segments)), dtype=int)
         for start in range(0, len(thetas), size):
             chunk = thetas[start : start + size]
@@ -1995,7 +1997,7 @@ class SysIdProblem:
                              self.scene, self.base_params, self.data,
                              *jax.device_put(self.split_theta(padded)))
             out.append(np.concatenate([r[: len(chunk)][:, self.keep], self._prior_residuals(chunk)], axis=1))
-            for sid, b, i in place:
+            for sid, (b, i) in enumerate(slots):
                 failed[start : start + len(chunk), sid] = counts[b][: len(chunk), i]
         residuals = np.concatenate(out) if out else np.zeros((0, self.num_residuals))
         return (residuals, failed) if failures else residuals

@@ -63,8 +63,9 @@ class SysIdResult:
     points the checks found; segment_scan: the re-scan of segments fitted far worse than the
     others (:func:`segment_restarts`), None where no segment was; failure_substeps: the
     substeps the rollouts took each step whose Newton solve failed in (1: single steps; more
-    where :func:`identify` turned them on because its scan's rollouts diverged; simulate the
-    answer with ``problem.with_failure_substeps(result.failure_substeps)``).
+    where :func:`identify` turned them on: rollouts that diverged or steps that failed near
+    the answer, said in ``notes``; simulate the answer with
+    ``problem.with_failure_substeps(result.failure_substeps)``).
     """
 
     labels: list
@@ -269,10 +270,10 @@ def _per_trajectory(problem: SysIdProblem, per_segment: np.ndarray) -> np.ndarra
     return out
 
 
-def _failed_summary(failed: np.ndarray, trajectories: int, where: str) -> str:
-    """'had N failed steps in K of T trajectories at ...' from (trajectories,) failed-step counts."""
+def _failed_summary(failed: np.ndarray, where: str) -> str:
+    """'had N failed steps ... in K of T trajectories <where>' from (T,) failed-step counts."""
     return (f"had {int(failed.sum())} failed steps (their Newton solve not converged, or a contact turning by more "
-            f"than {MAX_TURN_CHANGE} rad in a step) in {int((failed > 0).sum())} of {trajectories} trajectories "
+            f"than {MAX_TURN_CHANGE} rad in a step) in {int((failed > 0).sum())} of {len(failed)} trajectories "
             f"{where}")
 
 
@@ -367,8 +368,7 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         failed = problem.failed_steps(result.estimates) if problem.failure_substeps == 1 and jacobian == "ad" \
             else np.zeros(0, int)
         if failed.any():  # (steps that fail at the answer without diverging)
-            raise _SingleStepsFail(_failed_summary(_per_trajectory(problem, failed), len(problem.observations),
-                                                   "at the estimate"))
+            raise _SingleStepsFail(_failed_summary(_per_trajectory(problem, failed), "at the estimate"))
         if profile_points and n_global:
             return _verify_and_assess(problem, result, profile_points, level, seed, local)
         result.noise = _noise_and_misfit(problem, result)
@@ -562,8 +562,7 @@ def _local_solve(problem: SysIdProblem, x0: np.ndarray, *, jacobian: str, max_it
     if check_start and jacobian == "ad" and problem.failure_substeps == 1:
         failed = problem.failed_steps(x0)
         if failed.any():
-            raise _SingleStepsFail(_failed_summary(_per_trajectory(problem, failed), len(problem.observations),
-                                                   "at the initial guess"))
+            raise _SingleStepsFail(_failed_summary(_per_trajectory(problem, failed), "at the initial guess"))
 
     fit = solve_least_squares(f.fun, x0, lo, hi, jacobian=f.jac, max_iterations=max_iterations, xtol=xtol, ftol=ftol,
                               gtol=gtol, initial_cost=0.5 * float(r0 @ r0))
@@ -695,7 +694,7 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
         raise _SingleStepsFail(f"diverged in {int(diverged[order].any(axis=0).sum())} of {diverged.shape[1]} "
                                f"trajectories {where}")
     if problem.failure_substeps == 1 and failed[order[0]].any():  # (another start's answer is checked if it wins)
-        raise _SingleStepsFail(_failed_summary(failed[order[0]], failed.shape[1],
+        raise _SingleStepsFail(_failed_summary(failed[order[0]],
                                                "at the scan's lowest point, where the first local solve starts"))
     inset = 0.02 * (hi - lo)  # a start on a bound may never leave it: moved inside
     candidates = [guess if i == len(points) else np.clip(points[i], lo + inset, hi - inset) for i in order]
