@@ -238,6 +238,14 @@ def test_sim_benchmark_keys_and_interleaved_ratios(monkeypatch):
     assert r["bunny_drop"]["linear_solver"] == r["bunny_drop_lapack"]["linear_solver"] == "lapack"
     assert r["ratio_lapack_over_default_time"] > 0 and r["ratio_untouched_primitives_over_drop_time"] > 0
     assert r["sphere_hits_bunny"]["steps_per_s"] > 0 and r["ratio_sphere_hits_over_drop_time"] > 0
+    # objects sliding on a face: the box's per-sample pair has room for its face, the _64 one not
+    for key in ("bunny_slide", "bunny_slide_per_sample", "box_slide", "box_slide_per_sample",
+                "box_slide_per_sample_64"):
+        assert r[key]["steps_per_s"] > 0
+    assert r["box_slide_per_sample"]["max_active"] == 2048 and r["box_slide_per_sample_64"]["max_active"] == 64
+    for key in ("ratio_per_sample_over_centroid_time_slide", "ratio_per_sample_over_centroid_time_box",
+                "ratio_box_per_sample_64_over_sized_time"):
+        assert r[key] > 0
     assert r["panda_push_bunny"].startswith("skipped")
     assert r["jacfwd_200"]["parameters"] == ["sliding_friction", "alpha"]
 

@@ -156,7 +156,7 @@ def test_per_sample_block_search_gives_the_all_samples_wrench():
     g = pair_geometry(rest.qpos[-1], rest.qvel[-1])
     p = jax.tree_util.tree_map(lambda x: x[0], _group_params(params, scene.groups[0], 1))
     reach = int(np.sum(np.asarray(g.depth) > -REACH_MARGIN))
-    assert 30 < reach <= PerSample().max_active  # (51 samples within reach; 30 in contact)
+    assert 30 < reach <= PerSample().capacity[0]  # (51 samples within reach; 30 in contact)
     full = _AllSamples(g, (g.depth > -REACH_MARGIN) & (g.weight > 0), jnp.asarray(0.01))
 
     @functools.partial(jax.jit, static_argnums=0)
@@ -171,7 +171,7 @@ def test_per_sample_block_search_gives_the_all_samples_wrench():
                              (PerSample(max_active=16), True)):
         st = jax.jit(lambda g: model.prepare(g, 0.01))(g)  # noqa: B023  (called at once)
         assert bool(st.overflow) == overflows
-        assert int(np.sum(np.asarray(st.active.weight) > 0)) == min(reach, model.max_active) or overflows
+        assert int(np.sum(np.asarray(st.active.weight) > 0)) == min(reach, model.capacity[0]) or overflows
         # reverse_mode=False: the Newton iteration's per-pair choice (the fallback a while loop)
         loop = dataclasses.replace(st, reverse_mode=False)
         for u, (expected, expected_jac) in zip(us, reference):
@@ -216,6 +216,45 @@ def test_per_sample_rejects_counts_out_of_range(bad):
 
     with pytest.raises(DanoError, match=f"PerSample.{next(iter(bad))} must be a positive integer"):
         PerSample(**bad)
+
+
+def test_a_flat_face_is_gathered_at_once_and_the_slide_is_the_same():
+    # a box's largest face holds more samples than the default room of 64: compose sizes the
+    # per-sample pair for it (PerSample.sized_for), so that the slide gathers its samples once
+    # per step instead of taking the all-samples fallback in every one; the motion is the same
+    from dano.contact.per_sample import DEFAULT_MAX_ACTIVE, PerSample
+    from dano.contact.samples import FACE_BAND, face_sample_count
+    from dano.sim import rollout_arrays
+    from dano.sim.scene import contact_samples
+    from dano.sim.scenes import initial_state
+
+    box = build(BoxField((0.05, 0.03, 0.015)), mass=0.3, num_samples=1500, seed=0, mesh_resolution=0, name="box")
+    points, _, _, radius, _ = contact_samples(DanoObject("box", box))
+    face = face_sample_count(points, radius)
+    # the hull's largest facets lie on the box's faces: the count is the bottom (or top) face's
+    # samples, those within the band of it, about its share of the surface (0.006 of 0.0216 m²)
+    by_axis = [int(np.sum(sign * points[:, k] > np.max(sign * points[:, k]) - FACE_BAND * radius))
+               for k in range(3) for sign in (1, -1)]
+    assert face == max(by_axis) == max(by_axis[4:])  # a z face, the 10 x 6 cm one
+    assert 0.8 < face / (len(points) * 0.006 / 0.0216) < 1.25
+    ball = """<mujoco><worldbody><geom name="floor" type="plane" size="2 2 0.1"/>
+      <geom name="ball" type="sphere" size="0.05" pos="1 1 0.05"/></worldbody></mujoco>"""
+    sized = compose([DanoObject("box", box, (0, 0, 0.015))], ball, dt=0.01, contact_model="per_sample")
+    models = {p.name: p.model for p in sized.info.pairs}
+    room = models["box/floor"].capacity[0]
+    assert room >= face > room // 2 and room > DEFAULT_MAX_ACTIVE  # the power of two that holds the face
+    assert models["box/ball"] == PerSample()  # a sphere touches a patch: the default room
+    assert compose([DanoObject("box", box)], contact_model=PerSample(max_active=16)).info.pairs[0].model.max_active == 16
+    fallback = compose([DanoObject("box", box, (0, 0, 0.015))], ball, dt=0.01,
+                       contact_model=PerSample(max_active=DEFAULT_MAX_ACTIVE))
+
+    def slide(scene):
+        state = initial_state(scene, {"box": ((0, 0, 0.015), (1, 0, 0, 0))}, {"box": ((1.0, 0.2, 0), (0, 0, 2.0))})
+        return np.asarray(rollout_arrays(scene, state, None, scene.default_params(sliding_friction=0.3), 40)[0])
+
+    qpos = slide(sized)
+    assert np.linalg.norm(qpos[-1, :2] - qpos[0, :2]) > 0.1  # it slid (at most 0.18 m at this friction)
+    np.testing.assert_allclose(qpos, slide(fallback), rtol=0, atol=1e-10)
 
 
 def test_per_sample_reverse_mode_matches_central_differences_through_its_fallback():

@@ -173,6 +173,29 @@ def _two_meshes_apart():
     return out
 
 
+def _slides_on_a_face() -> dict:
+    """{label: (scene, state, params)} of objects sliding on a face, by each contact model:
+    the paper bunny upright (``bunny-slide``: 111 samples within reach at rest), and a
+    10 × 6 × 3 cm, 0.3 kg box (:class:`~dano.fields.BoxField`, 5000 samples: its largest
+    face 1,462) pushed at 1 m/s on its largest face, per sample with the room
+    :meth:`~dano.contact.per_sample.PerSample.sized_for` gives it and with the default 64
+    of a round object (the all-samples fallback in every step)."""
+    from .contact.per_sample import DEFAULT_MAX_ACTIVE, PerSample
+    from .sim.scenes import initial_state
+
+    out = {}
+    for label, model in (("bunny_slide", "centroid"), ("bunny_slide_per_sample", "per_sample")):
+        slide = load_scene("bunny-slide", contact_model=model)
+        out[label] = (slide.scene, slide.state0, slide.params)
+    box = build(BoxField((0.05, 0.03, 0.015)), mass=0.3, num_samples=5000, seed=0, mesh_resolution=0, name="box")
+    for label, model in (("box_slide", "centroid"), ("box_slide_per_sample", "per_sample"),
+                         ("box_slide_per_sample_64", PerSample(max_active=DEFAULT_MAX_ACTIVE))):
+        scene = compose([DanoObject("box", box, (0, 0, 0.015))], dt=0.01, contact_model=model)
+        state = initial_state(scene, {"box": ((0, 0, 0.015), (1, 0, 0, 0))}, {"box": ((1.0, 0.2, 0), (0, 0, 2.0))})
+        out[label] = (scene, state, scene.default_params(sliding_friction=0.3))
+    return out
+
+
 def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) -> dict:
     """Simulation speed (CPU or GPU, float64), all measured in this one run (the default
     step counts keep every timing above 0.2 s on the 2-core CPU):
@@ -194,7 +217,12 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
       (which skips both fields' queries while apart), and ``two_meshes_ground_pairs_only``
       the same without it (``ratio_dano_pair_apart_over_ground_pairs_only_time``: 10.2 before
       the skip over 10,000 steps, 2.1 after, 2026-11-29);
-    * these eight are timed round after round (``repeats`` rounds, each round one run of each),
+    * objects sliding on a face (:func:`_slides_on_a_face`): ``bunny_slide`` and
+      ``bunny_slide_per_sample`` (``ratio_per_sample_over_centroid_time_slide``), ``box_slide``,
+      ``box_slide_per_sample`` (``ratio_per_sample_over_centroid_time_box``) and
+      ``box_slide_per_sample_64``, the box with the default room of a round object
+      (``ratio_box_per_sample_64_over_sized_time``: what sizing the gathering for the face saves);
+    * these thirteen are timed round after round (``repeats`` rounds, each round one run of each),
       so that a change in the machine's load falls on all alike; the two ratios are medians
       over the rounds of the ratio within each round;
     * ``sphere_hits_bunny``: the scene of that name (a 10 kg ball rolls into the bunny): a
@@ -229,6 +257,7 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
     # cannot compile the rollout into one kernel (NewtonConfig.linear_solver)
     lapack = NewtonConfig(linear_solver="lapack")
     pair = _two_meshes_apart()
+    faces = _slides_on_a_face()
     # timed round after round, so that the machine's load falls on all of them alike
     stats, rounds = _time_interleaved({
         "bunny_drop": lambda: jax.block_until_ready(rollout_arrays(sc, s0, None, p, steps)),
@@ -239,7 +268,7 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
             rollout_arrays(far, s0, None, far_params, steps)),
         "mujoco_c_convex_hull": lambda: mujoco.rollout.rollout(m, d, state0[None], nstep=mujoco_steps),
         **{label: (lambda a=args: jax.block_until_ready(rollout_arrays(a[0], a[1], None, a[2], steps)))
-           for label, args in pair.items()},
+           for label, args in {**pair, **faces}.items()},
     }, repeats)
     for name, r in stats.items():
         n = mujoco_steps if name == "mujoco_c_convex_hull" else steps
@@ -265,6 +294,13 @@ def bench_sim(repeats: int = 5, steps: int = 10000, mujoco_steps: int = 100000) 
         a / b for a, b in zip(rounds["bunny_drop_untouched_primitives"], rounds["bunny_drop"]))
     out["ratio_dano_pair_apart_over_ground_pairs_only_time"] = statistics.median(
         a / b for a, b in zip(rounds["two_meshes_apart"], rounds["two_meshes_ground_pairs_only"]))
+    for ratio, (a, b) in {"ratio_per_sample_over_centroid_time_slide": ("bunny_slide_per_sample", "bunny_slide"),
+                          "ratio_per_sample_over_centroid_time_box": ("box_slide_per_sample", "box_slide"),
+                          "ratio_box_per_sample_64_over_sized_time": ("box_slide_per_sample_64",
+                                                                      "box_slide_per_sample")}.items():
+        out[ratio] = statistics.median(x / y for x, y in zip(rounds[a], rounds[b]))
+    for label in ("bunny_slide_per_sample", "box_slide_per_sample", "box_slide_per_sample_64"):
+        out[label]["max_active"] = faces[label][0].info.pairs[0].model.capacity[0]
 
     hits = load_scene("sphere-hits-bunny")
     out["sphere_hits_bunny"] = _steps_per_second(

@@ -241,7 +241,10 @@ class ContactModel(Protocol):
     geometry, so the step may skip the samples of a pair that cannot touch
     (:func:`skip_separated`); ``zero_when_apart = True``: the wrench is 0, with all its
     derivatives, for a pair whose ψ is 0 at the step's start, so the Newton iteration may
-    skip a group whose pairs are all apart (False if absent; the centroid model has both)."""
+    skip a group whose pairs are all apart (False if absent; the centroid model has both).
+    ``sized_for(face_samples)`` (optional) returns the model for one pair, given the most
+    samples that can rest on the other body at once (None where not known):
+    :func:`~dano.sim.compose` calls it per pair (the per-sample model sizes its gathering so)."""
 
     name: str
 

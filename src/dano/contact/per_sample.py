@@ -60,6 +60,12 @@ class _AllSamples:
     h: jax.Array
 
 
+#: samples within reach gathered per pair and step where :attr:`PerSample.max_active` is None
+#: and the object has no large flat face (the paper's bunny resting on the ground: 51 within reach)
+DEFAULT_MAX_ACTIVE = 64
+#: blocks searched per pair and step where :attr:`PerSample.blocks_searched` is None (at least)
+DEFAULT_BLOCKS_SEARCHED = 48
+
 #: a sample is within reach of a step when its depth z_i, advanced over the step at the
 #: step's start velocity where that deepens it, is above −REACH_MARGIN (in sample radii):
 #: the margin covers the step's change of velocity
@@ -110,8 +116,13 @@ class PerSample:
     #: the start velocity (:attr:`~dano.sim.NewtonConfig.second_try`)
     spurious_roots: ClassVar[bool] = True
     drag: str = "normal_force"
-    max_active: int = 64
-    blocks_searched: int = 48
+    max_active: int | None = None
+    """Samples within reach gathered per pair and step (>= 1); more in a step take the
+    all-samples fallback. None: chosen per pair where the scene is composed
+    (:meth:`sized_for`): :data:`DEFAULT_MAX_ACTIVE`, or room for an object's flat face."""
+    blocks_searched: int | None = None
+    """Blocks of :data:`~dano.contact.samples.SAMPLE_BLOCK` samples searched per pair and step
+    (>= 1); None: :data:`DEFAULT_BLOCKS_SEARCHED`, or 3/4 of ``max_active`` where that is more."""
     friction_steepness: float = FRICTION_STEEPNESS
 
     def __post_init__(self):
@@ -119,30 +130,58 @@ class PerSample:
         object.__setattr__(self, "friction_steepness", check_steepness(self.friction_steepness))
         for name in ("max_active", "blocks_searched"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise DanoError(f"PerSample.{name} must be a positive integer, got {value!r}")
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+                raise DanoError(f"PerSample.{name} must be a positive integer or None, got {value!r}")
+
+    @property
+    def capacity(self) -> tuple[int, int]:
+        """(max_active, blocks_searched) as the step uses them (None's defaults filled in)."""
+        active = DEFAULT_MAX_ACTIVE if self.max_active is None else self.max_active
+        blocks = self.blocks_searched
+        if blocks is None:
+            blocks = max(DEFAULT_BLOCKS_SEARCHED, -(-3 * active // 4))
+        return active, blocks
+
+    def sized_for(self, face_samples: int | None) -> "PerSample":
+        """This model for a pair whose samples can rest ``face_samples`` at once on the other
+        body (:func:`~dano.contact.samples.face_sample_count`; None: not known, e.g. against a
+        sphere or capsule), called by :func:`~dano.sim.compose`: where ``max_active`` is None
+        and the face holds more than :data:`LARGE_FACE` samples, ``max_active`` becomes the
+        power of two that holds :data:`FACE_HEADROOM` times them (its ``blocks_searched``
+        3/4 of that, if None), so that the object resting or sliding on that face gathers its
+        samples once per step instead of taking the all-samples fallback in every one. A
+        76 mm puck's face (1531 samples of 5000) sliding on the ground: 4.4 ms a step with 64,
+        ? with 2048 (2-core CPU, float64; docs/simulation.md, "Flat faces"). Otherwise the
+        model itself."""
+        if self.max_active is not None or face_samples is None or face_samples <= DEFAULT_MAX_ACTIVE:
+            return self
+        active = DEFAULT_MAX_ACTIVE
+        while active < face_samples:
+            active *= 2
+        return dataclasses.replace(self, max_active=active)
 
     def prepare(self, g: PairGeometry, h, u=None):
         # within reach: z_i + h·max(ż_i, 0) > −REACH_MARGIN at the start twist u (padded
         # samples have weight 0)
         rise = 0.0 if u is None else h * jnp.maximum(depth_rates(g, u), 0.0)
         reach = (g.depth + rise > -REACH_MARGIN) & (g.weight > 0)
-        if g.depth.shape[-1] <= self.max_active:
+        active, blocks = self.capacity
+        if g.depth.shape[-1] <= active:
             return _state(g, h, reach)
         full = _AllSamples(g, reach, jnp.asarray(h, g.psi.dtype))
         block, S = SAMPLE_BLOCK, g.depth.shape[-1]
-        if S % block or S <= self.blocks_searched * block:  # search the samples one by one
+        if S % block or S <= blocks * block:  # search the samples one by one
             candidates, within = jnp.arange(S), reach
             over = jnp.zeros((), bool)
         else:  # the first blocks holding a sample within reach, then the samples in them
-            first, found = _first_true(jnp.any(reach.reshape(-1, block), axis=1), self.blocks_searched)
+            first, found = _first_true(jnp.any(reach.reshape(-1, block), axis=1), blocks)
             candidates = (first[:, None] * block + jnp.arange(block)).reshape(-1)
-            kept = jnp.repeat(jnp.arange(self.blocks_searched) < found, block)
+            kept = jnp.repeat(jnp.arange(blocks) < found, block)
             within = reach[candidates] & kept
-            over = found > self.blocks_searched
-        slots, count = _first_true(within, self.max_active)
-        valid = jnp.arange(self.max_active) < count
-        return Compacted(_state(_take(g, candidates[slots]), h, valid), full, over | (count > self.max_active))
+            over = found > blocks
+        slots, count = _first_true(within, active)
+        valid = jnp.arange(active) < count
+        return Compacted(_state(_take(g, candidates[slots]), h, valid), full, over | (count > active))
 
     def wrench(self, p, st: PerSampleState | Compacted | _AllSamples, u):
         return self._wrench(p, st, u, jacobian=False)
@@ -182,7 +221,7 @@ class PerSample:
         none where it is False (the result is then zero), for
         :attr:`~dano.contact.base.Compacted.reverse_mode` False: under ``jax.vmap`` a branch
         runs every chunk for the whole batch, this loop as many as its pairs need."""
-        g, K = full.geometry, self.max_active
+        g, K = full.geometry, self.capacity[0]
         S = g.depth.shape[-1]
         zero = jnp.zeros(6, u.dtype)
         zero = (zero, jnp.zeros((6, 6), u.dtype)) if jacobian else zero
@@ -270,8 +309,18 @@ def _ranked(ranks, skip, size: int):
     return jnp.minimum(jnp.searchsorted(ranks, wanted), ranks.shape[0] - 1), wanted
 
 
+#: columns (3 per sample) from which :func:`_outer_sum` is a matrix product: inside a one-kernel
+#: rollout on the CPU the products and sum are faster at the default 64 samples and at 128 (the
+#: bunny's 10,000-step per-sample drop 29.7 against 38.2 µs a step), the product at a flat face's
+#: thousands (a puck's 2048: 411 against 439 µs; a scan of the Jacobian alone at 1024 samples:
+#: 85 against 156 µs)
+OUTER_SUM_AS_DOT = 1536
+
+
 def _outer_sum(x, y):
     """Σ_i x_i ⊗ y_i (m, n) of columns x (m, K), y (n, K), as products and one sum: in XLA's
     CPU kernel the resting bunny's Jacobian (128 samples) took 6.5 µs so, 16.9 µs as a dot,
     9.1 µs with one such sum per term, 10.4 µs by forward-mode AD."""
+    if x.shape[-1] > OUTER_SUM_AS_DOT:
+        return jnp.dot(x, y.T, precision=jax.lax.Precision.HIGHEST)
     return jnp.sum(x[:, None, :] * y[None, :, :], axis=-1)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 #: samples come in blocks of this many neighbours (:meth:`Samples.stack`): a contact model
 #: can then find the few blocks near a contact instead of testing every sample
@@ -22,6 +22,36 @@ def spatial_order(points: np.ndarray, block: int = SAMPLE_BLOCK) -> np.ndarray:
     if len(points) <= block:
         return np.arange(len(points))
     return np.asarray(cKDTree(points, leafsize=block, balanced_tree=True).indices)
+
+
+#: a supporting plane holds the samples within this many sample radii of it: the per-sample
+#: model's reach at rest (:data:`~dano.contact.per_sample.REACH_MARGIN`, 0.25) with room for
+#: the overlap that holds the object up
+FACE_BAND = 0.5
+#: the convex hull's facets, largest first, whose planes :func:`face_sample_count` tries
+FACE_CANDIDATES = 64
+
+
+def face_sample_count(points, radius: float) -> int:
+    """The most samples that one flat face of an object can rest on a plane with: of
+    ``points`` (N, 3) [m] (one DANO's contact points, any frame), the largest number within
+    :data:`FACE_BAND` sample radii (``radius`` [m]) of the plane of one of the
+    :data:`FACE_CANDIDATES` largest facets of their convex hull (SciPy's Qhull), the planes
+    a rigid object can rest on. Measured (5000 samples, default builds): a 76 × 25 mm puck
+    1531 and a 10 × 6 × 3 cm box 1462 (their largest faces); the paper's bunny 111, Spot 146,
+    the low-poly bunny 167, the blue soap 21. N where the points are too few or too flat for a
+    hull (every sample may then touch at once)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) < 5:
+        return len(pts)
+    try:
+        hull = ConvexHull(pts)
+    except (QhullError, ValueError):
+        return len(pts)
+    corners = pts[hull.simplices]  # (F, 3, 3): Qhull's facets are triangles
+    area = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    planes = hull.equations[np.argsort(-area)[:FACE_CANDIDATES]]  # (F', 4): n·x + d <= 0 inside, |n| = 1
+    return int(np.max(np.sum(pts @ planes[:, :3].T + planes[:, 3] > -FACE_BAND * float(radius), axis=0)))
 
 
 @jax.tree_util.register_dataclass

@@ -27,6 +27,7 @@ from .._compiled import HOST_ONLY
 from .._mjx import mjx
 from ..asset import DanoAsset
 from ..contact import PAIR_KINDS, ContactParams, Samples, contact_model
+from ..contact.samples import face_sample_count
 from ..contact.surface import surface_points
 from ..errors import DanoError
 from ..fields.base import interior_density
@@ -532,6 +533,34 @@ def _could_have_constraints(m: mujoco.MjModel) -> bool:
     return False
 
 
+#: pair kinds whose other body can be flat (a plane, a box's face, another DANO's face), so that a
+#: face of the object can rest on it whole
+FLAT_PAIR_KINDS = ("plane", "box", "dano")
+
+
+def _sized_models(pairs: Sequence[Pair], data: Sequence) -> list[Pair]:
+    """``pairs`` with each contact model that has ``sized_for`` (the per-sample model's room
+    for samples) replaced by ``model.sized_for(count)``: count the most samples that can rest
+    on the other body at once (:func:`~dano.contact.samples.face_sample_count` of A's
+    contact samples, plus B's for a DANO–DANO pair) for :data:`FLAT_PAIR_KINDS`, None for
+    the others (spheres, capsules). ``data``: per DANO its :func:`contact_samples`."""
+    faces: dict[int, int] = {}
+
+    def face(i: int) -> int:
+        if i not in faces:
+            faces[i] = face_sample_count(data[i][0], data[i][3])
+        return faces[i]
+
+    out = []
+    for p in pairs:
+        fit = getattr(p.model, "sized_for", None)
+        if fit is not None:
+            count = face(p.a) + (face(p.b) if p.kind == "dano" else 0) if p.kind in FLAT_PAIR_KINDS else None
+            p = dataclasses.replace(p, model=fit(count))
+        out.append(p)
+    return out
+
+
 def _pair_groups(pairs: Sequence[Pair], fields: Sequence) -> tuple[PairGroup, ...]:
     """Group pairs by (kind, model); DANO-DANO pairs also by the structure of both fields
     (they are stacked for vmap)."""
@@ -650,6 +679,7 @@ def compose(
         raise DanoError(f"no contact pair kind registered for {sorted(missing_kinds)}")
 
     data = [contact_samples(o) for o in objects]
+    pairs = _sized_models(pairs, data)
     # the fields that DANO-DANO pairs query (the others stay out of the scene's arrays, so that
     # objects of the same structure share compiled programs whatever their fields' grids)
     queried = {i for p in pairs if p.kind == "dano" for i in (p.a, p.b)}
