@@ -242,7 +242,7 @@ def test_sim_benchmark_keys_and_interleaved_ratios(monkeypatch):
     for key in ("bunny_slide", "bunny_slide_per_sample", "box_slide", "box_slide_per_sample",
                 "box_slide_per_sample_64"):
         assert r[key]["steps_per_s"] > 0
-    assert r["box_slide_per_sample"]["max_active"] == 2048 and r["box_slide_per_sample_64"]["max_active"] == 64
+    assert r["box_slide_per_sample"]["max_active"] == 1536 and r["box_slide_per_sample_64"]["max_active"] == 64
     for key in ("ratio_per_sample_over_centroid_time_slide", "ratio_per_sample_over_centroid_time_box",
                 "ratio_box_per_sample_64_over_sized_time"):
         assert r[key] > 0

@@ -66,6 +66,17 @@ DEFAULT_MAX_ACTIVE = 64
 #: blocks searched per pair and step where :attr:`PerSample.blocks_searched` is None (at least)
 DEFAULT_BLOCKS_SEARCHED = 48
 
+
+def room_for(samples: int) -> int:
+    """The smallest of 64, 96, 128, 192, 256, 384, ... (64 and 96 times a power of two) that
+    holds ``samples``: few sizes, so that objects of similar faces share compiled programs,
+    each at most 1.5 times the next smaller one, so that little of the room goes unused."""
+    size = DEFAULT_MAX_ACTIVE
+    while size < samples:
+        size = size * 3 // 2 if size & (size - 1) == 0 else size * 4 // 3
+    return size
+
+
 #: a sample is within reach of a step when its depth z_i, advanced over the step at the
 #: step's start velocity where that deepens it, is above −REACH_MARGIN (in sample radii):
 #: the margin covers the step's change of velocity
@@ -101,8 +112,10 @@ class PerSample:
     :attr:`~dano.contact.base.Compacted.reverse_mode`). Measured on the paper bunny resting on
     the ground (2926 distinct samples in 366 blocks): 51 samples within reach, 30 in
     contact (104 within one radius, the reach before 2026-11-25, which needed 128 slots and
-    cost 1.5× the step); falling at 1 m/s it reaches 0.41 radii further. A flat face of a
-    finely sampled box can hold more and then runs at full cost. The Newton Jacobian is in
+    cost 1.5× the step); falling at 1 m/s it reaches 0.41 radii further. A flat face can hold
+    far more (a 10 × 6 × 3 cm box's largest face 1,462 of its 5000 samples): :func:`~dano.sim.compose`
+    gives each pair room for the largest face of its object (:meth:`sized_for`), so that the
+    object resting or sliding on it gathers them once per step. The Newton Jacobian is in
     closed form (:meth:`wrench_and_jacobian`)."""
 
     name: ClassVar[str] = "per_sample"
@@ -145,20 +158,19 @@ class PerSample:
     def sized_for(self, face_samples: int | None) -> "PerSample":
         """This model for a pair whose samples can rest ``face_samples`` at once on the other
         body (:func:`~dano.contact.samples.face_sample_count`; None: not known, e.g. against a
-        sphere or capsule), called by :func:`~dano.sim.compose`: where ``max_active`` is None
-        and the face holds more than :data:`LARGE_FACE` samples, ``max_active`` becomes the
-        power of two that holds :data:`FACE_HEADROOM` times them (its ``blocks_searched``
-        3/4 of that, if None), so that the object resting or sliding on that face gathers its
-        samples once per step instead of taking the all-samples fallback in every one. A
-        76 mm puck's face (1531 samples of 5000) sliding on the ground: 4.4 ms a step with 64,
-        ? with 2048 (2-core CPU, float64; docs/simulation.md, "Flat faces"). Otherwise the
-        model itself."""
+        sphere or capsule), called by :func:`~dano.sim.compose`. Where ``max_active`` is None
+        and the face holds more than :data:`DEFAULT_MAX_ACTIVE` samples, ``max_active`` becomes
+        :func:`room_for` them (``blocks_searched`` then 3/4 of that, if None), so that the
+        object resting or sliding on that face gathers its samples once per step instead of
+        taking the all-samples fallback in every one; otherwise the model itself. The same
+        motion to rounding; measured on the 2-core CPU (float64, docs/simulation.md, "Room for
+        a flat face"): a 10 × 6 × 3 cm box sliding on its largest face (1,462 samples, room
+        1536) 335 µs a step against 826 µs with 64; a 76 mm puck's identification from three
+        slides 64–71 s against 125–132 s; the paper bunny upright (111, room 128) 29 against
+        62 µs, but its drop, resting with 51 within reach, 30 against 19 µs."""
         if self.max_active is not None or face_samples is None or face_samples <= DEFAULT_MAX_ACTIVE:
             return self
-        active = DEFAULT_MAX_ACTIVE
-        while active < face_samples:
-            active *= 2
-        return dataclasses.replace(self, max_active=active)
+        return dataclasses.replace(self, max_active=room_for(face_samples))
 
     def prepare(self, g: PairGeometry, h, u=None):
         # within reach: z_i + h·max(ż_i, 0) > −REACH_MARGIN at the start twist u (padded
