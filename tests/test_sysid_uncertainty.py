@@ -280,6 +280,40 @@ def test_residual_noise_follows_the_residual_layout_and_gives_the_cramer_rao_bou
         noisy.residual_noise(-1e-3, 0.0)
 
 
+def test_the_residual_says_where_a_misfit_lies(box):
+    """residual_kinds labels each residual as residual_noise lays them out (positions, then the
+    rotation vector, per frame), and residual_shares splits ‖r‖² by kind: slides whose observed
+    rotations turn where the model's do not leave their misfit in the rotations, and the misfit
+    warning then says so, with what the problem could still do about a spin."""
+    from dano.sysid.solve import _misfit_warning, _spin_remedies, residual_shares
+
+    weights = Weights((1.0, 4.0, 0.0), 9.0)
+    clean = _clean_slides(0.0)
+    problem = SysIdProblem(box, clean, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)], weights=weights,
+                           substeps=4, base_params=box.default_params(sliding_drag=0.0))
+    kinds = problem.residual_kinds()
+    sd = problem.residual_noise(1e-3, 0.5)
+    assert kinds.shape == (problem.num_residuals,) and set(kinds) == {"position", "rotation"}
+    assert np.array_equal(kinds == "position", np.isclose(sd, 1e-3) | np.isclose(sd, 2e-3))
+    theta = np.array([0.45])  # the truth: the residual is rounding
+    turned = []
+    for o in clean:  # each observed pose after the first turned about z by 0.2 rad: the model's do not
+        quats = o.poses["box"][:, 3:].copy()
+        quats[1:] = [np.cos(0.1) * q + np.sin(0.1) * np.array([-q[3], -q[2], q[1], q[0]]) for q in quats[1:]]
+        turned.append(dataclasses.replace(o, poses={"box": np.concatenate([o.poses["box"][:, :3], quats], axis=1)}))
+    misfit = SysIdProblem(box, turned, problem.parameters, weights=weights, substeps=4,
+                          base_params=problem.base_params)
+    r = misfit.residuals(theta)
+    shares = residual_shares(misfit, theta)
+    assert set(shares) == {"position", "rotation"} and abs(sum(shares.values()) - 1) < 1e-12
+    np.testing.assert_allclose(shares["rotation"], r[kinds == "rotation"] @ r[kinds == "rotation"] / (r @ r),
+                               rtol=1e-12)
+    assert shares["rotation"] > 0.99
+    said = _misfit_warning(1e-2, 1e-4, [1e-4] * 3, shares, _spin_remedies(misfit))
+    assert "100% in the rotations" in said and "identify torsional_friction too" in said and "per_sample" in said
+    assert "in the rotations" not in _misfit_warning(1e-2, 1e-4, [1e-4] * 3, {"position": 1.0})
+
+
 def test_initial_pose_offsets_are_identified(box):
     """fit_position / fit_rotation: a first frame observed 4 mm and -3 mm off in x, y (one
     slide) and turned 3 degrees about z (the other) is corrected by the nuisance offsets,

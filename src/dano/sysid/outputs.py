@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .._files import atomic_path, config_json
+from ..pose import quat_error
 from ..viz.plot import plot_sysid
 from .problem import SEGMENT_NUISANCE_PREFIXES
 
@@ -36,9 +37,11 @@ def estimates_report(result) -> dict:
 
 def fit_plot(problem, result, path, max_trajectories: int = 4) -> Path:
     """Observed vs fitted positions of the first ``max_trajectories`` trajectories (each with
-    every window of its multiple shooting, a fitted line per window), the cost per iteration
-    and the profiles of ``result`` (:func:`dano.viz.plot_sysid`), titled with each estimate
-    and its interval (or standard error), to an image file."""
+    every window of its multiple shooting, a fitted line per window), their rotations from
+    the first frame where the fit weighs rotations, the cost per iteration and the profiles
+    of ``result`` (:func:`dano.viz.plot_sysid`), titled with each estimate and its interval
+    (or standard error), to an image file."""
+    rotations = problem._rotation_weighted()  # (the rotation panel where the fit weighs them)
     windows: dict[int, list] = {}
     for i, seg in enumerate(problem.segments):
         windows.setdefault(seg.obs, []).append((i, seg))
@@ -49,14 +52,19 @@ def fit_plot(problem, result, path, max_trajectories: int = 4) -> Path:
         time = np.asarray(obs.time)
         for name, poses in obs.poses.items():
             a = problem.scene.qpos_adr[problem.scene.dano_index(name)]
-            pieces = [(time[s.start : s.start + s.frames], np.asarray(result.fitted[i])[:, a : a + 2])
+            poses = np.asarray(poses)[first:last]
+            reference = _first_rotation(poses)
+            pieces = [(time[s.start : s.start + s.frames], np.asarray(result.fitted[i])[:, a : a + 7])
                       for i, s in segs if i < len(result.fitted) and result.fitted[i] is not None]
-            gap = (np.full(1, np.nan), np.full((1, 2), np.nan))  # (a break in the line between windows)
-            series.append({"label": obs.name or str(o), "time": time[first:last],
-                           "observed": np.asarray(poses)[first:last, :2],
-                           "fitted": np.concatenate([x for p in pieces for x in (p[1], gap[1])]) if pieces else None,
+            gap = (np.full(1, np.nan), np.full((1, 7), np.nan))  # (a break in the line between windows)
+            fitted = np.concatenate([x for p in pieces for x in (p[1], gap[1])]) if pieces else None
+            series.append({"label": obs.name or str(o), "time": time[first:last], "observed": poses[:, :2],
+                           "fitted": None if fitted is None else fitted[:, :2],
                            "fitted_time": np.concatenate([x for p in pieces for x in (p[0], gap[0])]) if pieces
-                           else None})
+                           else None,
+                           **({"observed_angle": _angle_from(reference, poses[:, 3:7]),
+                               "fitted_angle": None if fitted is None else _angle_from(reference, fitted[:, 3:7])}
+                              if rotations and reference is not None else {})})
     profiles = {label: {**prof, "estimate": result.estimates[result.labels.index(label)]}
                 for label, prof in (result.scan or {}).get("profile", {}).items()}
     interval = result.interval or {"lower": {}, "upper": {}, "level": 0.95}
@@ -69,6 +77,29 @@ def fit_plot(problem, result, path, max_trajectories: int = 4) -> Path:
     title = ", ".join(shown(k, v, s) for k, v, s in zip(result.labels, result.estimates, result.standard_errors)
                       if not k.startswith(SEGMENT_NUISANCE_PREFIXES))
     return plot_sysid(series, result.cost_history, path, profiles=profiles, title=title)
+
+
+def _valid_quats(quats: np.ndarray) -> np.ndarray:
+    """(T,) bool: the quaternions (T, 4) that are finite and not zero (a missing frame is NaN)."""
+    return np.all(np.isfinite(quats), axis=1) & (np.linalg.norm(np.nan_to_num(quats), axis=1) > 0)
+
+
+def _first_rotation(poses: np.ndarray):
+    """The quaternion (4,) wxyz of the first pose of ``poses`` (T, 7) [x y z qw qx qy qz]
+    that has one, or None (no frame has one)."""
+    ok = _valid_quats(poses[:, 3:7])
+    return poses[np.argmax(ok), 3:7] if ok.any() else None
+
+
+def _angle_from(reference: np.ndarray, quats: np.ndarray) -> np.ndarray:
+    """(T,) the rotation angle [deg] of each quaternion (T, 4) wxyz from ``reference`` (4,)
+    (NaN where a quaternion is missing: a lost frame, a break between windows)."""
+    ok = _valid_quats(quats)
+    out = np.full(len(quats), np.nan)
+    if ok.any():
+        out[ok] = np.degrees(np.linalg.norm(quat_error(np.broadcast_to(reference, quats[ok].shape), quats[ok]),
+                                            axis=1))
+    return out
 
 
 def write_outputs(out_dir: str | Path, report: dict | Callable[[], dict], resolved: dict, problem,

@@ -1895,8 +1895,23 @@ class SysIdProblem:
         return {}
 
     def _blocks_and_frames(self, theta):
-        st = self._split_segments()
         theta = np.asarray(theta, dtype=np.float64)
+        with _SEEN:
+            last = self._last_blocks.get(theta.tobytes())
+        if last is None:
+            last = self._evaluate_blocks(theta)
+            with _SEEN:  # (one: the answer's residual, fitted rollouts and failed steps ask for the same θ)
+                self._last_blocks.clear()
+                self._last_blocks[theta.tobytes()] = last
+        return last
+
+    @functools.cached_property
+    def _last_blocks(self) -> dict:
+        """{θ's bytes: :meth:`_blocks_and_frames` there} of the last evaluation."""
+        return {}
+
+    def _evaluate_blocks(self, theta: np.ndarray):
+        st = self._split_segments()
         theta_g, blocks = self.split_theta(theta, st)
         layout = dataclasses.replace(st.layout, in_turn=True) if self._segments_in_turn(st) else st.layout
         probe = self._in_turn_probe.pop(st.layout.shards, None)
@@ -2032,6 +2047,12 @@ class SysIdProblem:
         prior's rows included."""
         return np.concatenate([np.full(cols * frames, obs) for obs, _, cols, frames, _ in self._residual_blocks()]
                               + [self.start_prior_rows.observation]).astype(np.int64)
+
+    def residual_kinds(self) -> np.ndarray:
+        """(m,) str: what each residual measures, in the order of :meth:`residual_function`'s
+        output: "position", "rotation", "joint", or "start prior" (the start prior's rows)."""
+        return np.concatenate([np.full(cols * frames, kind) for _, kind, cols, frames, _ in self._residual_blocks()]
+                              + [np.full(len(self.start_prior_rows.observation), "start prior")]).astype(str)
 
     def residual_series(self) -> list[np.ndarray]:
         """Index arrays into the residual vector, one per residual column of each block: the

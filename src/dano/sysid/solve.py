@@ -745,29 +745,66 @@ def _noise_and_misfit(problem: SysIdProblem, result: SysIdResult) -> dict:
     noise["expected_rms_residual"] = expected
     noise["misfit_ratio"] = None if not expected else result.rms_residual / expected
     if expected is not None and result.rms_residual > MISFIT_RATIO * expected and result.rms_residual > 1e-7:
-        result.warnings.append(_misfit_warning(result.rms_residual, expected, noise["position_m"]))
+        shares = residual_shares(problem, result.estimates)
+        noise["residual_shares"] = shares
+        result.warnings.append(_misfit_warning(result.rms_residual, expected, noise["position_m"], shares,
+                                               _spin_remedies(problem)))
     start = start_velocity_warning(problem, noise)
     if start:
         result.warnings.append(start)
     return noise
 
 
-def _misfit_warning(rms: float, expected: float, position_noise) -> str:
+def residual_shares(problem: SysIdProblem, theta) -> dict:
+    """{kind: share of the squared residual ‖r‖² at θ} over :meth:`SysIdProblem.residual_kinds`
+    ("position", "rotation", "joint", "start prior"), the kinds the residual has (shares sum
+    to 1; all 0 where the residual is 0): where a misfit lies."""
+    r = unc.finite(problem.residuals(theta), 0.0)
+    kinds = problem.residual_kinds()
+    total = float(r @ r)
+    return {k: (float(r[kinds == k] @ r[kinds == k]) / total if total > 0 else 0.0) for k in dict.fromkeys(kinds)}
+
+
+def _spin_remedies(problem: SysIdProblem) -> list[str]:
+    """What the problem could still do about a misfit in the rotations of an object that spins
+    while it slides (docs/own-object.md, step 4): identify ``torsional_friction`` (where not
+    fitted) and take the per-sample model (where a pair has another)."""
+    out = []
+    if not any(p.name == "torsional_friction" for p in problem.parameters):
+        out.append("identify torsional_friction too")
+    if any(p.model.name != "per_sample" for p in problem.scene.info.pairs):
+        out.append('take contact_model = "per_sample"')
+    return out
+
+
+def _misfit_warning(rms: float, expected: float, position_noise, shares: dict | None = None,
+                    remedies: list[str] = ()) -> str:
     """The warning of a fit whose rms residual ``rms`` is above MISFIT_RATIO times the
     ``expected`` one (residual units) that the observations' own noise (``position_noise``
     (3,) [m]) would leave: for noise-free observations (noise below
     :data:`~dano.sysid.problem.NOISE_FLOOR` on every axis) a model that does not reproduce
-    the motion, not a ratio to rounding."""
+    the motion, not a ratio to rounding. ``shares``: :func:`residual_shares` at the fit, said
+    where the residual has more than one kind (where the misfit lies); where most of it lies in
+    the rotations, the ``remedies`` for a spin (:func:`_spin_remedies`) follow."""
+    where = ""
+    if shares and len(shares) > 1:
+        ranked = sorted(shares.items(), key=lambda kv: -kv[1])
+        parts = [f"{v:.0%} in the {k}s" if k != "start prior" else f"{v:.0%} in the start prior"
+                 for i, (k, v) in enumerate(ranked) if i == 0 or v >= 0.005]
+        where = f"; of the residual's square, {', '.join(parts)} (fit.png shows positions and rotations)"
+        if shares.get("rotation", 0.0) > 0.5 and remedies:
+            where += (f"; where an object spins while it slides, {' or '.join(remedies)} "
+                      "(docs/own-object.md, step 4)")
     if np.max(position_noise) < NOISE_FLOOR:
         return (f"the model misfits the data: the observations are free of noise (their third differences are at "
                 f"rounding, {np.max(position_noise):.1g} m) and the fit leaves an rms residual of {rms:.3g}: the "
                 "model does not reproduce the motion exactly (e.g. another engine's); the standard errors, which "
-                "assume noise, mean little here")
+                f"assume noise, mean little here{where}")
     return (f"the model misfits the data: rms residual {rms:.3g} is {rms / expected:.3g}x what the observations' own "
             f"noise would leave ({expected:.3g}, from differences of neighbouring frames), or their errors are "
             "correlated from frame to frame (a video tracker's are), which that estimate does not see; the standard "
             "errors understate the uncertainty, and the interval allows for correlated residuals, not for the "
-            "model's own error (check the scene, the object's size and mass and the fixed contact parameters)")
+            f"model's own error (check the scene, the object's size and mass and the fixed contact parameters){where}")
 
 
 def start_velocity_warning(problem: SysIdProblem, noise: dict) -> str | None:

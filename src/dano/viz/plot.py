@@ -67,7 +67,9 @@ def plot_sysid(series, cost_history, path, profiles=None, title: str = "") -> Pa
     series: list of dicts, one per tracked object and trajectory: ``label`` (str), ``time``
     (T,) [s], ``observed`` (T, 2) world x, y [m], ``fitted`` (F, 2) [m] or None and, where
     its times are not ``time``'s, ``fitted_time`` (F,) [s] (NaN rows break the line: one per
-    window of a multiple shooting).
+    window of a multiple shooting); optional ``observed_angle`` (T,) and ``fitted_angle`` (F,)
+    [deg], the rotation from the first observed pose, shown in a panel of their own where
+    some series has them.
     cost_history: (K,) cost ½‖r‖² per iteration. profiles: {label: {"values": (P,),
     "cost": (P,) with None where not evaluated, "estimate": float}}. title: the figure's title.
     """
@@ -75,20 +77,28 @@ def plot_sysid(series, cost_history, path, profiles=None, title: str = "") -> Pa
     from matplotlib.figure import Figure
 
     profiles = profiles or {}
-    fig = Figure(figsize=(15 + 5 * bool(profiles), 4.5))
-    axes = fig.subplots(1, 3 + bool(profiles))
+    angles = any(s.get("observed_angle") is not None for s in series)
+    fig = Figure(figsize=(15 + 5 * bool(profiles) + 5 * angles, 4.5))
+    axes = list(fig.subplots(1, 3 + bool(profiles) + angles))
+    rotation = axes.pop(2) if angles else None
     colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, s in enumerate(series):
         c, t, p, fitted = colors[i % len(colors)], np.asarray(s["time"]), np.asarray(s["observed"]), s["fitted"]
+        ft = t if s.get("fitted_time") is None else np.asarray(s["fitted_time"])
         axes[0].plot(p[:, 0], p[:, 1], "o", ms=3, color=c, alpha=0.6, label=f"{s['label']} observed")
         axes[1].plot(t, p[:, 0], "o", ms=3, color=c, alpha=0.6)
         axes[1].plot(t, p[:, 1], "s", ms=3, color=c, alpha=0.6)
         if fitted is not None:
             fitted = np.asarray(fitted)
-            ft = t if s.get("fitted_time") is None else np.asarray(s["fitted_time"])
             axes[0].plot(fitted[:, 0], fitted[:, 1], "-", color=c, label="fitted")
             axes[1].plot(ft, fitted[:, 0], "-", color=c)
             axes[1].plot(ft, fitted[:, 1], "--", color=c)
+        if rotation is not None and s.get("observed_angle") is not None:
+            rotation.plot(t, np.asarray(s["observed_angle"]), "o", ms=3, color=c, alpha=0.6)
+            if s.get("fitted_angle") is not None:
+                rotation.plot(ft, np.asarray(s["fitted_angle"]), "-", color=c)
+    if rotation is not None:
+        rotation.set(xlabel="time [s]", ylabel="rotation [deg]", title="rotation from the first frame (o: observed)")
     # equal scales by widening the narrower range (not by squeezing the panel: a straight slide
     # then ran its tick labels together), at most 5 ticks per axis
     axes[0].set(xlabel="x [m]", ylabel="y [m]", title="paths (top view)", aspect="equal", adjustable="datalim")
