@@ -240,10 +240,14 @@ def test_a_flat_face_is_gathered_at_once_and_the_slide_is_the_same():
     ball = """<mujoco><worldbody><geom name="floor" type="plane" size="2 2 0.1"/>
       <geom name="ball" type="sphere" size="0.05" pos="1 1 0.05"/></worldbody></mujoco>"""
     sized = compose([DanoObject("box", box, (0, 0, 0.015))], ball, dt=0.01, contact_model="per_sample")
-    models = {p.name: p.model for p in sized.info.pairs}
-    room = models["box/floor"].capacity[0]
+    room = sized.info.pairs[0].model.capacity[0]
     assert room >= face > 2 * room / 3 and room > DEFAULT_MAX_ACTIVE  # the size that holds the face (room_for)
-    assert models["box/ball"] == PerSample()  # a sphere touches a patch: the default room
+    tables = ball.replace("</worldbody>", """<geom name="table" type="box" size="0.3 0.2 0.02" pos="-1 1 0.02"/>
+      <geom name="pad" type="box" size="0.01 0.02 0.005" pos="1 -1 0.005"/></worldbody>""")
+    models = {p.name: p.model for p in compose([DanoObject("box", box)], tables, contact_model="per_sample").info.pairs}
+    assert models["box/floor"] == models["box/table"] == sized.info.pairs[0].model  # a table's face holds the box's
+    # a sphere, or a pad smaller than the box's face, touches a patch of it: the default room
+    assert models["box/ball"] == models["box/pad"] == PerSample()
     assert compose([DanoObject("box", box)], contact_model=PerSample(max_active=16)).info.pairs[0].model.max_active == 16
     fallback = compose([DanoObject("box", box, (0, 0, 0.015))], ball, dt=0.01,
                        contact_model=PerSample(max_active=DEFAULT_MAX_ACTIVE))

@@ -534,16 +534,19 @@ def _could_have_constraints(m: mujoco.MjModel) -> bool:
 
 
 #: pair kinds whose other body can be flat (a plane, a box's face, another DANO's face), so that a
-#: face of the object can rest on it whole
+#: face of the object can rest on it whole (a box only where its face is as large: :func:`_sized_models`)
 FLAT_PAIR_KINDS = ("plane", "box", "dano")
 
 
-def _sized_models(pairs: Sequence[Pair], data: Sequence) -> list[Pair]:
+def _sized_models(pairs: Sequence[Pair], data: Sequence, geom_size: np.ndarray) -> list[Pair]:
     """``pairs`` with each contact model that has ``sized_for`` (the per-sample model's room
     for samples) replaced by ``model.sized_for(count)``: count the most samples that can rest
     on the other body at once (:func:`~dano.contact.samples.face_sample_count` of A's
     contact samples, plus B's for a DANO–DANO pair) for :data:`FLAT_PAIR_KINDS`, None for
-    the others (spheres, capsules). ``data``: per DANO its :func:`contact_samples`."""
+    the others (spheres, capsules) and for a box whose second-longest side is shorter than
+    the object's (a finger pad: it holds a patch of the face, not all of it). ``data``: per
+    DANO its :func:`contact_samples`; geom_size: (ngeom, 3) MuJoCo's geom sizes (a box's half
+    sides) [m]."""
     faces: dict[int, int] = {}
 
     def face(i: int) -> int:
@@ -551,11 +554,18 @@ def _sized_models(pairs: Sequence[Pair], data: Sequence) -> list[Pair]:
             faces[i] = face_sample_count(data[i][0], data[i][3])
         return faces[i]
 
+    def holds_a_face(p: Pair) -> bool:
+        if p.kind != "box":
+            return p.kind in FLAT_PAIR_KINDS
+        sides = np.sort(2 * np.asarray(geom_size[p.geom], dtype=np.float64))[::-1]
+        extent = np.sort(np.ptp(np.asarray(data[p.a][0]), axis=0))[::-1]
+        return bool(sides[1] >= extent[1])
+
     out = []
     for p in pairs:
         fit = getattr(p.model, "sized_for", None)
         if fit is not None:
-            count = face(p.a) + (face(p.b) if p.kind == "dano" else 0) if p.kind in FLAT_PAIR_KINDS else None
+            count = (face(p.a) + (face(p.b) if p.kind == "dano" else 0)) if holds_a_face(p) else None
             p = dataclasses.replace(p, model=fit(count))
         out.append(p)
     return out
@@ -679,7 +689,7 @@ def compose(
         raise DanoError(f"no contact pair kind registered for {sorted(missing_kinds)}")
 
     data = [contact_samples(o) for o in objects]
-    pairs = _sized_models(pairs, data)
+    pairs = _sized_models(pairs, data, mj_model.geom_size)
     # the fields that DANO-DANO pairs query (the others stay out of the scene's arrays, so that
     # objects of the same structure share compiled programs whatever their fields' grids)
     queried = {i for p in pairs if p.kind == "dano" for i in (p.a, p.b)}
