@@ -791,7 +791,8 @@ def _misfit_warning(rms: float, expected: float, position_noise, shares: dict | 
         ranked = sorted(shares.items(), key=lambda kv: -kv[1])
         parts = [f"{v:.0%} in the {k}s" if k != "start prior" else f"{v:.0%} in the start prior"
                  for i, (k, v) in enumerate(ranked) if i == 0 or v >= 0.005]
-        where = f"; of the residual's square, {', '.join(parts)} (fit.png shows positions and rotations)"
+        where = f"; of the residual's square, {', '.join(parts)}" + (
+            " (fit.png shows positions and rotations)" if "rotation" in shares else "")
         if shares.get("rotation", 0.0) > 0.5 and remedies:
             where += (f"; where an object spins while it slides, {' or '.join(remedies)} "
                       "(docs/own-object.md, step 4)")
