@@ -2045,14 +2045,19 @@ class SysIdProblem:
         """(m,) int: the observation (trajectory index) each residual belongs to, in the order
         of :meth:`residual_function`'s output (used to resample whole trajectories), the start
         prior's rows included."""
-        return np.concatenate([np.full(cols * frames, obs) for obs, _, cols, frames, _ in self._residual_blocks()]
-                              + [self.start_prior_rows.observation]).astype(np.int64)
+        return self._per_residual(lambda obs, kind: obs, self.start_prior_rows.observation).astype(np.int64)
 
     def residual_kinds(self) -> np.ndarray:
         """(m,) str: what each residual measures, in the order of :meth:`residual_function`'s
         output: "position", "rotation", "joint", or "start prior" (the start prior's rows)."""
-        return np.concatenate([np.full(cols * frames, kind) for _, kind, cols, frames, _ in self._residual_blocks()]
-                              + [np.full(len(self.start_prior_rows.observation), "start prior")]).astype(str)
+        prior = self.start_prior_rows.observation
+        return self._per_residual(lambda obs, kind: kind, np.full(len(prior), "start prior")).astype(str)
+
+    def _per_residual(self, value, prior) -> np.ndarray:
+        """(m,) ``value(observation index, kind)`` of each block's residuals, then ``prior`` (the
+        start prior's rows), in the order of :meth:`residual_function`'s output."""
+        return np.concatenate([np.full(cols * frames, value(obs, kind))
+                               for obs, kind, cols, frames, _ in self._residual_blocks()] + [prior])
 
     def residual_series(self) -> list[np.ndarray]:
         """Index arrays into the residual vector, one per residual column of each block: the

@@ -778,7 +778,7 @@ def _spin_remedies(problem: SysIdProblem) -> list[str]:
 
 
 def _misfit_warning(rms: float, expected: float, position_noise, shares: dict | None = None,
-                    remedies: list[str] = ()) -> str:
+                    remedies: tuple[str, ...] | list[str] = ()) -> str:
     """The warning of a fit whose rms residual ``rms`` is above MISFIT_RATIO times the
     ``expected`` one (residual units) that the observations' own noise (``position_noise``
     (3,) [m]) would leave: for noise-free observations (noise below
