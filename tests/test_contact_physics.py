@@ -167,8 +167,10 @@ def test_per_sample_block_search_gives_the_all_samples_wrench():
     us = (jnp.zeros(6), jnp.asarray([0.2, -0.1, -0.3, 0.5, 1.0, -2.0]))
     # the wrench of all samples, the reference (it uses none of the search's counts: one program)
     reference = [by_ad(PerSample(), full, u) for u in us]
+    # (a face's room of 96, evaluated in the Newton iteration in two chunks of 48: chunk_size)
     for model, overflows in ((PerSample(), False), (PerSample(blocks_searched=4), True),
-                             (PerSample(max_active=16), True)):
+                             (PerSample(max_active=16), True), (PerSample(max_active=96), False),
+                             (PerSample(max_active=96, blocks_searched=4), True)):
         st = jax.jit(lambda g: model.prepare(g, 0.01))(g)  # noqa: B023  (called at once)
         assert bool(st.overflow) == overflows
         assert int(np.sum(np.asarray(st.active.weight) > 0)) == min(reach, model.capacity[0]) or overflows

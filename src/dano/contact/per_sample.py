@@ -4,6 +4,7 @@ contact applies its own force at its own point."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -11,7 +12,7 @@ import jax
 import jax.numpy as jnp
 
 from ..errors import DanoError
-from .base import (Compacted, PairGeometry, cross_columns, occupancy, occupancy_slope, register_contact_model,
+from .base import (Compacted, PairGeometry, batch_all, cross_columns, occupancy, occupancy_slope, register_contact_model,
                    sample_rates, skew, twist_rows, world_points)
 from .law import check_drag, check_steepness, sample_forces_and_slopes
 from .params import FRICTION_STEEPNESS
@@ -106,10 +107,12 @@ class PerSample:
     the step finds the first ``blocks_searched`` blocks holding a sample within reach, then
     the samples within reach among theirs (a prefix count over all samples cost as much as
     the rest of the step). If more blocks or samples are within reach, it takes every sample
-    within reach, ``max_active`` at a time (the same result, a chunk per ``max_active`` of
-    them; in the Newton iteration a loop that runs no trip for a pair that does not overflow,
-    so that under ``jax.vmap`` only the batch's overflowing pairs cost:
-    :attr:`~dano.contact.base.Compacted.reverse_mode`). Measured on the paper bunny resting on
+    within reach, a chunk at a time (the same result). The Newton iteration evaluates the
+    gathered samples in chunks of :func:`chunk_size` in one loop, which runs the chunks that
+    hold a sample within reach, or, where a pair overflows, the chunks of all samples within
+    reach (under ``jax.vmap``, only where a pair of the batch overflows:
+    :attr:`~dano.contact.base.Compacted.reverse_mode`): one copy of the evaluation in the
+    program, and a room larger than the samples within reach costs little. Measured on the paper bunny resting on
     the ground (2926 distinct samples in 366 blocks): 51 samples within reach, 30 in
     contact (104 within one radius, the reach before 2026-11-25, which needed 128 slots and
     cost 1.5× the step); falling at 1 m/s it reaches 0.41 radii further. A flat face can hold
@@ -207,9 +210,7 @@ class PerSample:
 
     def _wrench(self, p, st, u, jacobian: bool):
         if isinstance(st, Compacted) and not st.reverse_mode:  # the Newton iteration's
-            active = self._evaluate(p, st.active, u, jacobian)
-            full = self._evaluate_all(p, st.full, u, jacobian, overflow=st.overflow)
-            return jax.tree_util.tree_map(lambda a, f: jnp.where(st.overflow, f, a), active, full)
+            return self._evaluate_chunks(p, st, u, jacobian)
         if isinstance(st, Compacted):  # one pair evaluated on its own (the step does this per group)
             return jax.lax.cond(st.overflow, lambda: self._wrench(p, st.full, u, jacobian),
                                 lambda: self._wrench(p, st.active, u, jacobian))
@@ -217,22 +218,49 @@ class PerSample:
             return self._evaluate_all(p, st, u, jacobian)
         return self._evaluate(p, st, u, jacobian)
 
-    def _evaluate_all(self, p, full: _AllSamples, u, jacobian: bool, overflow=None):
+    def _evaluate_chunks(self, p, st: Compacted, u, jacobian: bool):
+        """:meth:`_evaluate` of a pair's samples within reach, :func:`chunk_size` at a time in
+        a ``while_loop`` (one copy of the evaluation in the program: each copy costs seconds
+        of compilation), for :attr:`~dano.contact.base.Compacted.reverse_mode` False: the
+        chunks of the gathered samples that hold one, or, where the gathering overflowed (under
+        ``jax.vmap``: for any pair of the batch, :func:`~dano.contact.base.batch_all`), the next
+        chunk of all samples within reach in each trip (a prefix count over all samples)."""
+        act, full = st.active, st.full
+        g, R, S = full.geometry, act.depth.shape[-1], full.reach.shape[-1]
+        C = chunk_size(R)
+        gathered = batch_all(~st.overflow)
+        zero = jnp.zeros(6, u.dtype)
+        zero = (zero, jnp.zeros((6, 6), u.dtype)) if jacobian else zero
+
+        def prepared(i, start):  # chunk i of the gathered samples; more after it?
+            part = jax.tree_util.tree_map(
+                lambda a: jax.lax.dynamic_slice_in_dim(a, i * C, C, axis=-1) if a.ndim and a.shape[-1] == R else a,
+                act)
+            return part, start, jnp.take(act.weight, jnp.minimum((i + 1) * C, R - 1)) * ((i + 1) * C < R) > 0
+
+        def everything(i, start):  # the next C samples within reach from index start on
+            slots, count = _first_true(full.reach & (jnp.arange(S) >= start), C)
+            return (_state(_take(g, slots), full.h, jnp.arange(C) < count), (slots[-1] + 1).astype(jnp.int32),
+                    count > C)
+
+        def body(carry):
+            i, start, total, _ = carry
+            part, start, more = jax.lax.cond(gathered, prepared, everything, i, start)
+            out = self._evaluate(p, part, u, jacobian)
+            return i + 1, start, jax.tree_util.tree_map(jnp.add, total, out), more
+
+        init = (jnp.int32(0), jnp.int32(0), zero, jnp.ones((), bool))
+        return jax.lax.while_loop(lambda c: c[3], body, init)[2]
+
+    def _evaluate_all(self, p, full: _AllSamples, u, jacobian: bool):
         """:meth:`_evaluate` over every sample within reach, ``max_active`` at a time (each
         chunk the next ``max_active`` after the last one taken: a prefix count over all
-        samples and a binary search, as the step's gathering), summed. A loop of the
-        compacted step's size keeps the fallback's code as small as the step's (XLA's CPU
-        compiler then still turns the rollout into one kernel), and it costs as many
-        chunks as there are samples within reach, not all samples: the upright bunny at
-        rest has 111 within reach, two chunks of 64, where the 46 chunks of its 2926
-        samples made its slide's step 439 µs.
-
-        ``overflow`` None: a loop of ceil(S / max_active) trips, each chunk past the last
-        sample within reach skipped by a branch (differentiable in reverse mode); ``overflow``
-        () given: a ``while_loop`` that runs the chunks needed where ``overflow`` is True and
-        none where it is False (the result is then zero), for
-        :attr:`~dano.contact.base.Compacted.reverse_mode` False: under ``jax.vmap`` a branch
-        runs every chunk for the whole batch, this loop as many as its pairs need."""
+        samples and a binary search, as the step's gathering), summed: a loop of
+        ceil(S / max_active) trips, each chunk past the last sample within reach skipped by a
+        branch (differentiable in reverse mode; the Newton iteration's is
+        :meth:`_evaluate_chunks`). It costs as many chunks as there are samples within reach,
+        not all samples: the upright bunny at rest has 111 within reach, two chunks of 64,
+        where the 46 chunks of its 2926 samples made its slide's step 439 µs."""
         g, K = full.geometry, self.capacity[0]
         S = g.depth.shape[-1]
         zero = jnp.zeros(6, u.dtype)
@@ -241,14 +269,6 @@ class PerSample:
         def add(total, slots, valid):
             out = self._evaluate(p, _state(_take(g, slots), full.h, valid), u, jacobian)
             return jax.tree_util.tree_map(jnp.add, total, out)
-
-        if overflow is not None:
-            def body(carry):  # the next K samples within reach from index start on (carried,
-                start, total, _ = carry  # so that XLA cannot hoist the prefix count out of the loop)
-                slots, count = _first_true(full.reach & (jnp.arange(S) >= start), K)
-                return (slots[-1] + 1).astype(jnp.int32), add(total, slots, jnp.arange(K) < count), count > K
-
-            return jax.lax.while_loop(lambda c: c[2], body, (jnp.int32(0), zero, overflow))[1]
 
         ranks = jnp.cumsum(full.reach)
 
@@ -302,6 +322,19 @@ def depth_rates(g: PairGeometry, u) -> jax.Array:
         return sign * (offset + (g.points_rotation.T @ jnp.cross(grad, w)) @ g.points)
     arm = world_points(g) - g.chi[:, None]
     return sign * jnp.sum(g.depth_grad * (v[:, None] + cross_columns(w[:, None], arm)), axis=0)
+
+
+def chunk_size(room: int) -> int:
+    """Samples evaluated at a time in the Newton iteration from a room of ``room`` gathered
+    samples: the largest divisor of the room up to a quarter of it or
+    :data:`DEFAULT_MAX_ACTIVE`, whichever is more (the room itself where that divisor is
+    below half of it): the bunny's 128 in two chunks of 64, so that its drop, resting on 51
+    samples within reach, evaluates one; 96 in two of 48; a box face's 1536 in four of 384."""
+    cap = max(DEFAULT_MAX_ACTIVE, room // 4)
+    if room <= cap:
+        return room
+    size = max(d for d in range(1, cap + 1) if room % d == 0)
+    return size if 2 * size >= cap else room
 
 
 def _first_true(mask, size: int):
