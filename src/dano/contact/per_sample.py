@@ -12,8 +12,8 @@ import jax
 import jax.numpy as jnp
 
 from ..errors import DanoError
-from .base import (Compacted, PairGeometry, batch_all, cross_columns, occupancy, occupancy_slope, register_contact_model,
-                   sample_rates, skew, twist_rows, world_points)
+from .base import (Compacted, PairGeometry, batch_all, cross_columns, occupancy, occupancy_slope,
+                   register_contact_model, sample_rates, skew, twist_rows, world_points)
 from .law import check_drag, check_steepness, sample_forces_and_slopes
 from .params import FRICTION_STEEPNESS
 from .samples import SAMPLE_BLOCK
@@ -112,8 +112,8 @@ class PerSample:
     hold a sample within reach, or, where a pair overflows, the chunks of all samples within
     reach (under ``jax.vmap``, only where a pair of the batch overflows:
     :attr:`~dano.contact.base.Compacted.reverse_mode`): one copy of the evaluation in the
-    program, and a room larger than the samples within reach costs little. Measured on the paper bunny resting on
-    the ground (2926 distinct samples in 366 blocks): 51 samples within reach, 30 in
+    program, and a room larger than the samples within reach costs little. Measured on the
+    paper bunny resting on the ground (2926 distinct samples in 366 blocks): 51 samples within reach, 30 in
     contact (104 within one radius, the reach before 2026-11-25, which needed 128 slots and
     cost 1.5× the step); falling at 1 m/s it reaches 0.41 radii further. A flat face can hold
     far more (a 10 × 6 × 3 cm box's largest face 1,462 of its 5000 samples): :func:`~dano.sim.compose`
