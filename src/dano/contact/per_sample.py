@@ -234,11 +234,12 @@ class PerSample:
         zero = jnp.zeros(6, u.dtype)
         zero = (zero, jnp.zeros((6, 6), u.dtype)) if jacobian else zero
 
-        def prepared(i, start):  # chunk i of the gathered samples; more after it?
+        def prepared(i, start):  # chunk i of the gathered samples; more after it (filled from the first slot)?
             part = jax.tree_util.tree_map(
                 lambda a: jax.lax.dynamic_slice_in_dim(a, i * C, C, axis=-1) if a.ndim and a.shape[-1] == R else a,
                 act)
-            return part, start, jnp.take(act.weight, jnp.minimum((i + 1) * C, R - 1)) * ((i + 1) * C < R) > 0
+            after = (i + 1) * C
+            return part, start, (after < R) & (act.weight[jnp.minimum(after, R - 1)] > 0)
 
         def everything(i, start):  # the next C samples within reach from index start on
             slots, count = _first_true(full.reach & (jnp.arange(S) >= start), C)

@@ -52,8 +52,7 @@ def fit_plot(problem, result, path, max_trajectories: int = 4) -> Path:
         time = np.asarray(obs.time)
         for name, poses in obs.poses.items():
             a = problem.scene.qpos_adr[problem.scene.dano_index(name)]
-            poses = np.asarray(poses)[first:last]
-            reference = _first_rotation(poses)
+            poses = np.asarray(poses)[first:last]  # (finite, unit quaternions: checked where observed)
             pieces = [(time[s.start : s.start + s.frames], np.asarray(result.fitted[i])[:, a : a + 7])
                       for i, s in segs if i < len(result.fitted) and result.fitted[i] is not None]
             gap = (np.full(1, np.nan), np.full((1, 7), np.nan))  # (a break in the line between windows)
@@ -62,9 +61,9 @@ def fit_plot(problem, result, path, max_trajectories: int = 4) -> Path:
                            "fitted": None if fitted is None else fitted[:, :2],
                            "fitted_time": np.concatenate([x for p in pieces for x in (p[0], gap[0])]) if pieces
                            else None,
-                           **({"observed_angle": _angle_from(reference, poses[:, 3:7]),
-                               "fitted_angle": None if fitted is None else _angle_from(reference, fitted[:, 3:7])}
-                              if rotations and reference is not None else {})})
+                           **({"observed_angle": _angle_from(poses[0, 3:7], poses[:, 3:7]),
+                               "fitted_angle": None if fitted is None else _angle_from(poses[0, 3:7], fitted[:, 3:7])}
+                              if rotations else {})})
     profiles = {label: {**prof, "estimate": result.estimates[result.labels.index(label)]}
                 for label, prof in (result.scan or {}).get("profile", {}).items()}
     interval = result.interval or {"lower": {}, "upper": {}, "level": 0.95}
@@ -79,22 +78,10 @@ def fit_plot(problem, result, path, max_trajectories: int = 4) -> Path:
     return plot_sysid(series, result.cost_history, path, profiles=profiles, title=title)
 
 
-def _valid_quats(quats: np.ndarray) -> np.ndarray:
-    """(T,) bool: the quaternions (T, 4) that are finite and not zero (a missing frame is NaN)."""
-    return np.all(np.isfinite(quats), axis=1) & (np.linalg.norm(np.nan_to_num(quats), axis=1) > 0)
-
-
-def _first_rotation(poses: np.ndarray):
-    """The quaternion (4,) wxyz of the first pose of ``poses`` (T, 7) [x y z qw qx qy qz]
-    that has one, or None (no frame has one)."""
-    ok = _valid_quats(poses[:, 3:7])
-    return poses[np.argmax(ok), 3:7] if ok.any() else None
-
-
 def _angle_from(reference: np.ndarray, quats: np.ndarray) -> np.ndarray:
     """(T,) the rotation angle [deg] of each quaternion (T, 4) wxyz from ``reference`` (4,)
-    (NaN where a quaternion is missing: a lost frame, a break between windows)."""
-    ok = _valid_quats(quats)
+    (NaN where a quaternion is not finite or zero: a break between windows of the fitted line)."""
+    ok = np.all(np.isfinite(quats), axis=1) & (np.linalg.norm(np.nan_to_num(quats), axis=1) > 0)
     out = np.full(len(quats), np.nan)
     if ok.any():
         out[ok] = np.degrees(np.linalg.norm(quat_error(np.broadcast_to(reference, quats[ok].shape), quats[ok]),

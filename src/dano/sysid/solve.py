@@ -25,6 +25,7 @@ import dataclasses
 import re
 import time
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -756,9 +757,11 @@ def _noise_and_misfit(problem: SysIdProblem, result: SysIdResult) -> dict:
 
 
 def residual_shares(problem: SysIdProblem, theta) -> dict:
-    """{kind: share of the squared residual ‖r‖² at θ} over :meth:`SysIdProblem.residual_kinds`
-    ("position", "rotation", "joint", "start prior"), the kinds the residual has (shares sum
-    to 1; all 0 where the residual is 0): where a misfit lies."""
+    """{kind: share of the squared residual ‖r‖² at ``theta`` (n,) (the problem's parameter
+    vector, :attr:`SysIdProblem.parameters` order, their units)} over
+    :meth:`SysIdProblem.residual_kinds` ("position", "rotation", "joint", "start prior"), the
+    kinds the residual has (shares sum to 1; all 0 where the residual is 0; non-finite
+    residuals count as 0): where a misfit lies."""
     r = unc.finite(problem.residuals(theta), 0.0)
     kinds = problem.residual_kinds()
     total = float(r @ r)
@@ -778,7 +781,7 @@ def _spin_remedies(problem: SysIdProblem) -> list[str]:
 
 
 def _misfit_warning(rms: float, expected: float, position_noise, shares: dict | None = None,
-                    remedies: tuple[str, ...] | list[str] = ()) -> str:
+                    remedies: Sequence[str] = ()) -> str:
     """The warning of a fit whose rms residual ``rms`` is above MISFIT_RATIO times the
     ``expected`` one (residual units) that the observations' own noise (``position_noise``
     (3,) [m]) would leave: for noise-free observations (noise below
