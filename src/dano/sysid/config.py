@@ -328,7 +328,9 @@ class OptionsConfig:
     for a first frame that is off); ``"auto"``: ``"next frames"`` where the first three frames' velocities disagree
     with it by more than 5 % of the typical speed and more than the noise explains (from 5 to 15 %, only where the
     second frame's disagree 1.5 times less: the first frame stands out) (said in the result's notes), else
-    ``"first frames"``."""
+    ``"first frames"``; where it took the next frames and the identification's scan fits better started from the
+    first frames (a right first frame and a contact that hops after it), the identification starts from the
+    first frames and says so."""
     window: int = 0
     """> 0: multiple shooting, windows of this many frame intervals (>= 2); 0: one shot per trajectory."""
     auto_windows: bool = False

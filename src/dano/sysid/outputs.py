@@ -41,7 +41,7 @@ def fit_plot(problem, result, path, max_trajectories: int = 4) -> Path:
     the first frame where the fit weighs rotations, the cost per iteration and the profiles
     of ``result`` (:func:`dano.viz.plot_sysid`), titled with each estimate and its interval
     (or standard error), to an image file."""
-    rotations = problem._rotation_weighted()  # (the rotation panel where the fit weighs them)
+    rotations = problem.weighs_rotations()  # (the rotation panel where the fit weighs them)
     windows: dict[int, list] = {}
     for i, seg in enumerate(problem.segments):
         windows.setdefault(seg.obs, []).append((i, seg))

@@ -1125,6 +1125,7 @@ def identification_params(scene: Scene, parameters: Sequence[FitParameter], give
 
 _AUTO_NOTE = "start velocities (fit_velocity auto):"
 _STARTS_NOTE = "start velocities (start_velocity auto):"
+_NEXT_FRAMES_TAKEN = 'start_velocity = "next frames"'  # (in the notes of starts taken so)
 _GIVEN_NOTE = " (given: base_params or TOML [contact])"
 _MISSING_NOTE = "rolled out from its own first frame, as windows are"  # (in every missing-frames note)
 
@@ -1293,7 +1294,8 @@ class SysIdProblem:
     (:func:`next_frames_start`: position and velocity); "auto" (the default): "next frames"
     where the first frames disagree with the motion after them along the weighed axes
     (:func:`stray_start_velocities`; said in :attr:`notes`, and then ``fit_velocity="auto"``
-    fits the start velocities too), else "first frames" (resolved here).
+    fits the start velocities too), else "first frames" (resolved here; :func:`~dano.sysid.identify`
+    takes :meth:`started_from_first_frames` where its scan fits better so).
     failure_substeps: the substeps a rollout step whose Newton solve fails is taken again in
     (:attr:`~dano.sim.NewtonConfig.failure_substeps`); 1 (the default): never, a program
     without the substeps' loop. :func:`~dano.sysid.identify` identifies again with
@@ -1424,27 +1426,36 @@ class SysIdProblem:
         would outnumber the residuals."""
         from .uncertainty import noise_of_observations  # (it imports this module)
 
-        def fit(axes):  # (and the layout derived from it made anew)
-            put("fit_velocity", axes)
-            for derived in ("fit_axes", "start_prior_rows"):
-                self.__dict__.pop(derived, None)
-
-        axes = "".join(a for a, w in zip("xyz", self.weights.position) if w > 0)
+        axes = self._weighed_axes()
         noise = noise_of_observations(self.observations)["position_m"]
         stray = stray_start_velocities(self.observations, self.segments, noise, axes)
         moved = ""
         if self.start_velocity == "auto":
             put("start_velocity", "next frames" if stray else "first frames")
             moved = (f"each rollout starts from the parabola through the {NEXT_FRAMES} frames after its first "
-                     "(start_velocity = \"next frames\")") if stray else ""
+                     f"({_NEXT_FRAMES_TAKEN})") if stray else ""
         if self.fit_velocity != "auto":
             return (f"{_STARTS_NOTE} {stray}; {moved}",) if moved else ()
         why = noisy_start_velocities(self.observations, self.segments, noise, axes, self.substeps) or stray
+        return self._fitted_start_velocities(put, why + (f"; {moved}" if moved else "") if why else None)
+
+    def _weighed_axes(self) -> str:
+        return "".join(a for a, w in zip("xyz", self.weights.position) if w > 0)
+
+    def _fitted_start_velocities(self, put, why: str | None) -> tuple[str, ...]:
+        """Sets ``fit_velocity`` as "auto" resolves it for the reason ``why`` (None: no
+        reason, ""): the weighed axes, unless their offsets would outnumber the residuals;
+        returns the note saying so."""
+
+        def fit(axes):  # (and the layout derived from it made anew)
+            put("fit_velocity", axes)
+            for derived in ("fit_axes", "start_prior_rows"):
+                self.__dict__.pop(derived, None)
+
         fit("")
         if why is None:
             return ()
-        why += f"; {moved}" if moved else ""
-        without = self.num_parameters
+        axes, without = self._weighed_axes(), self.num_parameters
         fit(axes)
         if self.num_observed_residuals < self.num_parameters:
             added = self.num_parameters - without
@@ -1453,6 +1464,31 @@ class SysIdProblem:
                     '(fewer or longer windows would allow them)',)
         return (f'{_AUTO_NOTE} fit_velocity = "{axes}": {why}; each segment start\'s velocity is fitted as a '
                 'nuisance parameter (fit_velocity = "" turns this off)',)
+
+    def started_from_first_frames(self) -> "SysIdProblem":
+        """Where ``start_velocity="auto"`` took each start from the next frames (the first
+        frames disagreed with the motion after them: :func:`stray_start_velocities`), the
+        problem as "auto" resolves it where they agree: each rollout started from its first
+        three frames (``start_velocity="first frames"``), and, where ``fit_velocity`` was
+        "auto" too, the start velocities fitted only for the frames' noise
+        (:func:`noisy_start_velocities`); their notes made anew. Otherwise the problem itself.
+        :func:`~dano.sysid.identify` takes it where its scan fits better (a first frame that
+        is right, and a motion that is no parabola after it: an engine's contact that hops)."""
+        from .uncertainty import noise_of_observations  # (it imports this module)
+
+        taken = [n for n in self.notes if n.startswith((_AUTO_NOTE, _STARTS_NOTE)) and _NEXT_FRAMES_TAKEN in n]
+        if self.start_velocity != "next frames" or not taken:
+            return self
+        auto_fit = any(n.startswith(_AUTO_NOTE) for n in taken)
+        plain = dataclasses.replace(self, start_velocity="first frames", fit_velocity="" if auto_fit else self.fit_velocity,
+                                    notes=tuple(n for n in self.notes if n not in taken))
+        if auto_fit:
+            noise = noise_of_observations(plain.observations)["position_m"]
+            why = noisy_start_velocities(plain.observations, plain.segments, noise, plain._weighed_axes(),
+                                         plain.substeps)
+            put = lambda name, value: object.__setattr__(plain, name, value)  # noqa: E731 (a new problem's own)
+            put("notes", plain.notes + plain._fitted_start_velocities(put, why))
+        return plain
 
     def truncated(self, fraction: float) -> "SysIdProblem":
         """The same problem on the first ``fraction`` of every trajectory (at least 3 frames)."""
@@ -1553,7 +1589,7 @@ class SysIdProblem:
     @property
     def num_observed_residuals(self) -> int:
         """Residuals of the observed frames; components with zero weight are left out."""
-        per_pose = len(self._pos_axes()) + (3 if self._rotation_weighted() else 0)
+        per_pose = len(self._pos_axes()) + (3 if self.weighs_rotations() else 0)
         n = 0
         for seg in self.segments:
             o = self.observations[seg.obs]
@@ -1563,7 +1599,9 @@ class SysIdProblem:
     def _pos_axes(self) -> tuple[int, ...]:
         return tuple(k for k in range(3) if self.weights.position[k] > 0)
 
-    def _rotation_weighted(self) -> bool:
+    def weighs_rotations(self) -> bool:
+        """Whether the residual holds rotation terms (3 per observed pose, a rotation vector
+        [rad] times :meth:`rotation_weights`): ``weights.rotation`` None (by size) or above 0."""
         return self.weights.rotation is None or self.weights.rotation > 0
 
     def rotation_weights(self) -> np.ndarray:
@@ -1584,7 +1622,7 @@ class SysIdProblem:
         rows: list[tuple[int, float, int, int, float]] = []
         if self.start_prior and self.fit_axes:
             wpos = np.sqrt(np.asarray(self.weights.position, dtype=np.float64))
-            wrot = self.rotation_weights() if self._rotation_weighted() else np.zeros(len(self.scene.dano_names))
+            wrot = self.rotation_weights() if self.weighs_rotations() else np.zeros(len(self.scene.dano_names))
             offsets, n_axes = self._nuisance_offsets(), len(self.fit_axes)
             gain = finite_difference_gain(1.0 / self.substeps)
             for s, seg in enumerate(self.segments):
@@ -1752,7 +1790,7 @@ class SysIdProblem:
         layout = ResidualLayout(
             batches=tuple(batches), parameters=tuple((p.name, self.scene.target_index(p.name, p.target))
                                                      for p in self.parameters),
-            fit_axes=self.fit_axes, pos_axes=self._pos_axes(), rotation=self._rotation_weighted(),
+            fit_axes=self.fit_axes, pos_axes=self._pos_axes(), rotation=self.weighs_rotations(),
             joints=self.weights.joints > 0, substeps=self.substeps, fit_ground=self.fit_ground,
             fit_tilt=self.fit_tilt, shards=shards, jittered=self._jittered, failure_substeps=self.failure_substeps)
         data = {"batches": tuple(arrays), "wrot": tuple(wrot),
@@ -2021,7 +2059,7 @@ class SysIdProblem:
         """Residual blocks of a segment as (kind, columns per frame, DANO index in the scene
         or joint slot): per tracked DANO the weighted position axes ("position") and the
         rotation vector ("rotation"), then one per joint ("joint"); zero weights left out."""
-        npos, wrot, wjoint = len(self._pos_axes()), self._rotation_weighted(), self.weights.joints > 0
+        npos, wrot, wjoint = len(self._pos_axes()), self.weighs_rotations(), self.weights.joints > 0
         out = []
         for a in qadr:
             d = self.scene.qpos_adr.index(a)

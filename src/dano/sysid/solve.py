@@ -37,7 +37,7 @@ from . import uncertainty as unc
 from .._compiled import compile_seconds
 from .._threads import in_background, or_error, side_by_side
 from ..sim.implicit import DEFAULT_FAILURE_SUBSTEPS, MAX_TURN_CHANGE
-from .problem import NOISE_FLOOR, SysIdProblem, noisy_start_velocities, stray_start_velocities
+from .problem import NEXT_FRAMES, NOISE_FLOOR, SysIdProblem, noisy_start_velocities, stray_start_velocities
 
 
 @dataclass
@@ -293,7 +293,11 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     initial guess only). The local solver then starts from at most ``starts`` of the scan's
     points and the given guess, lowest cost first, each with no lower point near it (one
     start per basin the scan resolves: :func:`_basin_starts`; scan points moved off the
-    bounds by 2 % of the box), and the lowest final cost wins. Where the problem takes single
+    bounds by 2 % of the box), and the lowest final cost wins. Where ``start_velocity="auto"``
+    took the starts from the next frames (a first frame taken as off), the scan is evaluated
+    once more with every rollout started from its first frames, and the problem started so
+    (:meth:`~dano.sysid.SysIdProblem.started_from_first_frames`) is identified instead where
+    that scan's lowest cost is lower (:func:`_first_frames_if_they_fit`; a note says so). Where the problem takes single
     steps (``SysIdProblem.failure_substeps`` 1, the default), the identification starts again
     with each step whose Newton solve fails taken in
     :data:`~dano.sim.implicit.DEFAULT_FAILURE_SUBSTEPS` substeps (a program of its own), and a
@@ -375,6 +379,8 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         result.noise = _noise_and_misfit(problem, result)
         return result
 
+    if scan and n_global:
+        problem = _first_frames_if_they_fit(problem, scan)
     retried = None
     try:
         result = solve(problem)
@@ -409,6 +415,32 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         result.fitted = problem.fitted(result.estimates) if jacobian == "ad" else problem.simulate(result.estimates)
     result.compile_time_s = compile_seconds(started)  # tracing, lowering and compiling (loads too), scan included
     return result
+
+
+def _first_frames_if_they_fit(problem: SysIdProblem, scan: int) -> SysIdProblem:
+    """The problem, or, where ``start_velocity="auto"`` took its starts from the next frames
+    (a first frame taken as off) and the scan's lowest cost is lower with each rollout started
+    from its first three frames (the same points, nuisance offsets 0), the problem as "auto"
+    resolves it where the first frames agree (:meth:`SysIdProblem.started_from_first_frames`),
+    with a note of both costs. A first frame that is off starts every rollout from a wrong
+    velocity, which no friction fits as well as the next frames' start; a right first frame
+    followed by a motion that is no parabola (an engine's contact that hops, an impulse at
+    the start) makes the next frames' parabola the wrong start. The comparison costs one
+    evaluation of the scan (the same program: the same layout)."""
+    plain = problem.started_from_first_frames()
+    if plain is problem:
+        return problem
+    points = scan_points(*scan_box(problem), scan)
+    after = float(np.min(_scan(problem, points)[0]))
+    first = float(np.min(_scan(dataclasses.replace(problem, start_velocity="first frames"), points)[0]))
+    if not first < after:
+        return problem
+    note = (f"start velocities: the first frames disagree with the parabola through the next {NEXT_FRAMES} "
+            f"(a first frame may be off), but the rollouts started from each start's first three frames fit "
+            f"better (the scan's lowest cost {first:.4g} against {after:.4g} from the next frames): a right first "
+            "frame and a motion after it that is no parabola (a contact that hops, a push at the start); each "
+            'rollout starts from its first frames (start_velocity = "first frames")')
+    return dataclasses.replace(plain, notes=plain.notes + (note,))
 
 
 def _identify(problem: SysIdProblem, *, jacobian: str, max_iterations: int, xtol: float, ftol: float | None,
