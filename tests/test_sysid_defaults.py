@@ -610,5 +610,9 @@ def test_mujoco_slides_that_hop_at_the_start_are_started_from_their_first_frames
     (note,) = [n for n in result.notes if "fit better" in n]
     assert 'start_velocity = "first frames"' in note
     assert not any(n.startswith("start velocities (fit_velocity auto)") for n in result.notes)
+    assert not any("a first frame may be off" in w for w in result.warnings)  # (the first frames were chosen)
+    answer = problem.as_identified(result)  # (the problem the estimates belong to)
+    assert result.as_dict()["start_velocity"] == answer.start_velocity == "first frames"
+    assert answer.fit_velocity == "" and len(result.estimates) == answer.num_parameters == 1
     lower, upper = result.interval["lower"]["sliding_friction"], result.interval["upper"]["sliding_friction"]
     assert lower < 0.8 < upper, (result.estimates[0], lower, upper)

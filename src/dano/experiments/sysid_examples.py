@@ -398,7 +398,7 @@ def contactnets_identify(path, tosses: int = 10, start: float = 0.3, scan: int =
     t0 = time.perf_counter()
     problem, held = contactnets_problem(path, tosses, start, substeps, contact_model)
     result = identify(problem, scan=scan, starts=starts, bootstrap_samples=bootstrap)
-    problem = problem.with_failure_substeps(result.failure_substeps)  # (the rollouts the answer came from)
+    problem = problem.as_identified(result)  # (the rollouts the answer came from)
     theta = np.asarray(result.estimates)
     fit_err = pose_errors(problem.observations, result.fitted)  # the fit's own rollouts, not simulated again
     held_err = prediction_errors(problem, held, theta)
@@ -633,7 +633,7 @@ def run_example(name: str, *, jacobian: str | None = None, noise: bool = True,
         solver["jacobian"] = jacobian
     resolved["solver"] = {**solver, "method": "scipy.optimize.least_squares (trf), bounds"}
     result = identify(problem, **solver_options(solver))
-    problem = problem.with_failure_substeps(result.failure_substeps)  # (the rollouts the answer came from)
+    problem = problem.as_identified(result)  # (the rollouts the answer came from)
     report = {**estimates_report(result), **extra}
     if name == "bunny-dynamics":
         report["recovery"] = dynamics_recovery(dict(zip(result.labels, result.estimates)), extra["truth"])

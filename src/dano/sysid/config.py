@@ -524,7 +524,7 @@ def run(config: str | Path, *, jacobian: str | None = None) -> tuple[SysIdProble
         solver["jacobian"] = jacobian
     resolved["options"]["jacobian"] = solver["jacobian"]
     result = identify(problem, **solver_options(solver))
-    problem = problem.with_failure_substeps(result.failure_substeps)  # (the rollouts the answer came from)
+    problem = problem.as_identified(result)  # (the rollouts the answer came from)
     return problem, result, {"report": estimates_report(result), "config": resolved}
 
 

@@ -1490,6 +1490,16 @@ class SysIdProblem:
             put("notes", plain.notes + plain._fitted_start_velocities(put, why))
         return plain
 
+    def as_identified(self, result) -> "SysIdProblem":
+        """The problem :func:`~dano.sysid.identify`'s ``result`` came from (its estimates are
+        that problem's θ): started from the first frames where the identification took them
+        (``result.start_velocity``, :meth:`started_from_first_frames`), with the failed steps'
+        substeps it took (:meth:`with_failure_substeps`); itself where neither changed."""
+        problem = self
+        if result.start_velocity == "first frames" and self.start_velocity == "next frames":
+            problem = self.started_from_first_frames()
+        return problem.with_failure_substeps(result.failure_substeps)
+
     def truncated(self, fraction: float) -> "SysIdProblem":
         """The same problem on the first ``fraction`` of every trajectory (at least 3 frames)."""
         obs = [o.frames(0, max(3, int(np.ceil(fraction * o.num_frames)))) for o in self.observations]
@@ -1498,7 +1508,7 @@ class SysIdProblem:
     def with_failure_substeps(self, n: int) -> "SysIdProblem":
         """The same problem whose rollouts take a step whose Newton solve fails again in ``n``
         substeps (a layout of its own: compiled anew); itself where it already does (e.g.
-        ``problem.with_failure_substeps(result.failure_substeps)`` after :func:`identify`)."""
+        ``problem.as_identified(result)`` after :func:`identify`)."""
         return self if n == self.failure_substeps else dataclasses.replace(self, failure_substeps=n)
 
     def with_initial(self, theta) -> "SysIdProblem":

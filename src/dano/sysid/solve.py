@@ -65,8 +65,9 @@ class SysIdResult:
     others (:func:`segment_restarts`), None where no segment was; failure_substeps: the
     substeps the rollouts took each step whose Newton solve failed in (1: single steps; more
     where :func:`identify` turned them on: rollouts that diverged or steps that failed near
-    the answer, said in ``notes``; simulate the answer with
-    ``problem.with_failure_substeps(result.failure_substeps)``).
+    the answer, said in ``notes``); start_velocity: where the rollouts started (the problem's
+    own, or "first frames" where :func:`identify` took them there: said in ``notes``). Simulate
+    the answer with the problem it came from, ``problem.as_identified(result)``.
     """
 
     labels: list
@@ -97,6 +98,7 @@ class SysIdResult:
     notes: list = field(default_factory=list)
     segment_scan: dict | None = None
     failure_substeps: int = 1
+    start_velocity: str | None = None
     jacobian_matrix: np.ndarray | None = field(default=None, repr=False)
 
     def as_dict(self) -> dict:
@@ -127,6 +129,7 @@ class SysIdResult:
             "segment_scan": self.segment_scan,
             "notes": list(self.notes),
             "failure_substeps": self.failure_substeps,
+            "start_velocity": self.start_velocity,
         }
 
 
@@ -395,7 +398,7 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         result.notes.append(f"the rollouts {retried} with single steps: identified with each step whose Newton "
                             f"solve failed taken again in {DEFAULT_FAILURE_SUBSTEPS} substeps (docs/simulation.md, "
                             "'Substeps where a step fails')")
-    result.failure_substeps = problem.failure_substeps
+    result.failure_substeps, result.start_velocity = problem.failure_substeps, problem.start_velocity
     result.warnings = list(dict.fromkeys(result.warnings))  # each said once, in order
     if noise_rms is not None and result.rms_residual > 2 * noise_rms:
         result.warnings.append(
@@ -417,6 +420,10 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     return result
 
 
+#: how the note of :func:`_first_frames_if_they_fit` begins
+FIRST_FRAMES_FIT_NOTE = "start velocities: the first frames disagree with the parabola through the next"
+
+
 def _first_frames_if_they_fit(problem: SysIdProblem, scan: int) -> SysIdProblem:
     """The problem, or, where ``start_velocity="auto"`` took its starts from the next frames
     (a first frame taken as off) and the scan's lowest cost is lower with each rollout started
@@ -435,7 +442,7 @@ def _first_frames_if_they_fit(problem: SysIdProblem, scan: int) -> SysIdProblem:
     first = float(np.min(_scan(dataclasses.replace(problem, start_velocity="first frames"), points)[0]))
     if not first < after:
         return problem
-    note = (f"start velocities: the first frames disagree with the parabola through the next {NEXT_FRAMES} "
+    note = (f"{FIRST_FRAMES_FIT_NOTE} {NEXT_FRAMES} "
             f"(a first frame may be off), but the rollouts started from each start's first three frames fit "
             f"better (the scan's lowest cost {first:.4g} against {after:.4g} from the next frames): a right first "
             "frame and a motion after it that is no parabola (a contact that hops, a push at the start); each "
@@ -852,13 +859,15 @@ def start_velocity_warning(problem: SysIdProblem, noise: dict) -> str | None:
     (:func:`~dano.sysid.problem.noisy_start_velocities`, which leaves out starts with
     measured velocities, a given ``qvel0`` or ``rest_frames``), or, where the rollouts start
     from their first frames (``start_velocity="first frames"``), first frames that disagree so
-    with the motion after them (:func:`~dano.sysid.problem.stray_start_velocities`). None
-    where there is nothing to say."""
+    with the motion after them (:func:`~dano.sysid.problem.stray_start_velocities`), unless
+    :func:`identify` started them there because they fit better (:func:`_first_frames_if_they_fit`,
+    said in the notes). None where there is nothing to say."""
     weighed = [a for a, w in zip("xyz", problem.weights.position) if w > 0]
     missing = "".join(a for a in weighed if a not in problem.fit_velocity)
     why = noisy_start_velocities(problem.observations, problem.segments, noise.get("position_m"), missing,
                                  problem.substeps)
-    if why is None and problem.start_velocity == "first frames":
+    chosen = any(n.startswith(FIRST_FRAMES_FIT_NOTE) for n in problem.notes)
+    if why is None and problem.start_velocity == "first frames" and not chosen:
         why = stray_start_velocities(problem.observations, problem.segments, noise.get("position_m"), missing)
     if why is None:
         return None
