@@ -549,7 +549,7 @@ def _t_block_slides(out: Path, friction: float) -> list[Path]:
     stem, 40 mm wide, 30 mm thick), ``dano build`` at 0.25 kg with the defaults, ``dano export
     --collision decomposition`` (CoACD: the two boxes); then three plain MuJoCo C slides (2 ms
     steps, elliptic cone, ``friction`` on both geoms), each set moving and spinning at once from
-    rest (``data.qvel``: up to 1.2 m/s, 4–8 rad/s), recorded from ``qpos`` at 100 Hz for 0.6 s
+    rest (``data.qvel``: about 1 m/s, 4–8 rad/s), recorded from ``qpos`` at 100 Hz for 0.6 s
     as ``t_k.csv``. Writes tblock.obj, tblock.dano, tblock.xml."""
     import mujoco
     import trimesh
