@@ -22,7 +22,7 @@ from dano.sim import DanoObject, compose
 from dano.sysid import FitParameter, SysIdProblem, Weights, identify, observation_noise
 from dano.experiments.sysid_examples import analytic_slides, interval_coverage
 from dano.sysid.problem import _residuals_and_jacobian_jit, rotation_length, start_velocity_disagreement
-from dano.sysid.solve import _first_frames_if_they_fit
+from dano.sysid.solve import _first_frames_if_they_fit, _scan
 
 
 @pytest.fixture(scope="module")
@@ -272,9 +272,7 @@ def test_a_first_frame_off_has_the_start_velocities_fitted(box):
     (note,) = [n for n in problem.notes if n.startswith("start velocities (fit_velocity auto)")]
     assert (problem.fit_velocity, problem.start_velocity) == ("xy", "next frames")
     assert "a first frame may be off" in note and 'start_velocity = "next frames"' in note
-    # the scan agrees: started from the first frames, no friction fits as well (a right first frame
-    # followed by a motion that is no parabola would be started from its first frames instead)
-    assert _first_frames_if_they_fit(problem, 15) is problem
+    # what identify compares with the scan on (there: the slow T-block test below)
     plain = problem.started_from_first_frames()
     assert (plain.start_velocity, plain.fit_velocity) == ("first frames", "")
     assert not any(n.startswith("start velocities") for n in plain.notes)
@@ -596,7 +594,9 @@ def test_mujoco_slides_that_hop_at_the_start_are_started_from_their_first_frames
     frames' parabola is 17 % off, and with it and the start velocities fitted the defaults said
     0.698 [0.694, 0.703] (measured 2026-12-02). The scan, started from the first frames, fits
     better (its lowest cost about half), so the identification starts there, says so, and its
-    interval holds MuJoCo's 0.8 (measured: 0.775 [0.697, 0.872])."""
+    interval holds MuJoCo's 0.8 (measured: 0.775 [0.697, 0.872]). With the first frames moved
+    2 mm back (a first frame that is off) the next frames' start is kept. The scan the
+    comparison ran is the identification's own (not run again)."""
     from dano.sysid.config import problem_from_toml, template
 
     _t_block_slides(tmp_path, 0.8)
@@ -606,6 +606,12 @@ def test_mujoco_slides_that_hop_at_the_start_are_started_from_their_first_frames
     (tmp_path / "problem.toml").write_text(text)
     problem = problem_from_toml(tmp_path / "problem.toml")[0]
     assert problem.start_velocity == "next frames" and problem.fit_velocity == "xyz"
+    # the same slides with their first frames 2 mm back along the motion (a pose read a substep
+    # apart): the first frames' start fits worse, and the next frames' is kept, its scan handed on
+    off = dataclasses.replace(problem, observations=[_first_frame_off(o, "tblock", 0.002)
+                                                     for o in problem.observations])
+    kept, scanned = _first_frames_if_they_fit(off, 15)
+    assert kept is off and kept.start_velocity == "next frames" and np.all(np.isfinite(scanned[0][0]))
     result = identify(problem)
     (note,) = [n for n in result.notes if "fit better" in n]
     assert 'start_velocity = "first frames"' in note
@@ -614,5 +620,8 @@ def test_mujoco_slides_that_hop_at_the_start_are_started_from_their_first_frames
     answer = problem.as_identified(result)  # (the problem the estimates belong to)
     assert result.as_dict()["start_velocity"] == answer.start_velocity == "first frames"
     assert answer.fit_velocity == "" and len(result.estimates) == answer.num_parameters == 1
+    # the comparison's first-frames scan (with the offsets at 0) is the answer problem's own scan
+    costs = _scan(answer, np.asarray(result.scan["points"]))[0]
+    np.testing.assert_allclose(costs, result.scan["cost"], rtol=1e-12)
     lower, upper = result.interval["lower"]["sliding_friction"], result.interval["upper"]["sliding_friction"]
     assert lower < 0.8 < upper, (result.estimates[0], lower, upper)

@@ -4,7 +4,6 @@ contact applies its own force at its own point."""
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 from typing import ClassVar
 

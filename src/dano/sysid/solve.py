@@ -356,6 +356,14 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         raise DanoError(f"bootstrap_samples must be >= 0, got {bootstrap_samples}")
     if not 0 < level < 1:
         raise DanoError(f"level must lie in (0, 1), got {level}")
+    if problem.scene.dtype != jnp.float64:
+        raise DanoError(f"identification needs a float64 scene, got {problem.scene.dtype}: call "
+                        "dano.enable_float64() before composing the scene")
+    if jacobian not in ("ad", "fd"):
+        raise DanoError(f"jacobian must be 'ad' or 'fd', got {jacobian!r}")
+    for h in horizons:
+        if not 0 < h < 1:
+            raise DanoError(f"horizons must be fractions in (0, 1), got {h}")
     if max_iterations is None:
         max_iterations = max(50, 10 * problem.num_parameters)
     if max_iterations < 1:
@@ -370,8 +378,8 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
     started = time.time()
     local = dict(jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
 
-    def solve(problem: SysIdProblem) -> SysIdResult:
-        result = _identify(problem, horizons=horizons, scan=scan, starts=starts, **local)
+    def solve(problem: SysIdProblem, scanned=None) -> SysIdResult:
+        result = _identify(problem, horizons=horizons, scan=scan, starts=starts, scanned=scanned, **local)
         result = segment_restarts(problem, result, level=level, **local)
         failed = problem.failed_steps(result.estimates) if problem.failure_substeps == 1 and jacobian == "ad" \
             else np.zeros(0, int)
@@ -382,11 +390,10 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         result.noise = _noise_and_misfit(problem, result)
         return result
 
-    if scan and n_global:
-        problem = _first_frames_if_they_fit(problem, scan)
+    problem, scanned = _first_frames_if_they_fit(problem, scan) if scan and n_global else (problem, None)
     retried = None
     try:
-        result = solve(problem)
+        result = solve(problem, scanned)
     except (_SingleStepsFail, _NonFiniteStart) as e:
         if problem.failure_substeps != 1:
             raise
@@ -424,45 +431,45 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
 FIRST_FRAMES_FIT_NOTE = "start velocities: the first frames disagree with the parabola through the next"
 
 
-def _first_frames_if_they_fit(problem: SysIdProblem, scan: int) -> SysIdProblem:
-    """The problem, or, where ``start_velocity="auto"`` took its starts from the next frames
+def _first_frames_if_they_fit(problem: SysIdProblem, scan: int) -> tuple[SysIdProblem, tuple | None]:
+    """(the problem, or, where ``start_velocity="auto"`` took its starts from the next frames
     (a first frame taken as off) and the scan's lowest cost is lower with each rollout started
     from its first three frames (the same points, nuisance offsets 0), the problem as "auto"
     resolves it where the first frames agree (:meth:`SysIdProblem.started_from_first_frames`),
-    with a note of both costs. A first frame that is off starts every rollout from a wrong
-    velocity, which no friction fits as well as the next frames' start; a right first frame
-    followed by a motion that is no parabola (an engine's contact that hops, an impulse at
-    the start) makes the next frames' parabola the wrong start. The comparison costs one
-    evaluation of the scan (the same program: the same layout)."""
+    with a note of both costs; the chosen start's scan for :func:`_identify_from_scan`:
+    (:func:`_scan` of the scan points and the guess with failures, seconds), None where no
+    comparison ran). A first frame that is off starts every rollout from a wrong velocity,
+    which no friction fits as well as the next frames' start; a right first frame followed by
+    a motion that is no parabola (an engine's contact that hops, an impulse at the start)
+    makes the next frames' parabola the wrong start. Both scans run in one program (the same
+    layout, offsets 0); the chosen one is the identification's own (started from the first
+    frames, the problem without offsets rolls out the same), so the comparison costs one."""
     plain = problem.started_from_first_frames()
     if plain is problem:
-        return problem
-    points = scan_points(*scan_box(problem), scan)
-    after = float(np.min(_scan(problem, points)[0]))
-    first = float(np.min(_scan(dataclasses.replace(problem, start_velocity="first frames"), points)[0]))
+        return problem, None
+    n = len(problem.parameters)
+    at = np.vstack([scan_points(*scan_box(problem), scan), problem.initial()[None, :n]])  # (the guess last)
+    t0, started = time.perf_counter(), time.time()
+    scans = [_scan(p, at, failures=True) for p in (problem, dataclasses.replace(problem, start_velocity="first frames"))]
+    seconds = _minus_compiling(t0, started) / 2
+    after, first = (float(np.min(c[0][:-1])) for c in scans)
     if not first < after:
-        return problem
+        return problem, (scans[0], seconds)
     note = (f"{FIRST_FRAMES_FIT_NOTE} {NEXT_FRAMES} "
             f"(a first frame may be off), but the rollouts started from each start's first three frames fit "
             f"better (the scan's lowest cost {first:.4g} against {after:.4g} from the next frames): a right first "
             "frame and a motion after it that is no parabola (a contact that hops, a push at the start); each "
             'rollout starts from its first frames (start_velocity = "first frames")')
-    return dataclasses.replace(plain, notes=plain.notes + (note,))
+    return dataclasses.replace(plain, notes=plain.notes + (note,)), (scans[1], seconds)
 
 
 def _identify(problem: SysIdProblem, *, jacobian: str, max_iterations: int, xtol: float, ftol: float | None,
-              gtol: float, horizons: tuple[float, ...], scan: int, starts: int) -> SysIdResult:
-    if problem.scene.dtype != jnp.float64:
-        raise DanoError(f"identification needs a float64 scene, got {problem.scene.dtype}: call "
-                        "dano.enable_float64() before composing the scene")
-    if jacobian not in ("ad", "fd"):
-        raise DanoError(f"jacobian must be 'ad' or 'fd', got {jacobian!r}")
-    for h in horizons:
-        if not 0 < h < 1:
-            raise DanoError(f"horizons must be fractions in (0, 1), got {h}")
+              gtol: float, horizons: tuple[float, ...], scan: int, starts: int, scanned=None) -> SysIdResult:
+    """:func:`identify`'s scan (or continuation) and local solves; ``scanned``: the scan of
+    :func:`_first_frames_if_they_fit`, where it ran one (the same points), not run again."""
     if scan:
         return _identify_from_scan(problem, scan, starts, jacobian=jacobian, max_iterations=max_iterations,
-                                   xtol=xtol, ftol=ftol, gtol=gtol, horizons=horizons)
+                                   xtol=xtol, ftol=ftol, gtol=gtol, horizons=horizons, scanned=scanned)
     if horizons:
         stages, current = [], problem
         for h in horizons:
@@ -710,7 +717,7 @@ def _minus_compiling(t0: float, started: float) -> float:
     return max(0.0, time.perf_counter() - t0 - compile_seconds(started))
 
 
-def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) -> SysIdResult:
+def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, scanned=None, **local) -> SysIdResult:
     n = len(problem.parameters)
     if n == 0:
         raise DanoError("a global scan needs global parameters (only per-segment nuisance offsets are fitted)")
@@ -722,9 +729,12 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, **local) 
     guess = problem.initial()[:n]
     # the local solves' program compiles (or loads) while the scan's runs
     warmed = in_background(lambda: _evaluate(problem, guess, local["jacobian"])) if not local["horizons"] else None
-    costs_all, diverged, failed = _scan(problem, np.vstack([points, guess[None]]), failures=True)  # (the guess too)
+    if scanned is None:
+        costs_all, diverged, failed = _scan(problem, np.vstack([points, guess[None]]), failures=True)  # (the guess too)
+        scan_time = _minus_compiling(t0, started)
+    else:  # (:func:`_first_frames_if_they_fit`'s, at the same points)
+        (costs_all, diverged, failed), scan_time = scanned
     costs = costs_all[:-1]
-    scan_time = _minus_compiling(t0, started)
     order = _basin_starts(np.vstack([points, guess[None]]), costs_all, lo, hi, scan, starts)
     if not order:
         raise DanoError("every point of the global scan gives a diverging simulation; check the bounds")
