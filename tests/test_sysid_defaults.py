@@ -291,6 +291,22 @@ def test_a_first_frame_off_has_the_start_velocities_fitted(box):
         pose(exact, start_velocity="first")
 
 
+def test_identify_refuses_bad_options_before_it_evaluates_anything(box):
+    """Options out of range end in one clear error before any scan runs (also where the
+    first-frames comparison would scan first: a first frame that is off)."""
+    off = [_first_frame_off(dataclasses.replace(o, qvel0=None), "box", 0.002) for o in analytic_slides(0, 0.05, 2, noise=0.0)]
+    problem = SysIdProblem(box, off, [FitParameter("sliding_friction", 0.3, 0.0, 2.0)],
+                           weights=Weights((1.0, 1.0, 0.0), 0.0), substeps=4)
+    assert problem.start_velocity == "next frames"
+    for options, match in (({"scan": 1}, "scan must be 2 to 64"), ({"scan": 65}, "scan must be 2 to 64"),
+                           ({"starts": 0}, "starts 1 to 16"), ({"jacobian": "cd"}, "jacobian must be"),
+                           ({"horizons": (1.5,)}, "horizons must be fractions")):
+        with pytest.raises(DanoError, match=match):
+            identify(problem, **options)
+    with pytest.raises(DanoError, match="needs a float64 scene"):
+        identify(dataclasses.replace(problem, scene=box.astype(jnp.float32)))
+
+
 def test_next_frames_start_leaves_the_first_frame_out():
     """A constant acceleration (a flight, a slide) with its first frame 2 mm off: the start
     from the next four frames' parabola is its exact position at the first frame's time and

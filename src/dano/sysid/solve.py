@@ -375,6 +375,8 @@ def identify(problem: SysIdProblem, *, jacobian: str = "ad", max_iterations: int
         raise DanoError(f"profile_points must be 0 (off) or 8 to 256, got {profile_points}")
     if scan is None:
         scan = default_scan(n_global) if n_global else 0
+    if scan and (not 2 <= scan <= 64 or not 1 <= starts <= 16):
+        raise DanoError(f"scan must be 2 to 64 points per axis and starts 1 to 16, got {scan} and {starts}")
     started = time.time()
     local = dict(jacobian=jacobian, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
 
@@ -721,8 +723,6 @@ def _identify_from_scan(problem: SysIdProblem, scan: int, starts: int, scanned=N
     n = len(problem.parameters)
     if n == 0:
         raise DanoError("a global scan needs global parameters (only per-segment nuisance offsets are fitted)")
-    if not 2 <= scan <= 64 or not 1 <= starts <= 16:
-        raise DanoError(f"scan must be 2 to 64 points per axis and starts 1 to 16, got {scan} and {starts}")
     lo, hi = scan_box(problem)
     t0, started = time.perf_counter(), time.time()
     points = scan_points(lo, hi, scan)
