@@ -349,6 +349,9 @@ def test_frames_a_tracker_flagged_poor_are_left_out(tmp_path, box_setup):
      "0.005 s"),
     (lambda o: dataclasses.replace(o, time=o.time * 1.3), "substeps: for 4 substeps the scene's time step must be "
      "0.00325 s"),
+    # times in milliseconds: named as a unit, not met with a thousand substeps
+    (lambda o: dataclasses.replace(o, time=o.time * 1000), r"frames 10 s apart are not a recording's rate: times "
+     r"must be in seconds \(times in milliseconds divided by 1000 give 0.01 s\)"),
     (lambda o: dataclasses.replace(o, poses={"ball": o.poses["box"]}), "no DANO named 'ball'"),
     # millimetres given to the Python API (the TOML route refused them already)
     (lambda o: dataclasses.replace(o, poses={"box": np.c_[1000 * o.poses["box"][:, :3], o.poses["box"][:, 3:]]}),
@@ -489,6 +492,7 @@ substeps = 1
     ("substeps = 1", "substep = 2", "[options]: unknown key 'substep'"),
     ("lower = 0.0", "lower = -0.5", "lower bound -0.5 is negative"),
     ("initial = 0.2", "initial = 3.0", "initial 3.0 must lie within"),
+    ("upper = 2.0", "upper = -1.0", r"lower bound 0.0 is above upper bound -1.0"),
     ("[[parameter]]\nname = \"sliding_friction\"\ninitial = 0.2\nlower = 0.0\nupper = 2.0\n", "",
      "[[parameter]]: at least one parameter"),
     ("dt = 0.01", "dt = true", "[scene].dt: expected a number, got true"),

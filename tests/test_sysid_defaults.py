@@ -161,6 +161,26 @@ def test_a_lone_objects_mass_scale_is_flat_not_at_a_bound(box):
     assert any("sits at its upper bound" in w for w in r.warnings)
 
 
+def test_an_interval_that_runs_to_one_end_far_beyond_the_curvature_is_one_sided():
+    """An interval is one-sided where it reaches one end of its profile's range and not the
+    other and is more than twice as wide as the local curvature's standard error gives: the
+    review's mug tossed in plain MuJoCo C, whose friction's cost stayed within the threshold
+    from 0.2507 to the range's top, 2, beside a standard error of 0.00122 (inflation 199)."""
+    from types import SimpleNamespace
+
+    from dano.sysid.solve import _one_sided
+
+    pr = SimpleNamespace(values=np.linspace(0.0, 2.0, 33))
+    mug = 2 * 1.96 * 0.00122 * np.sqrt(199.0)  # 0.0675: the interval its standard error gives
+    assert _one_sided(pr, 0.2507, 2.0, mug, 0.87)
+    assert _one_sided(pr, 0.0, 1.2, 0.1, 0.6)  # bounded from above only
+    assert not _one_sided(pr, 0.2507, 0.33, mug, 0.04)  # both ends inside the range: two-sided
+    assert not _one_sided(pr, 0.0, 2.0, mug, 1.0)  # both ends: flat, not one-sided
+    assert not _one_sided(pr, 0.0, 0.03, 0.05, 0.015)  # a small friction against its bound at 0: identified
+    # no finite standard error: one-sided where the interval covers half of the scanned box or more
+    assert _one_sided(pr, 0.9, 2.0, np.nan, 0.55) and not _one_sided(pr, 1.6, 2.0, np.nan, 0.2)
+
+
 def test_the_local_minima_warning_leaves_out_a_flat_parameter(box):
     """Starts that end near the best cost at other estimates are warned of as local minima,
     naming only the parameters that differ; once a parameter is found flat (its own warning

@@ -195,7 +195,7 @@ def _withheld_with_reason(key: str, result) -> bool:
     """Whether the report's null ``key`` is a standard error that the identification
     ``result`` withholds for a reason its warnings give: every one where the solver stopped
     short of a converged minimum (``success`` false), or its global parameter's where that
-    sits at a bound or has a rough cost (``identifiability``)."""
+    sits at a bound, is bounded on one side only or has a rough cost (``identifiability``)."""
     if key.startswith("standard_errors."):
         label = key[len("standard_errors."):]
     elif key.endswith("_std"):
@@ -203,7 +203,7 @@ def _withheld_with_reason(key: str, result) -> bool:
     else:
         return False
     status = (result.identifiability or {}).get(label, {}).get("status")
-    return not result.success or status in ("at bound", "rough")
+    return not result.success or status in ("at bound", "one-sided", "rough")
 
 
 def sysid_command(config: SysIdCommandConfig):

@@ -292,6 +292,8 @@ class ParameterConfig:
         if self.lower < 0 and not signed:
             raise DanoError(f"{where}: lower bound {self.lower} is negative; contact parameters, alpha and second "
                             "moment scales are >= 0")
+        if self.lower > upper:
+            raise DanoError(f"{where}: lower bound {self.lower} is above upper bound {self.upper}")
         if not self.lower <= self.initial <= upper:
             raise DanoError(f"{where}: initial {self.initial} must lie within [lower, upper] = "
                             f"[{self.lower}, {self.upper}]")
@@ -614,6 +616,9 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
               f"{'' if substeps > 1 else '# '}substeps = {substeps}".ljust(35)
               + "# tosses, drops, bounces: dt a few ms (2.5 ms for a 0.2 m, 0.7 kg",
               "                                   # tumbling object: docs/own-object.md §4), substeps to match",
+              "# auto_windows = true              # tosses, drops: a window from just before each observed impact",
+              "                                   # (docs/own-object.md §4); an object that rolls once it lands",
+              "                                   # bounds its friction from below only: add slides on a face",
               '# fit_velocity = "auto"            # nuisance: each start\'s velocity along these axes;',
               '                                   # auto: "xyz" where the frames\' noise makes finite differences poor',
               '                                   # or the first frame disagrees with the next ones',

@@ -1222,6 +1222,9 @@ def _time_step_fix(frame_dt: float, dt: float, substeps: int) -> str:
     substeps (an identification TOML's ``[options] substeps``) where ``frame_dt`` is a whole
     multiple of ``dt`` (e.g. 100 frames/s on an MJCF's 5 ms step: 2), else the time step
     that ``substeps`` needs."""
+    if frame_dt >= 1.0:  # frames a second or more apart: times in milliseconds, most likely
+        return (f"frames {frame_dt:.6g} s apart are not a recording's rate: times must be in seconds (times in "
+                f"milliseconds divided by 1000 give {frame_dt / 1000:.6g} s)")
     ratio = frame_dt / dt
     whole = round(ratio)
     if whole >= 1 and abs(ratio - whole) <= 1e-9 * ratio:

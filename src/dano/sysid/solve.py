@@ -59,7 +59,7 @@ class SysIdResult:
     (:func:`~dano.sysid.uncertainty.bootstrap`); interval: the default interval per global
     parameter with its method (:func:`identify`); noise: the measurement noise estimated
     from the observations and the rms residual it alone would leave; identifiability: per
-    global parameter "identified", "at bound", "flat" or "rough"; profiles: the cost profile
+    global parameter "identified", "at bound", "flat", "one-sided" or "rough"; profiles: the cost profile
     through the estimate along each global parameter; verification: restarts from lower
     points the checks found; segment_scan: the re-scan of segments fitted far worse than the
     others (:func:`segment_restarts`), None where no segment was; failure_substeps: the
@@ -1203,10 +1203,13 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
         span_frac = (upper - lower) / max(box_hi[i] - box_lo[i], 1e-300)
         flat = span_frac >= 0.9 or (upper - lower) >= 0.9 * (pr.values[-1] - pr.values[0]) and \
             pr.values[0] <= lo[i] + 1e-12 and pr.values[-1] >= hi[i] - 1e-12
+        one_sided = _one_sided(pr, lower, upper, 2 * z * se * np.sqrt(kappa), span_frac)
         if flat and not _falls_toward_bound(pr, bounds_hit.get(i), 1e-3 * threshold):
             status = "flat"  # before "at bound": on a flat cost the bound an estimate stops at means nothing
         elif i in bounds_hit:
             status = "at bound"
+        elif one_sided:
+            status = "one-sided"
         elif rough:
             status = "rough"
         else:
@@ -1224,14 +1227,31 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
                    "forces and its mass both scale with alpha): alpha needs a body of known mass or a known force "
                    "acting on the object (a robot pushing it, another object)"
                    if problem.parameters[i].name == "alpha" else ""))
+        elif status == "one-sided":
+            best.standard_errors[i] = np.nan
+            below = upper >= pr.values[-1] - 1e-9 * max(abs(pr.values[-1]), 1.0)  # bounded from below only
+            end = pr.values[-1] if below else pr.values[0]
+            best.warnings.append(
+                f"{label} is bounded on one side only: its cost stays within the interval's threshold from "
+                + (f"{lower:.4g} up to the top" if below else f"the bottom up to {upper:.4g}")
+                + f" of the range evaluated ({end:.4g}), so the data say only {label} "
+                + (f">= {lower:.4g}" if below else f"<= {upper:.4g}")
+                + f"; the estimate {theta_i:.4g} is where the cost is lowest"
+                + (f", and its local curvature's standard error ({se:.3g}, an interval of "
+                   f"{2 * z * se * np.sqrt(kappa):.3g} with the correlated residuals' inflation) describes only "
+                   "that minimum" if np.isfinite(se) and se > 0 else "")
+                + ": no standard error is reported; motions that depend on it more would help"
+                + ("; for a friction, slides on a face, which decelerate at friction x g (a toss that rolls or "
+                   "tumbles depends on it little)" if "friction" in problem.parameters[i].name else ""))
         elif status == "rough":
             if np.isfinite(se):
                 best.standard_errors[i] = np.nan
             best.warnings.append(
-                f"{label}: the cost is rough at the scale of its interval ({minima} local minima in the profile "
-                f"over [{pr.values[0]:.4g}, {pr.values[-1]:.4g}]"
-                + (f"; the local curvature's standard error {se:.3g} would give an interval {1 / ratio:.3g}x the "
-                   "profile's" if ratio else "")
+                f"{label}: the cost is rough at the scale of its interval ("
+                + (f"{minima} local minima in the profile" if minima != 1 else "one local minimum in the profile")
+                + f" over [{pr.values[0]:.4g}, {pr.values[-1]:.4g}]"
+                + (f"; at the noise's own scale (before the correlated residuals' inflation), the local curvature's "
+                   f"standard error {se:.3g} would give an interval {1 / ratio:.3g}x the profile's" if ratio else "")
                 + "): no standard error is reported, the interval comes from the profile"
                 + (" and the bootstrap" if boot is not None else "")
                 + "; " + _rough_cost_hint(problem))
@@ -1255,6 +1275,24 @@ def _rough_cost_hint(problem: SysIdProblem) -> str:
                 "(auto_windows)")
     return ("more trajectories, or longer windows (fewer restarts of the velocity), smooth the cost of a "
             f"problem already split into windows ({problem.window!r})")
+
+
+def _one_sided(profile, lower: float, upper: float, predicted: float, span_frac: float) -> bool:
+    """Whether an interval [lower, upper] bounds its parameter on one side only: it reaches
+    one end of its ``profile``'s range (a bound, or as far as the profile was widened) and
+    not the other, and it is more than twice as wide as ``predicted``, the width the local
+    curvature's standard error gives at the interval's level (2·z·se·√κ; where that is not
+    finite, wider than half the scanned box, ``span_frac`` >= 0.5). A review's mug tossed in
+    plain MuJoCo C rolls once it lands: its friction's cost stays within the threshold from
+    0.25 to the range's top, 2, where the standard error said 0.0012 (2026-12-02)."""
+    values = np.asarray(profile.values, dtype=np.float64)
+    tol = 1e-9 * max(abs(values[0]), abs(values[-1]), 1.0)
+    at_bottom, at_top = lower <= values[0] + tol, upper >= values[-1] - tol
+    if at_bottom == at_top:
+        return False
+    if np.isfinite(predicted) and predicted > 0:
+        return bool(upper - lower > 2 * predicted)
+    return span_frac >= 0.5
 
 
 def _falls_toward_bound(profile, side: str | None, tolerance: float) -> bool:
