@@ -617,7 +617,7 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
               + "# tosses, drops, bounces: dt a few ms (2.5 ms for a 0.2 m, 0.7 kg",
               "                                   # tumbling object: docs/own-object.md §4), substeps to match",
               "# auto_windows = true              # tosses, drops: a window from just before each observed impact",
-              "                                   # (docs/own-object.md §4); an object that rolls once it lands",
+              "                                   # (docs/own-object.md §4); an object that rolls or tumbles as it lands",
               "                                   # bounds its friction from below only: add slides on a face",
               '# fit_velocity = "auto"            # nuisance: each start\'s velocity along these axes;',
               '                                   # auto: "xyz" where the frames\' noise makes finite differences poor',
@@ -629,8 +629,10 @@ def template(files, tracked: str | None = None, frame_interval: float | None = N
               "# poses tracked from a video (dano track): docs/tracking.md",
               f"{route}fit_ground = true                 # the ground's height (tracking errors along the camera axis)",
               "# window = 10                      # multiple shooting: each 10 frame intervals restarted from their",
-              '# fit_velocity = "xyz"              # first frame, its velocity fitted: for a motion that tumbles;',
-              "                                   # a slide tracked with mm errors loses its friction in short windows",
+              '# fit_velocity = "xyz"              # first frame, its velocity fitted: for a tracked motion that',
+              "                                   # tumbles; a slide tracked with mm errors loses its friction in",
+              "                                   # short windows, and tosses take auto_windows instead (windows",
+              "                                   # across impacts: a mug's friction 0.72 for MuJoCo's 0.5)",
               '# fit_angular_velocity = "xyz"      # and each start\'s angular velocity, for an object that tumbles',
               "                                   # or spins (6 more parameters per window: slower, often not needed)"]
     return "\n".join(lines) + "\n"

@@ -1283,7 +1283,7 @@ def _one_sided(profile, lower: float, upper: float, predicted: float, span_frac:
     not the other, and it is more than twice as wide as ``predicted``, the width the local
     curvature's standard error gives at the interval's level (2·z·se·√κ; where that is not
     finite, wider than half the scanned box, ``span_frac`` >= 0.5). A review's mug tossed in
-    plain MuJoCo C rolls once it lands: its friction's cost stays within the threshold from
+    plain MuJoCo C rolls and tumbles once it lands: its friction's cost stays within the threshold from
     0.25 to the range's top, 2, where the standard error said 0.0012 (2026-12-02)."""
     values = np.asarray(profile.values, dtype=np.float64)
     tol = 1e-9 * max(abs(values[0]), abs(values[-1]), 1.0)

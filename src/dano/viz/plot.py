@@ -105,19 +105,32 @@ def plot_sysid(series, cost_history, path, profiles=None, title: str = "") -> Pa
     axes[0].locator_params(nbins=5)
     axes[0].legend(fontsize=7)
     axes[1].set(xlabel="time [s]", ylabel="position [m]", title="x (o, solid) and y (s, dashed)")
-    axes[2].semilogy(np.maximum(np.asarray(cost_history, dtype=float), 1e-300), "o-")
+    axes[2].plot(np.maximum(np.asarray(cost_history, dtype=float), 1e-300), "o-")
+    _log_scale_where_wide(axes[2], cost_history)
     axes[2].set(xlabel="iteration", ylabel="cost ½‖r‖²", title="cost")
     if profiles:  # the global scan: lowest cost along each parameter, and the estimate
         for (label, prof), c in zip(profiles.items(), colors):
             x = [v for v, y in zip(prof["values"], prof["cost"]) if y is not None]
             y = [y for y in prof["cost"] if y is not None]
-            axes[3].semilogy(x, y, "o-", color=c, label=label)
+            axes[3].plot(x, y, "o-", color=c, label=label)
             axes[3].axvline(prof["estimate"], color=c, ls=":")
+        _log_scale_where_wide(axes[3], [y for prof in profiles.values() for y in prof["cost"] if y is not None])
         axes[3].set(xlabel="parameter value", ylabel="lowest cost on the scan", title="global scan (dotted: estimate)")
         axes[3].legend(fontsize=7)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return _save(fig, path, dpi=110)
+
+
+def _log_scale_where_wide(ax, values) -> None:
+    """A logarithmic y axis where ``values`` (positive costs) span more than a factor of 10;
+    a linear one (its tick labels then differ, with an offset) where they span less: a
+    review's cost per iteration, 7.3664e-4 to 7.3666e-4, had every tick of a log axis labelled
+    7.36639e-4 (2026-12-02)."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v) & (v > 0)]
+    if len(v) and v.max() > 10 * v.min():
+        ax.set_yscale("log")
 
 
 def plot_trajopt(log: dict, status: str, iterations: int, runs, path, goals=()) -> Path:
