@@ -12,6 +12,7 @@ share of them (:func:`dano.sharding.load_shares`); with PORT, as one process of 
 ``jax.distributed`` run whose coordinator is 127.0.0.1:PORT (CPU collectives by gloo).
 """
 
+import dataclasses
 import json
 import os
 import sys
@@ -112,6 +113,7 @@ def devices_check() -> dict:
 
     loaded = _compiled.COUNTS["loaded"]
     _compiled.clear()
+    problem = dataclasses.replace(problem)  # a new problem: not its kept last evaluation at θ
     with sharding.use_devices(8):
         r, J = problem.residuals_and_jacobian(theta)
         Bn = problem.batch_residuals(thetas)

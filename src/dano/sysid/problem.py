@@ -1947,18 +1947,21 @@ class SysIdProblem:
 
     def _blocks_and_frames(self, theta):
         theta = np.asarray(theta, dtype=np.float64)
+        # (keyed by the devices' split too: the same θ on other devices is evaluated there)
+        key = (theta.tobytes(), sharding.shards_for(max(len(m) for m in self._structure.members)))
         with _SEEN:
-            last = self._last_blocks.get(theta.tobytes())
+            last = self._last_blocks.get(key)
         if last is None:
             last = self._evaluate_blocks(theta)
             with _SEEN:  # (one: the answer's residual, fitted rollouts and failed steps ask for the same θ)
                 self._last_blocks.clear()
-                self._last_blocks[theta.tobytes()] = last
+                self._last_blocks[key] = last
         return last
 
     @functools.cached_property
     def _last_blocks(self) -> dict:
-        """{θ's bytes: :meth:`_blocks_and_frames` there} of the last evaluation."""
+        """{(θ's bytes, the segments' split over devices): :meth:`_blocks_and_frames` there} of
+        the last evaluation."""
         return {}
 
     def _evaluate_blocks(self, theta: np.ndarray):
