@@ -56,12 +56,13 @@ def test_own_object_from_plain_mujoco_with_the_first_toml(shared, tmp_path, caps
     assert report["failure_substeps"] == 1 and not any("substeps" in n for n in report["notes"])
 
 
-def _mujoco_c_mug_tosses(folder: Path) -> Path:
+def _mujoco_c_mug_tosses(folder: Path) -> list[Path]:
     """A review's mug (2026-12-02) as a new user makes it: trimesh and manifold3d in millimetres
     (80 mm across, 90 mm tall, a bore to an 8 mm floor, a torus handle), built at 0.3 kg, exported
     to MJCF and tossed three times in plain MuJoCo C (2 ms steps, elliptic cone, friction 0.5)
-    from 12–18 cm, tilted and spinning, 100 frames at 100 Hz each; the tosses' TOML from the
-    template, edited as it says (the files, dt 2.5 ms, 4 substeps). Returns the TOML's path."""
+    from 12–18 cm, tilted and spinning, 100 frames at 100 Hz each, written to ``folder`` as
+    ``mug.dano`` and ``toss_1.csv`` … ``toss_3.csv`` (t, x, y, z, qw, qx, qy, qz; seconds,
+    metres). Returns the CSVs' paths."""
     import mujoco
     import trimesh
 
@@ -100,7 +101,6 @@ def _mujoco_c_mug_tosses(folder: Path) -> Path:
                 mujoco.mj_step(model, data)
         files.append(folder / f"toss_{k + 1}.csv")
         np.savetxt(files[-1], rows, delimiter=",", header="t,x,y,z,qw,qx,qy,qz", comments="")
-    assert main(["sysid", "--template", str(folder / "mug.dano")]) == 0
     return files
 
 
@@ -111,6 +111,9 @@ def test_a_mug_tossed_in_plain_mujoco_rolls_and_its_friction_is_one_sided(tmp_pa
     identification says so (status one-sided, no standard error: the review read 0.293 ± 0.0012
     beside [0.2507, 2] before) and its interval holds MuJoCo's 0.5."""
     files = _mujoco_c_mug_tosses(tmp_path)
+    capsys.readouterr()
+    # the tosses' TOML from the template, edited as it says (the files, dt 2.5 ms, 4 substeps)
+    assert main(["sysid", "--template", str(tmp_path / "mug.dano")]) == 0
     text = capsys.readouterr().out
     block = text[text.index("[[trajectory]]"):text.index("[[parameter]]")]
     assert "auto_windows" in text  # the template names the windows for tosses
@@ -243,13 +246,13 @@ def test_an_interval_that_runs_to_one_end_far_beyond_the_curvature_is_one_sided(
 
     pr = SimpleNamespace(values=np.linspace(0.0, 2.0, 33))
     mug = 2 * 1.96 * 0.00122 * np.sqrt(199.0)  # 0.0675: the interval its standard error gives
-    assert _one_sided(pr, 0.2507, 2.0, mug, 0.87)
-    assert _one_sided(pr, 0.0, 1.2, 0.1, 0.6)  # bounded from above only
-    assert not _one_sided(pr, 0.2507, 0.33, mug, 0.04)  # both ends inside the range: two-sided
-    assert not _one_sided(pr, 0.0, 2.0, mug, 1.0)  # both ends: flat, not one-sided
-    assert not _one_sided(pr, 0.0, 0.03, 0.05, 0.015)  # a small friction against its bound at 0: identified
+    assert _one_sided(pr, 0.2507, 2.0, mug, 0.87) == ">="  # bounded from below only
+    assert _one_sided(pr, 0.0, 1.2, 0.1, 0.6) == "<="  # bounded from above only
+    assert _one_sided(pr, 0.2507, 0.33, mug, 0.04) is None  # both ends inside the range: two-sided
+    assert _one_sided(pr, 0.0, 2.0, mug, 1.0) is None  # both ends: flat, not one-sided
+    assert _one_sided(pr, 0.0, 0.03, 0.05, 0.015) is None  # a small friction against its bound at 0: identified
     # no finite standard error: one-sided where the interval covers half of the scanned box or more
-    assert _one_sided(pr, 0.9, 2.0, np.nan, 0.55) and not _one_sided(pr, 1.6, 2.0, np.nan, 0.2)
+    assert _one_sided(pr, 0.9, 2.0, np.nan, 0.55) == ">=" and _one_sided(pr, 1.6, 2.0, np.nan, 0.2) is None
 
 
 def test_the_local_minima_warning_leaves_out_a_flat_parameter(box):

@@ -1887,11 +1887,15 @@ class SysIdProblem:
         """Structures for segments split over devices, built on first use: {shards: _Structure}."""
         return {}
 
+    def _shards(self) -> int:
+        """The devices the segments are split over with the devices in use (:mod:`dano.sharding`)."""
+        return sharding.shards_for(max(len(m) for m in self._structure.members))
+
     def _split_segments(self) -> "_Structure":
         """The structure for the devices in use (:mod:`dano.sharding`): the segments of each
         batch split over as many devices as the largest batch can use; one device: the plain
         :attr:`_structure`."""
-        shards = sharding.shards_for(max(len(m) for m in self._structure.members))
+        shards = self._shards()
         if shards == 1:
             return self._structure
         if shards not in self._split:
@@ -1948,7 +1952,7 @@ class SysIdProblem:
     def _blocks_and_frames(self, theta):
         theta = np.asarray(theta, dtype=np.float64)
         # (keyed by the devices' split too: the same θ on other devices is evaluated there)
-        key = (theta.tobytes(), sharding.shards_for(max(len(m) for m in self._structure.members)))
+        key = (theta.tobytes(), self._shards())
         with _SEEN:
             last = self._last_blocks.get(key)
         if last is None:

@@ -1203,12 +1203,13 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
         span_frac = (upper - lower) / max(box_hi[i] - box_lo[i], 1e-300)
         flat = span_frac >= 0.9 or (upper - lower) >= 0.9 * (pr.values[-1] - pr.values[0]) and \
             pr.values[0] <= lo[i] + 1e-12 and pr.values[-1] >= hi[i] - 1e-12
-        one_sided = _one_sided(pr, lower, upper, 2 * z * se * np.sqrt(kappa), span_frac)
+        predicted = 2 * z * se * np.sqrt(kappa)  # the interval's width the local curvature gives
+        one_sided = _one_sided(pr, lower, upper, predicted, span_frac)
         if flat and not _falls_toward_bound(pr, bounds_hit.get(i), 1e-3 * threshold):
             status = "flat"  # before "at bound": on a flat cost the bound an estimate stops at means nothing
         elif i in bounds_hit:
             status = "at bound"
-        elif one_sided:
+        elif one_sided is not None:
             status = "one-sided"
         elif rough:
             status = "rough"
@@ -1229,17 +1230,15 @@ def _assess(problem, best, profiles, out, sigma2, rho, kappa, threshold, level, 
                    if problem.parameters[i].name == "alpha" else ""))
         elif status == "one-sided":
             best.standard_errors[i] = np.nan
-            below = upper >= pr.values[-1] - 1e-9 * max(abs(pr.values[-1]), 1.0)  # bounded from below only
-            end = pr.values[-1] if below else pr.values[0]
+            below = one_sided == ">="  # bounded from below only: the interval runs to the range's top
             best.warnings.append(
                 f"{label} is bounded on one side only: its cost stays within the interval's threshold from "
                 + (f"{lower:.4g} up to the top" if below else f"the bottom up to {upper:.4g}")
-                + f" of the range evaluated ({end:.4g}), so the data say only {label} "
-                + (f">= {lower:.4g}" if below else f"<= {upper:.4g}")
+                + f" of the range evaluated ({pr.values[-1] if below else pr.values[0]:.4g}), so the data say only "
+                + f"{label} {one_sided} {lower if below else upper:.4g}"
                 + f"; the estimate {theta_i:.4g} is where the cost is lowest"
-                + (f", and its local curvature's standard error ({se:.3g}, an interval of "
-                   f"{2 * z * se * np.sqrt(kappa):.3g} with the correlated residuals' inflation) describes only "
-                   "that minimum" if np.isfinite(se) and se > 0 else "")
+                + (f", and its local curvature's standard error ({se:.3g}, an interval of {predicted:.3g} with the "
+                   "correlated residuals' inflation) describes only that minimum" if np.isfinite(se) and se > 0 else "")
                 + ": no standard error is reported; motions that depend on it more would help"
                 + ("; for a friction, slides on a face, which decelerate at friction x g (a toss that rolls or "
                    "tumbles depends on it little)" if "friction" in problem.parameters[i].name else ""))
@@ -1277,22 +1276,22 @@ def _rough_cost_hint(problem: SysIdProblem) -> str:
             f"problem already split into windows ({problem.window!r})")
 
 
-def _one_sided(profile, lower: float, upper: float, predicted: float, span_frac: float) -> bool:
-    """Whether an interval [lower, upper] bounds its parameter on one side only: it reaches
-    one end of its ``profile``'s range (a bound, or as far as the profile was widened) and
-    not the other, and it is more than twice as wide as ``predicted``, the width the local
-    curvature's standard error gives at the interval's level (2·z·se·√κ; where that is not
-    finite, wider than half the scanned box, ``span_frac`` >= 0.5). A review's mug tossed in
-    plain MuJoCo C rolls and tumbles once it lands: its friction's cost stays within the threshold from
-    0.25 to the range's top, 2, where the standard error said 0.0012 (2026-12-02)."""
+def _one_sided(profile, lower: float, upper: float, predicted: float, span_frac: float) -> str | None:
+    """">=" where an interval [lower, upper] bounds its parameter from below only, "<=" from
+    above only, else None: the interval reaches one end of its ``profile``'s range (a bound,
+    or as far as the profile was widened) and not the other, and it is more than twice as
+    wide as ``predicted``, the width the local curvature's standard error gives at the
+    interval's level (2·z·se·√κ; where that is not finite, wider than half the scanned box,
+    ``span_frac`` >= 0.5). A review's mug tossed in plain MuJoCo C rolls and tumbles once it
+    lands: its friction's cost stays within the threshold from 0.25 to the range's top, 2,
+    where the standard error said 0.0012 (2026-12-02)."""
     values = np.asarray(profile.values, dtype=np.float64)
     tol = 1e-9 * max(abs(values[0]), abs(values[-1]), 1.0)
     at_bottom, at_top = lower <= values[0] + tol, upper >= values[-1] - tol
     if at_bottom == at_top:
-        return False
-    if np.isfinite(predicted) and predicted > 0:
-        return bool(upper - lower > 2 * predicted)
-    return span_frac >= 0.5
+        return None
+    wide = upper - lower > 2 * predicted if np.isfinite(predicted) and predicted > 0 else span_frac >= 0.5
+    return (">=" if at_top else "<=") if wide else None
 
 
 def _falls_toward_bound(profile, side: str | None, tolerance: float) -> bool:
