@@ -94,14 +94,23 @@ def _mujoco_c_mug_tosses(folder: Path) -> list[Path]:
         axis = np.asarray(axis, float) / np.linalg.norm(axis)
         data.qpos[:7] = [0, 0, h, np.cos(angle / 2), *(np.sin(angle / 2) * axis)]
         data.qvel[:6] = [*v, *w]
-        rows = []
-        for _ in range(100):
-            rows.append([data.time, *data.qpos[:7]])
-            for _ in range(5):
-                mujoco.mj_step(model, data)
-        files.append(folder / f"toss_{k + 1}.csv")
-        np.savetxt(files[-1], rows, delimiter=",", header="t,x,y,z,qw,qx,qy,qz", comments="")
+        files.append(_record_csv(model, data, folder / f"toss_{k + 1}.csv", frames=100))
     return files
+
+
+def _record_csv(model, data, path: Path, frames: int, steps_per_frame: int = 5) -> Path:
+    """Step plain MuJoCo C from ``data`` and write the free body's pose every ``steps_per_frame``
+    steps, ``frames`` rows, as a trajectory CSV at ``path`` (t from the first row [s], x y z [m],
+    qw qx qy qz); returns ``path``."""
+    import mujoco
+
+    rows, t0 = [], data.time
+    for _ in range(frames):
+        rows.append([data.time - t0, *data.qpos[:7]])
+        for _ in range(steps_per_frame):
+            mujoco.mj_step(model, data)
+    np.savetxt(path, rows, delimiter=",", header="t,x,y,z,qw,qx,qy,qz", comments="")
+    return path
 
 
 @pytest.mark.slow
@@ -684,13 +693,7 @@ def _t_block_slides(out: Path, friction: float) -> list[Path]:
         while data.time < 1.0:  # settle on the floor
             mujoco.mj_step(model, data)
         data.qvel[:3], data.qvel[5] = [vx, vy, 0.0], wz
-        rows, t0 = [], data.time
-        for _ in range(60):
-            rows.append([data.time - t0, *data.qpos[:7]])
-            for _ in range(5):
-                mujoco.mj_step(model, data)
-        files.append(out / f"t_{k + 1}.csv")
-        np.savetxt(files[-1], rows, delimiter=",", header="t,x,y,z,qw,qx,qy,qz", comments="")
+        files.append(_record_csv(model, data, out / f"t_{k + 1}.csv", frames=60))
     return files
 
 
